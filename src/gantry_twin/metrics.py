@@ -1,0 +1,49 @@
+"""What a run is judged by (paper section 5): contour error and estimate accuracy."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from gantry_twin.plant import THETA_NAMES
+from gantry_twin.simulate import Trace
+
+
+@dataclass(frozen=True)
+class ContourMetrics:
+    """rms and max of |eps_c| over a window, micrometres."""
+
+    rms_um: float
+    max_um: float
+    window_s: tuple[float, float]
+
+
+def window_mask(t_s: np.ndarray, window_s: tuple[float, float]) -> np.ndarray:
+    """Samples with window[0] <= t < window[1]."""
+    mask = (t_s >= window_s[0]) & (t_s < window_s[1])
+    if not mask.any():
+        raise ValueError(f"window {window_s} s holds no sample of a run of {t_s[-1]:.3f} s")
+    return mask
+
+
+def contour_metrics(trace: Trace, window_s: tuple[float, float]) -> ContourMetrics:
+    """The paper's ||eps_c||_rms and eps_cM over the window."""
+    eps = np.abs(trace.eps_c_m[window_mask(trace.t_s, window_s)]) * 1e6
+    return ContourMetrics(float(np.sqrt(np.mean(eps**2))), float(eps.max()), window_s)
+
+
+def steady_estimates(trace: Trace, window_s: tuple[float, float]) -> np.ndarray | None:
+    """Mean theta^ over the window (e.g. the last period), or None if not estimated."""
+    theta = trace.controller_state.get("theta_hat")
+    if theta is None:
+        return None
+    return theta[window_mask(trace.t_s, window_s)].mean(axis=0)
+
+
+def estimate_errors_pct(estimate: np.ndarray, true_theta: np.ndarray) -> dict[str, float | None]:
+    """100 (estimate - true) / true per parameter; None where the true value is 0."""
+    out: dict[str, float | None] = {}
+    for name, est, tru in zip(THETA_NAMES, estimate, true_theta, strict=True):
+        out[name] = None if tru == 0.0 else float(100.0 * (est - tru) / tru)
+    return out

@@ -1,0 +1,198 @@
+"""Desired contours: a geometric curve p(phi) and a timing law phi(t).
+
+Control-spec section 3. A path supplies p and its first three derivatives with
+respect to phi; a timing law supplies phi and its first three time
+derivatives. :func:`reference` combines them into everything the controller
+and the task frame need, vectorised over time:
+
+    q_d'  = p_phi phi'
+    q_d'' = p_phiphi phi'^2 + p_phi phi''
+    alpha = atan2(dy/dphi, dx/dphi)                (defined at rest)
+    alpha'  = alpha_phi phi'
+    alpha'' = alpha_phiphi phi'^2 + alpha_phi phi''
+
+A new path type is one new class implementing :class:`Path`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal, Protocol
+
+import numpy as np
+
+
+class Path(Protocol):
+    """A smooth planar curve parametrised by phi (radians or any unit)."""
+
+    def derivatives(self, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """p, dp/dphi, d2p/dphi2, d3p/dphi3 at each phi, each of shape (..., 2), metres."""
+        ...
+
+    @property
+    def period_rad(self) -> float:
+        """Phi advance of one lap (2 pi for closed curves)."""
+        ...
+
+
+@dataclass(frozen=True)
+class Ellipse:
+    """p(phi) = centre + [a sin phi, -b cos phi]: starts at the bottom, moving +x.
+
+    The paper's ellipse (5.2) is ``Ellipse(0.2, 0.1, (0, 0.1))``:
+    [0.2 sin phi, -0.1 cos phi + 0.1].
+    """
+
+    semi_x_m: float
+    semi_y_m: float
+    centre_m: tuple[float, float] = (0.0, 0.0)
+
+    @property
+    def period_rad(self) -> float:
+        return 2.0 * math.pi
+
+    def derivatives(self, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        phi = np.asarray(phi, dtype=float)
+        s, c = np.sin(phi), np.cos(phi)
+        a, b = self.semi_x_m, self.semi_y_m
+        p = np.stack([self.centre_m[0] + a * s, self.centre_m[1] - b * c], axis=-1)
+        dp = np.stack([a * c, b * s], axis=-1)
+        ddp = np.stack([-a * s, b * c], axis=-1)
+        dddp = np.stack([-a * c, -b * s], axis=-1)
+        return p, dp, ddp, dddp
+
+
+def circle(radius_m: float = 0.2, centre_m: tuple[float, float] = (0.0, 0.0)) -> Ellipse:
+    """The paper's circle (5.1): radius 0.2 m, centred in the travel."""
+    return Ellipse(radius_m, radius_m, centre_m)
+
+
+def paper_ellipse() -> Ellipse:
+    """The paper's ellipse (5.2): [0.2 sin phi, -0.1 cos phi + 0.1]."""
+    return Ellipse(0.2, 0.1, (0.0, 0.1))
+
+
+@dataclass(frozen=True)
+class TimingLaw:
+    """phi(t) at a constant rate after an optional smooth start.
+
+    rate_rad_s: the final phi' (paper: 2 rad/s circle, 3 rad/s ellipse).
+    start: ``on_path`` -- phi = rate t from t = 0, the plant already moving
+    (the paper's scenarios); ``rest`` -- phi' ramps from 0 to the rate with a
+    quintic smoothstep over ``ramp_s`` seconds (phi''' continuous).
+    """
+
+    rate_rad_s: float
+    start: Literal["on_path", "rest"] = "on_path"
+    ramp_s: float = 0.5
+
+    def derivatives(self, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """phi, phi', phi'', phi''' at each time (rad, rad/s, rad/s^2, rad/s^3)."""
+        t = np.asarray(t_s, dtype=float)
+        w = self.rate_rad_s
+        if self.start == "on_path":
+            return w * t, np.full_like(t, w), np.zeros_like(t), np.zeros_like(t)
+        tr = self.ramp_s
+        tau = np.clip(t / tr, 0.0, 1.0)
+        smooth = 10 * tau**3 - 15 * tau**4 + 6 * tau**5
+        smooth_d = (30 * tau**2 - 60 * tau**3 + 30 * tau**4) / tr
+        smooth_dd = (60 * tau - 180 * tau**2 + 120 * tau**3) / tr**2
+        integral = tr * (2.5 * tau**4 - 3 * tau**5 + tau**6)
+        ramping = t < tr
+        phi = np.where(ramping, w * integral, w * (0.5 * tr + (t - tr)))
+        phi = np.where(t < 0.0, 0.0, phi)
+        return phi, w * smooth, np.where(ramping, w * smooth_d, 0.0), np.where(ramping, w * smooth_dd, 0.0)
+
+    @property
+    def settled_s(self) -> float:
+        """Time from which phi' equals the rate."""
+        return 0.0 if self.start == "on_path" else self.ramp_s
+
+
+@dataclass(frozen=True)
+class Reference:
+    """The desired motion sampled at times t (arrays over time, SI units).
+
+    q_d, dq_d, ddq_d: (N, 2) position m, velocity m/s, acceleration m/s^2.
+    alpha, dalpha, ddalpha: (N,) tangent angle rad and its derivatives.
+    phi, dphi: (N,) path parameter and its rate.
+    """
+
+    t_s: np.ndarray
+    phi: np.ndarray
+    dphi: np.ndarray
+    q_d: np.ndarray
+    dq_d: np.ndarray
+    ddq_d: np.ndarray
+    alpha: np.ndarray
+    dalpha: np.ndarray
+    ddalpha: np.ndarray
+
+    def packed(self) -> np.ndarray:
+        """(N, 9) rows [xd, yd, xd', yd', xd'', yd'', alpha, alpha', alpha''] for the loop."""
+        return np.column_stack([self.q_d, self.dq_d, self.ddq_d, self.alpha, self.dalpha, self.ddalpha])
+
+
+def tangent_angle(path: Path, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """alpha(phi) and its first two phi-derivatives from the curve geometry."""
+    _, dp, ddp, dddp = path.derivatives(phi)
+    x1, y1 = dp[..., 0], dp[..., 1]
+    x2, y2 = ddp[..., 0], ddp[..., 1]
+    x3, y3 = dddp[..., 0], dddp[..., 1]
+    num = x1 * y2 - y1 * x2
+    den = x1 * x1 + y1 * y1
+    alpha = np.arctan2(y1, x1)
+    alpha_phi = num / den
+    alpha_phiphi = ((x1 * y3 - y1 * x3) * den - num * 2.0 * (x1 * x2 + y1 * y2)) / den**2
+    return alpha, alpha_phi, alpha_phiphi
+
+
+def reference(path: Path, timing: TimingLaw, t_s: np.ndarray) -> Reference:
+    """Sample the desired motion at times t_s (vectorised)."""
+    phi, dphi, ddphi, _ = timing.derivatives(t_s)
+    p, dp, ddp, _ = path.derivatives(phi)
+    alpha, a_phi, a_phiphi = tangent_angle(path, phi)
+    dq = dp * dphi[:, None]
+    ddq = ddp * (dphi**2)[:, None] + dp * ddphi[:, None]
+    # Unwrap so alpha is continuous along the run (the frame only uses sin/cos).
+    alpha = np.unwrap(alpha)
+    return Reference(
+        t_s=np.asarray(t_s, dtype=float),
+        phi=phi,
+        dphi=dphi,
+        q_d=p,
+        dq_d=dq,
+        ddq_d=ddq,
+        alpha=alpha,
+        dalpha=a_phi * dphi,
+        ddalpha=a_phiphi * dphi**2 + a_phi * ddphi,
+    )
+
+
+def contour_error(path: Path, q_m: np.ndarray, phi_guess: np.ndarray, iterations: int = 8) -> tuple[np.ndarray, np.ndarray]:
+    """True contouring error eps_c: distance from q to the whole curve (metres).
+
+    Local Newton search for the closest point, started at the desired phi(t)
+    and kept within a quarter lap of it. Signed like eps_n: positive along the
+    normal n = [-sin alpha, cos alpha] (the first row of T). Returns (eps_c,
+    phi of the closest point).
+    """
+    q = np.asarray(q_m, dtype=float)
+    phi = np.array(phi_guess, dtype=float, copy=True)
+    limit = 0.25 * path.period_rad
+    for _ in range(iterations):
+        p, dp, ddp, _ = path.derivatives(phi)
+        r = p - q
+        grad = np.einsum("...i,...i", r, dp)
+        hess = np.einsum("...i,...i", dp, dp) + np.einsum("...i,...i", r, ddp)
+        hess = np.where(hess > 1e-12, hess, np.einsum("...i,...i", dp, dp))
+        phi = phi - grad / hess
+        phi = np.clip(phi, phi_guess - limit, phi_guess + limit)
+    p, dp, _, _ = path.derivatives(phi)
+    alpha = np.arctan2(dp[..., 1], dp[..., 0])
+    normal = np.stack([-np.sin(alpha), np.cos(alpha)], axis=-1)
+    d = q - p
+    distance = np.linalg.norm(d, axis=-1)
+    sign = np.where(np.einsum("...i,...i", d, normal) >= 0.0, 1.0, -1.0)
+    return sign * distance, phi

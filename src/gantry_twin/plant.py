@@ -1,0 +1,164 @@
+"""The machine: compile the MJCF gantry, attach payloads, read the true parameters.
+
+`models/gantry.xml` is the single source of physical truth. The paper's
+parameter vector theta (volt units) is *computed* from the compiled model,
+never typed a second time (control-spec section 1).
+
+Axis convention of the whole package: index 0 = X (axis 1, top), index 1 = Y
+(axis 2, bottom, carries X). MuJoCo orders the DOFs parent first (Y, then X);
+:class:`Plant` hides that behind ``qpos_index``/``dof_index``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+#: Axis names in the package's order (index 0 = X, 1 = Y).
+AXES: tuple[str, str] = ("x", "y")
+#: Names of the eight entries of theta (paper section 2, property P3).
+THETA_NAMES: tuple[str, ...] = ("M1", "M2", "B1", "B2", "Af1", "Af2", "dN1", "dN2")
+#: Largest payload mass accepted, kg. The paper's estimator bounds (theta_max)
+#: cover payloads up to about 5.5 kg; heavier loads run but the estimates of
+#: M1, M2 then sit on their upper bounds.
+PAYLOAD_MAX_KG = 20.0
+#: Payload offsets from the mount site are limited to the X slider's top plate
+#: (metres, per component); the offset does not change a slide joint's mass.
+PAYLOAD_OFFSET_MAX_M = (0.10, 0.10, 0.20)
+
+
+def default_model_path() -> Path:
+    """Path of the shipped MJCF file (``models/gantry.xml``)."""
+    packaged = resources.files("gantry_twin") / "models" / "gantry.xml"
+    if packaged.is_file():
+        return Path(str(packaged))
+    return Path(__file__).resolve().parents[2] / "models" / "gantry.xml"
+
+
+@dataclass(frozen=True)
+class Payload:
+    """A payload body on the X carriage.
+
+    mass_kg: 0 means no payload; the paper's Set 2 uses 5 kg.
+    offset_m: position of its centre of mass relative to the ``payload_mount``
+    site (metres).
+    """
+
+    mass_kg: float = 0.0
+    offset_m: tuple[float, float, float] = (0.0, 0.0, 0.05)
+
+    def __post_init__(self) -> None:
+        m = self.mass_kg
+        if isinstance(m, bool) or not isinstance(m, int | float) or not math.isfinite(m):
+            raise ValueError(f"payload.mass_kg: must be a number in [0, {PAYLOAD_MAX_KG}] kg, got {m!r}")
+        if not 0.0 <= m <= PAYLOAD_MAX_KG:
+            raise ValueError(f"payload.mass_kg: must be in [0, {PAYLOAD_MAX_KG}] kg, got {m}")
+        if len(self.offset_m) != 3:
+            raise ValueError(f"payload.offset_m: must be three numbers (x, y, z) in metres, got {self.offset_m!r}")
+        for value, limit, name in zip(self.offset_m, PAYLOAD_OFFSET_MAX_M, "xyz", strict=True):
+            if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+                raise ValueError(f"payload.offset_m.{name}: must be a number in [-{limit}, {limit}] m, got {value!r}")
+            if abs(value) > limit:
+                raise ValueError(f"payload.offset_m.{name}: must be in [-{limit}, {limit}] m, got {value}")
+
+
+def build_spec(payload: Payload | None = None, model_path: Path | None = None) -> mujoco.MjSpec:
+    """The gantry as an editable MjSpec, with a payload body if one is given."""
+    spec = mujoco.MjSpec.from_file(str(model_path or default_model_path()))
+    if payload is not None and payload.mass_kg > 0.0:
+        mount = spec.site("payload_mount")
+        carriage = spec.body("x_carriage")
+        body = carriage.add_body(name="payload", pos=np.asarray(mount.pos) + np.asarray(payload.offset_m))
+        body.explicitinertial = True
+        body.mass = payload.mass_kg
+        # A steel block, 10 cm square, of the given mass: its rotational
+        # inertia is irrelevant to slide joints but keeps the body physical.
+        side = 0.1
+        height = max(payload.mass_kg / (7850.0 * side * side), 0.005)
+        i_xy = payload.mass_kg * (side**2 + height**2) / 12.0
+        body.inertia = [i_xy, i_xy, payload.mass_kg * 2 * side**2 / 12.0]
+        body.add_geom(
+            name="payload_box",
+            type=mujoco.mjtGeom.mjGEOM_BOX,
+            size=[side / 2, side / 2, height / 2],
+            rgba=[0.3, 0.7, 0.3, 1.0],
+            mass=0.0,
+        )
+    return spec
+
+
+class Plant:
+    """The compiled gantry: model, data and the named indices the twin needs."""
+
+    def __init__(self, payload: Payload | None = None, model_path: Path | None = None) -> None:
+        self.payload = payload or Payload()
+        self.spec = build_spec(self.payload, model_path)
+        self.model: mujoco.MjModel = self.spec.compile()
+        self.data = mujoco.MjData(self.model)
+        m = self.model
+        joints = [m.joint(name) for name in AXES]
+        self.qpos_index = np.array([int(j.qposadr[0]) for j in joints])
+        self.dof_index = np.array([int(j.dofadr[0]) for j in joints])
+        self.motor_index = np.array([m.actuator(f"{a}_motor").id for a in AXES])
+        self.disturbance_index = np.array([m.actuator(f"{a}_disturbance").id for a in AXES])
+        self.timestep_s = float(m.opt.timestep)
+
+    @property
+    def gear_n_per_v(self) -> np.ndarray:
+        """Force per volt of each control motor (X, Y), N/V."""
+        return self.model.actuator_gear[self.motor_index, 0].copy()
+
+    @property
+    def ctrl_range_v(self) -> np.ndarray:
+        """Control motor ranges (X, Y) as [[lo, hi], [lo, hi]], volts."""
+        return self.model.actuator_ctrlrange[self.motor_index].copy()
+
+    def reset(self, q_m: np.ndarray, dq_m_s: np.ndarray) -> None:
+        """Put the carriages at q (m) moving at dq (m/s), controls at zero."""
+        mujoco.mj_resetData(self.model, self.data)
+        self.data.qpos[self.qpos_index] = q_m
+        self.data.qvel[self.dof_index] = dq_m_s
+        mujoco.mj_forward(self.model, self.data)
+
+    @property
+    def q_m(self) -> np.ndarray:
+        """True carriage positions (X, Y), metres."""
+        return self.data.qpos[self.qpos_index]
+
+    @property
+    def dq_m_s(self) -> np.ndarray:
+        """True carriage velocities (X, Y), m/s."""
+        return self.data.qvel[self.dof_index]
+
+    def true_parameters(self) -> np.ndarray:
+        """theta of the current model, volt units; see :func:`true_parameters`."""
+        return true_parameters(self.model, self.dof_index, self.motor_index)
+
+
+def moving_masses_kg(model: mujoco.MjModel, dof_index: np.ndarray) -> np.ndarray:
+    """Diagonal of the joint-space inertia (X, Y), kg, from ``mj_fullM``."""
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    full = np.zeros((model.nv, model.nv))
+    mujoco.mj_fullM(model, data, full)
+    return full[dof_index, dof_index]
+
+
+def true_parameters(model: mujoco.MjModel, dof_index: np.ndarray, motor_index: np.ndarray) -> np.ndarray:
+    """The paper's theta = [M1, M2, B1, B2, Af1, Af2, dN1, dN2] in volt units.
+
+    Computed from the compiled model: masses from ``mj_fullM``, viscous
+    damping from ``dof_damping``, Coulomb level from ``dof_frictionloss``,
+    each divided by the motor gear (N/V). dN is zero: the plant has no
+    nominal disturbance.
+    """
+    gear = model.actuator_gear[motor_index, 0]
+    mass = moving_masses_kg(model, dof_index) / gear
+    damping = model.dof_damping[dof_index] / gear
+    friction = model.dof_frictionloss[dof_index] / gear
+    return np.concatenate([mass, damping, friction, np.zeros(2)])
