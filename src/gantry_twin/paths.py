@@ -170,7 +170,9 @@ def reference(path: Path, timing: TimingLaw, t_s: np.ndarray) -> Reference:
     )
 
 
-def contour_error(path: Path, q_m: np.ndarray, phi_guess: np.ndarray, iterations: int = 8) -> tuple[np.ndarray, np.ndarray]:
+def contour_error(
+    path: Path, q_m: np.ndarray, phi_guess: np.ndarray, iterations: int = 8
+) -> tuple[np.ndarray, np.ndarray]:
     """True contouring error eps_c: distance from q to the whole curve (metres).
 
     Local Newton search for the closest point, started at the desired phi(t)

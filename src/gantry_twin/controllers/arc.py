@@ -168,7 +168,9 @@ class IndirectEstimator:
         self.previous_q_m = np.array(q_m, dtype=float)
         self.started = True
 
-    def regression(self, q_m: np.ndarray, dq_m_s: np.ndarray, u_previous_v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def regression(
+        self, q_m: np.ndarray, dq_m_s: np.ndarray, u_previous_v: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Advance the filters to this sample; return (gamma_f 8 x 2, u_f 2)."""
         ts = self.sample_period_s
         sf = friction_shape(dq_m_s, self.gains.friction_slope_s_m)
