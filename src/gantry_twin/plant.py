@@ -12,6 +12,7 @@ Axis convention of the whole package: index 0 = X (axis 1, top), index 1 = Y
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -54,17 +55,23 @@ class Payload:
 
     def __post_init__(self) -> None:
         m = self.mass_kg
-        if isinstance(m, bool) or not isinstance(m, int | float) or not math.isfinite(m):
+        if not _is_real(m) or not math.isfinite(m):
             raise ValueError(f"payload.mass_kg: must be a number in [0, {PAYLOAD_MAX_KG}] kg, got {m!r}")
         if not 0.0 <= m <= PAYLOAD_MAX_KG:
             raise ValueError(f"payload.mass_kg: must be in [0, {PAYLOAD_MAX_KG}] kg, got {m}")
-        if len(self.offset_m) != 3:
-            raise ValueError(f"payload.offset_m: must be three numbers (x, y, z) in metres, got {self.offset_m!r}")
-        for value, limit, name in zip(self.offset_m, PAYLOAD_OFFSET_MAX_M, "xyz", strict=True):
-            if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        offset = self.offset_m
+        if isinstance(offset, str | bytes) or not hasattr(offset, "__len__") or len(offset) != 3:
+            raise ValueError(f"payload.offset_m: must be three numbers (x, y, z) in metres, got {offset!r}")
+        for value, limit, name in zip(offset, PAYLOAD_OFFSET_MAX_M, "xyz", strict=True):
+            if not _is_real(value) or not math.isfinite(value):
                 raise ValueError(f"payload.offset_m.{name}: must be a number in [-{limit}, {limit}] m, got {value!r}")
             if abs(value) > limit:
                 raise ValueError(f"payload.offset_m.{name}: must be in [-{limit}, {limit}] m, got {value}")
+
+
+def _is_real(value: object) -> bool:
+    """A real number (Python or NumPy), not a bool."""
+    return isinstance(value, numbers.Real) and not isinstance(value, bool | np.bool_)
 
 
 def build_spec(payload: Payload | None = None, model_path: Path | None = None) -> mujoco.MjSpec:
