@@ -182,3 +182,17 @@ def test_contour_error_is_the_distance_to_the_curve(name: str) -> None:
     alpha = np.arctan2(dp[:, 1], dp[:, 0])
     side = -np.sin(alpha) * (q - p)[:, 0] + np.cos(alpha) * (q - p)[:, 1]
     assert np.all(np.sign(eps_c) == np.sign(side))
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "field"),
+    [
+        ({"rate_rad_s": 0.0}, "timing.rate_rad_s"),
+        ({"rate_rad_s": float("nan")}, "timing.rate_rad_s"),
+        ({"rate_rad_s": 2.0, "start": "rest", "ramp_s": 0.0}, "timing.ramp_s"),
+        ({"rate_rad_s": 2.0, "start": "sideways"}, "timing.start"),
+    ],
+)
+def test_timing_law_rejects_bad_settings(kwargs, field):
+    with pytest.raises(ValueError, match=field):
+        TimingLaw(**kwargs)

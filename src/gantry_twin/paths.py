@@ -87,6 +87,14 @@ class TimingLaw:
     start: Literal["on_path", "rest"] = "on_path"
     ramp_s: float = 0.5
 
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.rate_rad_s) and self.rate_rad_s > 0.0):
+            raise ValueError(f"timing.rate_rad_s: must be a finite number > 0 rad/s, got {self.rate_rad_s!r}")
+        if self.start not in ("on_path", "rest"):
+            raise ValueError(f"timing.start: must be 'on_path' or 'rest', got {self.start!r}")
+        if self.start == "rest" and not (math.isfinite(self.ramp_s) and self.ramp_s > 0.0):
+            raise ValueError(f"timing.ramp_s: must be a finite number > 0 s, got {self.ramp_s!r}")
+
     def derivatives(self, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """phi, phi', phi'', phi''' at each time (rad, rad/s, rad/s^2, rad/s^3)."""
         t = np.asarray(t_s, dtype=float)
