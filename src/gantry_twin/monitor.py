@@ -154,7 +154,7 @@ class HealthSettings:
     """
 
     tolerance: tuple[float, ...] = (0.10, 0.10, 0.10, 0.10, 0.10, 0.10, 0.10, 0.10)
-    decision_interval_s: float = 0.2
+    decision_interval_s: float = 0.1
     baseline_window_s: tuple[float, float] = (20.0, 30.0)
     judge_from_s: float | None = None
 
