@@ -1,0 +1,353 @@
+"""Plant changes during a run: what a fault scenario does to the machine (issue 7).
+
+A :class:`PlantChanges` is a declarative, validated description of how the
+machine departs from its model while a run goes on:
+
+* :class:`FrictionDrift`: viscous B and/or Coulomb Af of one axis moving
+  linearly from a start value at ``start_s`` to an end value at ``end_s``
+  (paper volt units, e.g. lubricant loss: B2 0.7 -> 0.91 V/(m/s)).
+* :class:`PayloadChange`: the payload mass on the X carriage becomes
+  ``mass_kg`` at ``time_s`` (a pick-up or a drop).
+* :class:`CoggingRipple`: a position-periodic motor force on one axis,
+  ``amplitude_v sin(2 pi q / pitch_m + phase_rad)`` volts.
+* :class:`EncoderGlitch`: a ``spike`` (one reading off by ``offset_m`` on one
+  axis) or a ``hold`` (the readings of both axes frozen for ``samples``).
+* :class:`VelocityNoise`: extra white noise on the measured velocity, seeded.
+
+Each change acts on the MuJoCo model or on the sensor, never on the
+controller. This module only turns the description into per-sample schedules
+over the run's sample times ``t`` (N,); the loop applies them. The true theta
+as the changes move it (:meth:`PlantChanges.true_parameters_over_time`) is what
+estimates are judged against.
+
+Validation errors are one line naming the field and its allowed range.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from gantry_twin.plant import AXES, PAYLOAD_MAX_KG, Plant, moving_masses_kg
+
+#: Allowed ranges (inclusive) of the change parameters, in the units their names carry.
+VISCOUS_RANGE_V_S_M = (0.0, 10.0)
+COULOMB_RANGE_V = (0.0, 5.0)
+COGGING_AMPLITUDE_RANGE_V = (0.0, 2.0)
+#: Shorter pitches alias: at 0.4 m/s the carriage moves 80 um per 0.2 ms sample.
+COGGING_PITCH_RANGE_M = (1.0e-3, 1.0)
+SPIKE_OFFSET_MAX_M = 1.0e-3
+HOLD_SAMPLES_RANGE = (1, 10000)
+VELOCITY_NOISE_STD_RANGE_M_S = (0.0, 1.0)
+TIME_MAX_S = 1.0e6
+
+
+def _number(where: str, value: object, lo: float, hi: float, unit: str) -> float:
+    """The value as a float, or ValueError naming the field and its range."""
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise ValueError(f"{where}: must be a number in [{lo}, {hi}] {unit}, got {value!r}")
+    if not lo <= value <= hi:
+        raise ValueError(f"{where}: must be in [{lo}, {hi}] {unit}, got {value}")
+    return float(value)
+
+
+def _axis(where: str, value: object) -> int:
+    if value not in AXES:
+        raise ValueError(f"{where}: must be one of {', '.join(AXES)}, got {value!r}")
+    return AXES.index(str(value))
+
+
+def _ramp(t: np.ndarray, start_s: float, end_s: float, v0: float, v1: float) -> np.ndarray:
+    """v0 before start_s, v1 after end_s, linear in between."""
+    return v0 + (v1 - v0) * np.clip((t - start_s) / (end_s - start_s), 0.0, 1.0)
+
+
+def _sample_at(t: np.ndarray, time_s: float) -> int | None:
+    """Index of the sample nearest to time_s, or None if time_s is outside the run."""
+    if t.size == 0:
+        return None
+    half = 0.5 * (t[1] - t[0]) if t.size > 1 else 0.0
+    if time_s < t[0] - half or time_s > t[-1] + half:
+        return None
+    return int(np.argmin(np.abs(t - time_s)))
+
+
+@dataclass(frozen=True)
+class FrictionDrift:
+    """Friction of one axis drifting linearly from ``start_s`` to ``end_s``.
+
+    viscous_to_v_s_m: B at ``end_s``, V/(m/s) (None: B does not drift).
+    viscous_from_v_s_m: B up to ``start_s`` (None: the plant's own B).
+    coulomb_to_v / coulomb_from_v: the same for Af, volts.
+    In SI the model gets B * gear (N s/m) and Af * gear (N).
+    """
+
+    axis: Literal["x", "y"]
+    start_s: float
+    end_s: float
+    viscous_to_v_s_m: float | None = None
+    viscous_from_v_s_m: float | None = None
+    coulomb_to_v: float | None = None
+    coulomb_from_v: float | None = None
+
+    def __post_init__(self) -> None:
+        w = "friction_drift"
+        _axis(f"{w}.axis", self.axis)
+        start = _number(f"{w}.start_s", self.start_s, 0.0, TIME_MAX_S, "s")
+        _number(f"{w}.end_s", self.end_s, 0.0, TIME_MAX_S, "s")
+        if not self.end_s > start:
+            raise ValueError(f"{w}.end_s: must be greater than start_s ({start} s) and <= {TIME_MAX_S} s, "
+                             f"got {self.end_s}")
+        for name, (lo, hi), unit in (
+            ("viscous_to_v_s_m", VISCOUS_RANGE_V_S_M, "V/(m/s)"),
+            ("viscous_from_v_s_m", VISCOUS_RANGE_V_S_M, "V/(m/s)"),
+            ("coulomb_to_v", COULOMB_RANGE_V, "V"),
+            ("coulomb_from_v", COULOMB_RANGE_V, "V"),
+        ):
+            value = getattr(self, name)
+            if value is not None:
+                _number(f"{w}.{name}", value, lo, hi, unit)
+        if self.viscous_to_v_s_m is None and self.coulomb_to_v is None:
+            raise ValueError(f"{w}.viscous_to_v_s_m: give it or coulomb_to_v (a drift must move B or Af)")
+        if self.viscous_from_v_s_m is not None and self.viscous_to_v_s_m is None:
+            raise ValueError(f"{w}.viscous_to_v_s_m: required when viscous_from_v_s_m is given")
+        if self.coulomb_from_v is not None and self.coulomb_to_v is None:
+            raise ValueError(f"{w}.coulomb_to_v: required when coulomb_from_v is given")
+
+    @property
+    def axis_index(self) -> int:
+        return AXES.index(self.axis)
+
+
+@dataclass(frozen=True)
+class PayloadChange:
+    """From ``time_s`` on, the payload on the X carriage weighs ``mass_kg`` (0: dropped)."""
+
+    time_s: float
+    mass_kg: float
+
+    def __post_init__(self) -> None:
+        _number("payload_change.time_s", self.time_s, 0.0, TIME_MAX_S, "s")
+        _number("payload_change.mass_kg", self.mass_kg, 0.0, PAYLOAD_MAX_KG, "kg")
+
+
+@dataclass(frozen=True)
+class CoggingRipple:
+    """Position-periodic force on one axis: amplitude_v sin(2 pi q / pitch_m + phase_rad), volts."""
+
+    axis: Literal["x", "y"]
+    amplitude_v: float
+    pitch_m: float
+    phase_rad: float = 0.0
+
+    def __post_init__(self) -> None:
+        _axis("cogging.axis", self.axis)
+        _number("cogging.amplitude_v", self.amplitude_v, *COGGING_AMPLITUDE_RANGE_V, "V")
+        _number("cogging.pitch_m", self.pitch_m, *COGGING_PITCH_RANGE_M, "m")
+        _number("cogging.phase_rad", self.phase_rad, -2.0 * math.pi, 2.0 * math.pi, "rad")
+
+    @property
+    def axis_index(self) -> int:
+        return AXES.index(self.axis)
+
+
+@dataclass(frozen=True)
+class EncoderGlitch:
+    """A bad encoder reading at the sample nearest ``time_s``.
+
+    kind ``spike``: that one reading of ``axis`` is off by ``offset_m``.
+    kind ``hold``: from that sample on, the readings of both axes repeat the
+    previous one for ``samples`` samples (a missed read of the interface card).
+    """
+
+    kind: Literal["spike", "hold"]
+    time_s: float
+    axis: Literal["x", "y"] = "x"
+    offset_m: float = 50.0e-6
+    samples: int = 1
+
+    def __post_init__(self) -> None:
+        if self.kind not in ("spike", "hold"):
+            raise ValueError(f"encoder_glitch.kind: must be one of spike, hold, got {self.kind!r}")
+        _number("encoder_glitch.time_s", self.time_s, 0.0, TIME_MAX_S, "s")
+        _axis("encoder_glitch.axis", self.axis)
+        off = _number("encoder_glitch.offset_m", self.offset_m, -SPIKE_OFFSET_MAX_M, SPIKE_OFFSET_MAX_M, "m")
+        if self.kind == "spike" and off == 0.0:
+            raise ValueError(f"encoder_glitch.offset_m: a spike must be nonzero, in [-{SPIKE_OFFSET_MAX_M}, "
+                             f"{SPIKE_OFFSET_MAX_M}] m, got 0")
+        lo, hi = HOLD_SAMPLES_RANGE
+        if isinstance(self.samples, bool) or not isinstance(self.samples, int) or not lo <= self.samples <= hi:
+            raise ValueError(f"encoder_glitch.samples: must be an integer in [{lo}, {hi}], got {self.samples!r}")
+
+
+@dataclass(frozen=True)
+class VelocityNoise:
+    """Extra Gaussian noise on the measured velocity from ``start_s`` to ``end_s``.
+
+    std_m_s: standard deviation per axis (X, Y), m/s. seed: the numpy
+    Generator seed, so a run is reproducible.
+    """
+
+    std_m_s: tuple[float, float]
+    seed: int = 0
+    start_s: float = 0.0
+    end_s: float = TIME_MAX_S
+
+    def __post_init__(self) -> None:
+        if len(self.std_m_s) != 2:
+            raise ValueError(f"velocity_noise.std_m_s: must be two numbers (X, Y) in "
+                             f"{list(VELOCITY_NOISE_STD_RANGE_M_S)} m/s, got {self.std_m_s!r}")
+        for value, name in zip(self.std_m_s, AXES, strict=True):
+            _number(f"velocity_noise.std_m_s.{name}", value, *VELOCITY_NOISE_STD_RANGE_M_S, "m/s")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or not 0 <= self.seed < 2**63:
+            raise ValueError(f"velocity_noise.seed: must be an integer in [0, 2**63), got {self.seed!r}")
+        start = _number("velocity_noise.start_s", self.start_s, 0.0, TIME_MAX_S, "s")
+        _number("velocity_noise.end_s", self.end_s, 0.0, TIME_MAX_S, "s")
+        if not self.end_s > start:
+            raise ValueError(f"velocity_noise.end_s: must be greater than start_s ({start} s), got {self.end_s}")
+
+
+@dataclass(frozen=True)
+class PlantChanges:
+    """Everything that changes in the plant or the sensor during one run.
+
+    At most one friction drift per axis and quantity (viscous, Coulomb), one
+    cogging ripple per axis, and payload changes at distinct times.
+    """
+
+    friction_drift: tuple[FrictionDrift, ...] = ()
+    payload_change: tuple[PayloadChange, ...] = ()
+    cogging: tuple[CoggingRipple, ...] = ()
+    encoder_glitch: tuple[EncoderGlitch, ...] = ()
+    velocity_noise: VelocityNoise | None = None
+
+    def __post_init__(self) -> None:
+        seen: set[tuple[str, str]] = set()
+        for i, drift in enumerate(self.friction_drift):
+            for quantity, moved in (("viscous", drift.viscous_to_v_s_m), ("coulomb", drift.coulomb_to_v)):
+                if moved is None:
+                    continue
+                if (drift.axis, quantity) in seen:
+                    raise ValueError(f"friction_drift[{i}].axis: {quantity} friction of axis {drift.axis} "
+                                     "already drifts in an earlier entry (one drift per axis and quantity)")
+                seen.add((drift.axis, quantity))
+        times = [c.time_s for c in self.payload_change]
+        if len(set(times)) != len(times):
+            raise ValueError(f"payload_change.time_s: must be distinct, got {times}")
+        axes = [c.axis for c in self.cogging]
+        if len(set(axes)) != len(axes):
+            raise ValueError(f"cogging.axis: at most one ripple per axis (x, y), got {axes}")
+
+    @property
+    def empty(self) -> bool:
+        return not (self.friction_drift or self.payload_change or self.cogging or self.encoder_glitch
+                    or self.velocity_noise)
+
+    # ---- schedules over the run's sample times t (N,) -------------------------------------
+
+    def _friction_v(self, plant: Plant, t: np.ndarray, coulomb: bool) -> np.ndarray:
+        gear = plant.gear_n_per_v
+        own = (plant.model.dof_frictionloss if coulomb else plant.model.dof_damping)[plant.dof_index] / gear
+        out = np.tile(own, (t.size, 1))
+        for drift in self.friction_drift:
+            to = drift.coulomb_to_v if coulomb else drift.viscous_to_v_s_m
+            if to is None:
+                continue
+            start = drift.coulomb_from_v if coulomb else drift.viscous_from_v_s_m
+            a = drift.axis_index
+            out[:, a] = _ramp(t, drift.start_s, drift.end_s, own[a] if start is None else start, to)
+        return out
+
+    def damping_n_s_m(self, plant: Plant, t: np.ndarray) -> np.ndarray:
+        """Joint damping (X, Y) at each sample, N s/m (= B volts * gear), shape (N, 2)."""
+        return self._friction_v(plant, np.asarray(t, dtype=float), coulomb=False) * plant.gear_n_per_v
+
+    def frictionloss_n(self, plant: Plant, t: np.ndarray) -> np.ndarray:
+        """Joint Coulomb level (X, Y) at each sample, N (= Af volts * gear), shape (N, 2)."""
+        return self._friction_v(plant, np.asarray(t, dtype=float), coulomb=True) * plant.gear_n_per_v
+
+    def payload_mass_kg(self, plant: Plant, t: np.ndarray) -> np.ndarray:
+        """Payload mass on the X carriage at each sample, kg, shape (N,).
+
+        The plant's own payload until the first change; each change holds from
+        its time (inclusive) to the next.
+        """
+        t = np.asarray(t, dtype=float)
+        mass = np.full(t.size, float(plant.payload.mass_kg))
+        for change in sorted(self.payload_change, key=lambda c: c.time_s):
+            mass[t >= change.time_s] = change.mass_kg
+        return mass
+
+    def position_offset_m(self, t: np.ndarray) -> np.ndarray:
+        """Offset added to the encoder reading (X, Y) at each sample (spikes), m, shape (N, 2)."""
+        t = np.asarray(t, dtype=float)
+        out = np.zeros((t.size, 2))
+        for glitch in self.encoder_glitch:
+            k = _sample_at(t, glitch.time_s)
+            if glitch.kind == "spike" and k is not None:
+                out[k, AXES.index(glitch.axis)] += glitch.offset_m
+        return out
+
+    def hold_mask(self, t: np.ndarray) -> np.ndarray:
+        """True where the encoder repeats its previous reading (both axes), shape (N,)."""
+        t = np.asarray(t, dtype=float)
+        out = np.zeros(t.size, dtype=bool)
+        for glitch in self.encoder_glitch:
+            k = _sample_at(t, glitch.time_s)
+            if glitch.kind == "hold" and k is not None:
+                out[k : k + glitch.samples] = True
+        return out
+
+    def velocity_noise_m_s(self, t: np.ndarray) -> np.ndarray:
+        """Extra noise on the measured velocity (X, Y), m/s, shape (N, 2); deterministic per seed."""
+        t = np.asarray(t, dtype=float)
+        noise = self.velocity_noise
+        if noise is None:
+            return np.zeros((t.size, 2))
+        draws = np.random.default_rng(noise.seed).standard_normal((t.size, 2))
+        active = (t >= noise.start_s) & (t < noise.end_s)
+        return draws * np.asarray(noise.std_m_s) * active[:, None]
+
+    def cogging_force_v(self, q_m: np.ndarray) -> np.ndarray:
+        """Cogging force (X, Y) at position q (m), volts: amplitude sin(2 pi q / pitch + phase)."""
+        q = np.asarray(q_m, dtype=float)
+        out = np.zeros(2)
+        for ripple in self.cogging:
+            a = ripple.axis_index
+            out[a] = ripple.amplitude_v * math.sin(2.0 * math.pi * q[a] / ripple.pitch_m + ripple.phase_rad)
+        return out
+
+    def true_parameters_over_time(self, plant: Plant, t: np.ndarray) -> np.ndarray:
+        """The true theta [M1, M2, B1, B2, Af1, Af2, dN1, dN2] at each sample, volt units, (N, 8).
+
+        Masses: the model's moving masses without the payload plus the payload
+        schedule (a payload on the X carriage adds its mass to both slide
+        joints); B and Af from the drift schedules; dN = 0 (cogging is an
+        unmodelled, zero-mean disturbance, not a parameter).
+        """
+        t = np.asarray(t, dtype=float)
+        gear = plant.gear_n_per_v
+        bare_kg = moving_masses_kg(plant.model, plant.dof_index) - plant.payload.mass_kg
+        mass_v = (bare_kg[None, :] + self.payload_mass_kg(plant, t)[:, None]) / gear
+        return np.column_stack([
+            mass_v,
+            self._friction_v(plant, t, coulomb=False),
+            self._friction_v(plant, t, coulomb=True),
+            np.zeros((t.size, 2)),
+        ])
+
+
+NO_CHANGES = PlantChanges()
+
+__all__ = [
+    "NO_CHANGES",
+    "CoggingRipple",
+    "EncoderGlitch",
+    "FrictionDrift",
+    "PayloadChange",
+    "PlantChanges",
+    "VelocityNoise",
+]
