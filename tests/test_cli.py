@@ -15,8 +15,17 @@ from gantry_twin.scenario import shipped
 #: Short runs: 0.2 s of simulation (1000 samples) with windows inside it.
 SHORT = ["--set", "duration_s=0.2", "--set", "window_s=[0.05, 0.2]", "--set", "estimates_window_s=[0.1, 0.2]"]
 
-SUMMARY_KEYS = {"schema_version", "scenario", "controller", "duration_s", "sample_period_s", "steps",
-                "contour_error_um", "estimates_window_s", "estimates"}
+SUMMARY_KEYS = {
+    "schema_version",
+    "scenario",
+    "controller",
+    "duration_s",
+    "sample_period_s",
+    "steps",
+    "contour_error_um",
+    "estimates_window_s",
+    "estimates",
+}
 
 # (id, file text, field named in the message, what is allowed)
 MALFORMED = [
@@ -42,34 +51,64 @@ MALFORMED = [
     ("duration_negative", "duration_s: -3\n", "duration_s", "(0, 3600] s"),
     ("duration_string", "duration_s: long\n", "duration_s", "valid number"),
     ("disturbance_unknown_axis", "disturbance: {z: []}\n", "disturbance.z", "allowed: x, y"),
-    ("disturbance_unknown_type", "disturbance: {y: [{type: pulse, value_v: 1}]}\n", "disturbance.y[0].type",
-     "allowed: 'step', 'ramp', 'sine'"),
+    (
+        "disturbance_unknown_type",
+        "disturbance: {y: [{type: pulse, value_v: 1}]}\n",
+        "disturbance.y[0].type",
+        "allowed: 'step', 'ramp', 'sine'",
+    ),
     ("disturbance_missing_type", "disturbance: {y: [{value_v: 1}]}\n", "disturbance.y[0].type", "step, ramp, sine"),
-    ("disturbance_end_before_start", "disturbance: {y: [{type: step, value_v: 1, start_s: 3, end_s: 2}]}\n",
-     "disturbance.y[0]", "end_s must be after start_s"),
-    ("disturbance_absurd_volts", "disturbance: {x: [{type: step, value_v: 50}]}\n", "disturbance.x[0].value_v",
-     "[-10, 10] V"),
+    (
+        "disturbance_end_before_start",
+        "disturbance: {y: [{type: step, value_v: 1, start_s: 3, end_s: 2}]}\n",
+        "disturbance.y[0]",
+        "end_s must be after start_s",
+    ),
+    (
+        "disturbance_absurd_volts",
+        "disturbance: {x: [{type: step, value_v: 50}]}\n",
+        "disturbance.x[0].value_v",
+        "[-10, 10] V",
+    ),
     ("disturbance_not_list", "disturbance: {y: {type: step, value_v: 1}}\n", "disturbance.y", "valid list"),
     ("ramp_missing_end", "disturbance: {y: [{type: ramp, to_v: 1}]}\n", "disturbance.y[0].end_s", "required"),
     ("unknown_controller", "controller: {name: lqr}\n", "controller", "available: darc, diarc, drc, pd"),
     ("controller_not_mapping", "controller: diarc\n", "controller", "valid dictionary"),
-    ("unknown_controller_option", "controller: {name: diarc, options: {gain: 3}}\n", "controller.options.gain",
-     "allowed: gains, estimator"),
-    ("bad_estimator_name", "controller: {name: diarc, options: {estimator: fast}}\n",
-     "controller.options.estimator", "'paper' or 'recommended'"),
-    ("bad_estimator_filter", "controller: {name: diarc, options: {estimator: {filter_hz: [0, 50]}}}\n",
-     "controller.options.estimator.filter_hz[0]", "(0, 2500] Hz"),
-    ("darc_gamma_short", "controller: {name: darc, options: {gamma: [1, 2]}}\n", "controller.options.gamma",
-     "too few items"),
-    ("theta0_outside_bounds",
-     "controller: {name: drc, options: {gains: {theta0: [0.3, 0.55, 0.35, 0.5, 0.1, 0.15, 0, 0]}}}\n",
-     "controller.options.gains", "theta_min <= theta0 <= theta_max"),
+    (
+        "unknown_controller_option",
+        "controller: {name: diarc, options: {gain: 3}}\n",
+        "controller.options.gain",
+        "allowed: gains, estimator",
+    ),
+    (
+        "bad_estimator_name",
+        "controller: {name: diarc, options: {estimator: fast}}\n",
+        "controller.options.estimator",
+        "'paper' or 'recommended'",
+    ),
+    (
+        "bad_estimator_filter",
+        "controller: {name: diarc, options: {estimator: {filter_hz: [0, 50]}}}\n",
+        "controller.options.estimator.filter_hz[0]",
+        "(0, 2500] Hz",
+    ),
+    (
+        "darc_gamma_short",
+        "controller: {name: darc, options: {gamma: [1, 2]}}\n",
+        "controller.options.gamma",
+        "too few items",
+    ),
+    (
+        "theta0_outside_bounds",
+        "controller: {name: drc, options: {gains: {theta0: [0.3, 0.55, 0.35, 0.5, 0.1, 0.15, 0, 0]}}}\n",
+        "controller.options.gains",
+        "theta_min <= theta0 <= theta_max",
+    ),
     ("unknown_contour_type", "contour: {type: square}\n", "contour.type", "allowed: 'circle', 'ellipse'"),
     ("contour_outside_travel", "contour: {type: circle, radius_m: 0.3}\n", "contour", "the travel allows"),
     ("ellipse_off_centre", "contour: {type: ellipse, centre_m: [0.2, 0]}\n", "contour", "the travel allows"),
     ("timing_start", "contour: {timing: {start: later}}\n", "contour.timing.start", "'on_path' or 'rest'"),
-    ("timing_rate_negative", "contour: {timing: {rate_rad_s: -2}}\n", "contour.timing.rate_rad_s",
-     "(0, 20] rad/s"),
+    ("timing_rate_negative", "contour: {timing: {rate_rad_s: -2}}\n", "contour.timing.rate_rad_s", "(0, 20] rad/s"),
     ("centre_three_numbers", "contour: {centre_m: [0, 0, 0]}\n", "contour.centre_m", "at most 2 items"),
     ("sensing_bool", "sensing: {quantize: maybe}\n", "sensing.quantize", "valid boolean"),
     ("sensing_resolution", "sensing: {resolution_m: 0.5}\n", "sensing.resolution_m", "(0, 0.001] m"),
@@ -178,8 +217,20 @@ def test_run_writes_scenario_summary_trace(tmp_path, capsys):
 
     table = pq.read_table(out / "trace.parquet")
     assert table.num_rows == 1000
-    for column in ("t_s", "x_m", "y_m", "x_d_m", "y_d_m", "eps_c_m", "u_x_v", "u_y_v", "d_y_v",
-                   "theta_hat_M1", "theta_hat_dN2", "dc_hat_x"):
+    for column in (
+        "t_s",
+        "x_m",
+        "y_m",
+        "x_d_m",
+        "y_d_m",
+        "eps_c_m",
+        "u_x_v",
+        "u_y_v",
+        "d_y_v",
+        "theta_hat_M1",
+        "theta_hat_dN2",
+        "dc_hat_x",
+    ):
         assert column in table.column_names
     rms, peak = _window_rms_max_um(table, (0.05, 0.2))
     assert summary["contour_error_um"]["rms"] == pytest.approx(rms, rel=1e-12)
@@ -220,8 +271,17 @@ def test_default_scenario_and_default_out_dir(tmp_path, capsys, monkeypatch):
 
 def test_set_overrides_reach_the_run(tmp_path, capsys):
     out = tmp_path / "o"
-    args = ["run", str(shipped("no_load_circle")), *SHORT, "--set", "payload.mass_kg=2.5",
-            "--set", "outputs.trace_stride=10", "--out", str(out)]
+    args = [
+        "run",
+        str(shipped("no_load_circle")),
+        *SHORT,
+        "--set",
+        "payload.mass_kg=2.5",
+        "--set",
+        "outputs.trace_stride=10",
+        "--out",
+        str(out),
+    ]
     assert run_main(args, capsys)[0] == 0
     summary = json.loads((out / "summary.json").read_text())
     assert summary["estimates"]["M1"]["true"] == pytest.approx((8.28 + 2.5) / 69)
@@ -326,19 +386,25 @@ def test_report_on_a_tiny_matrix(tmp_path):
 
 def _fake(set_id, contour, label, rms, peak, est=None, true=None):
     case = report.Case(set_id, contour, label, "x.yaml", "diarc", ())
-    return report.CaseResult(case, rms, peak, (0.0, 1.0), 10, 0.0, true or [1.0] * 8, est, (0.0, 1.0),
-                             np.zeros(1), np.zeros(1))
+    return report.CaseResult(
+        case, rms, peak, (0.0, 1.0), 10, 0.0, true or [1.0] * 8, est, (0.0, 1.0), np.zeros(1), np.zeros(1)
+    )
 
 
 def test_findings_apply_the_issue_thresholds():
     rows = [
-        _fake(1, "circle", "C1", 1.0, 2.0), _fake(1, "circle", "C2", 1.39, 2.0), _fake(1, "circle", "C3", 2.7, 5.0),
-        _fake(3, "circle", "C1", 3.9, 6.0), _fake(3, "circle", "C2", 4.1, 5.9),
+        _fake(1, "circle", "C1", 1.0, 2.0),
+        _fake(1, "circle", "C2", 1.39, 2.0),
+        _fake(1, "circle", "C3", 2.7, 5.0),
+        _fake(3, "circle", "C1", 3.9, 6.0),
+        _fake(3, "circle", "C2", 4.1, 5.9),
         _fake(1, "circle", "C2r", 1.0, 1.0, est=[1.049, 0.96, 1, 1, 1, 1, 5, 5]),
         _fake(2, "circle", "C2r", 1.0, 1.0, est=[1.0, 1.0, 1, 1, 1, 0.94, 1, 1]),
     ]
-    got = {text.split(" (")[0]: ok for ok, text in report.findings({(r.case.set_id, r.case.contour, r.case.label): r
-                                                                    for r in rows})}
+    got = {
+        text.split(" (")[0]: ok
+        for ok, text in report.findings({(r.case.set_id, r.case.contour, r.case.label): r for r in rows})
+    }
     assert got["circle Set 1: C1 and C2 rms within 40 % of each other"] is True
     assert got["circle Set 1: C3 rms at least twice C1's and C2's"] is False  # 2.7 < 2 x 1.39
     assert got["circle C1: Set 3 max at least 3x Set 1's"] is True

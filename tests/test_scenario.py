@@ -120,8 +120,16 @@ disturbance:
 
 def test_overrides_set_nested_fields_and_list_items(tmp_path):
     path = shipped("step_disturbance_circle")
-    s = load_scenario(path, ["payload.mass_kg=5", "disturbance.y.0.value_v=-0.3", "sensing.quantize=false",
-                             "window_s=[2, 3]", "controller.options.estimator=recommended"])
+    s = load_scenario(
+        path,
+        [
+            "payload.mass_kg=5",
+            "disturbance.y.0.value_v=-0.3",
+            "sensing.quantize=false",
+            "window_s=[2, 3]",
+            "controller.options.estimator=recommended",
+        ],
+    )
     assert s.payload.mass_kg == 5.0
     assert s.disturbance.y[0].value_v == -0.3
     assert s.sensing.quantize is False

@@ -108,8 +108,12 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--controller", metavar="NAME", help="controller to use instead of the scenario's")
     _add_set(run)
     run.add_argument("--out", metavar="DIR", type=Path, help="output directory (default: runs/<scenario name>/)")
-    run.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
-                     help="progress bar on stderr (default: when stderr is a terminal)")
+    run.add_argument(
+        "--progress",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="progress bar on stderr (default: when stderr is a terminal)",
+    )
 
     validate = sub.add_parser("validate", help="check scenario files without running them")
     validate.add_argument("scenario", nargs="+", help="scenario YAML file(s)")
@@ -117,10 +121,12 @@ def build_parser() -> argparse.ArgumentParser:
     _add_set(validate)
 
     report = sub.add_parser("report", help="run the paper's matrix and write a Markdown report with figures")
-    report.add_argument("--out", metavar="DIR", type=Path, default=Path("runs/report"),
-                        help="output directory (default: runs/report/)")
-    report.add_argument("--jobs", metavar="N", type=int, default=None,
-                        help="parallel processes (default: os.cpu_count())")
+    report.add_argument(
+        "--out", metavar="DIR", type=Path, default=Path("runs/report"), help="output directory (default: runs/report/)"
+    )
+    report.add_argument(
+        "--jobs", metavar="N", type=int, default=None, help="parallel processes (default: os.cpu_count())"
+    )
     _add_set(report, "override a field in every scenario of the matrix, e.g. duration_s=10")
     return parser
 

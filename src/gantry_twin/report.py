@@ -43,12 +43,22 @@ CONTROLLERS: dict[str, tuple[str, tuple[str, ...], str]] = {
 
 #: Paper Tables 1-2: (contour, set, controller) -> (rms um, max um).
 PAPER_CONTOUR_UM: dict[tuple[str, int, str], tuple[float, float]] = {
-    ("circle", 1, "C1"): (2.03, 7.31), ("circle", 1, "C2"): (1.99, 7.14), ("circle", 1, "C3"): (7.33, 21.0),
-    ("circle", 2, "C1"): (2.18, 8.16), ("circle", 2, "C2"): (2.02, 6.85), ("circle", 2, "C3"): (8.36, 19.78),
-    ("circle", 3, "C1"): (2.36, 26.81), ("circle", 3, "C2"): (2.30, 28.43),
-    ("ellipse", 1, "C1"): (2.63, 9.35), ("ellipse", 1, "C2"): (2.61, 8.19), ("ellipse", 1, "C3"): (7.00, 18.17),
-    ("ellipse", 2, "C1"): (2.89, 10.31), ("ellipse", 2, "C2"): (2.66, 8.96), ("ellipse", 2, "C3"): (11.4, 30.1),
-    ("ellipse", 3, "C1"): (3.10, 25.4), ("ellipse", 3, "C2"): (2.91, 26.0),
+    ("circle", 1, "C1"): (2.03, 7.31),
+    ("circle", 1, "C2"): (1.99, 7.14),
+    ("circle", 1, "C3"): (7.33, 21.0),
+    ("circle", 2, "C1"): (2.18, 8.16),
+    ("circle", 2, "C2"): (2.02, 6.85),
+    ("circle", 2, "C3"): (8.36, 19.78),
+    ("circle", 3, "C1"): (2.36, 26.81),
+    ("circle", 3, "C2"): (2.30, 28.43),
+    ("ellipse", 1, "C1"): (2.63, 9.35),
+    ("ellipse", 1, "C2"): (2.61, 8.19),
+    ("ellipse", 1, "C3"): (7.00, 18.17),
+    ("ellipse", 2, "C1"): (2.89, 10.31),
+    ("ellipse", 2, "C2"): (2.66, 8.96),
+    ("ellipse", 2, "C3"): (11.4, 30.1),
+    ("ellipse", 3, "C1"): (3.10, 25.4),
+    ("ellipse", 3, "C2"): (2.91, 26.0),
 }
 #: Paper Tables 3-4 (set -> rows theta_iN, theta_iC, theta_ie, theta_iv %), M1 M2 B1 B2 Af1 Af2.
 PAPER_ESTIMATES: dict[int, dict[str, tuple[float, ...]]] = {
@@ -107,8 +117,12 @@ class CaseResult:
     theta_hat: np.ndarray | None = field(default=None, repr=False)
 
 
-def paper_matrix(overrides: Sequence[str] = (), sets: Sequence[int] = (1, 2, 3),
-                 contours: Sequence[str] = CONTOURS, labels: Sequence[str] = ("C1", "C2", "C3", "C2r")) -> list[Case]:
+def paper_matrix(
+    overrides: Sequence[str] = (),
+    sets: Sequence[int] = (1, 2, 3),
+    contours: Sequence[str] = CONTOURS,
+    labels: Sequence[str] = ("C1", "C2", "C3", "C2r"),
+) -> list[Case]:
     """The report's runs, each validated (ScenarioError on a bad override) before any runs."""
     cases = []
     for set_id in sets:
@@ -251,17 +265,32 @@ def findings(by_key: dict[tuple[int, str, str], CaseResult]) -> list[tuple[bool,
             c1, c2, c3 = (by_key.get((s, contour, c)) for c in ("C1", "C2", "C3"))
             if c1 and c2:
                 ratio = max(c1.rms_um, c2.rms_um) / min(c1.rms_um, c2.rms_um)
-                out.append((ratio <= 1.4, f"{contour} Set {s}: C1 and C2 rms within 40 % of each other "
-                            f"({c1.rms_um:.2f} vs {c2.rms_um:.2f} um, ratio {ratio:.2f})"))
+                out.append(
+                    (
+                        ratio <= 1.4,
+                        f"{contour} Set {s}: C1 and C2 rms within 40 % of each other "
+                        f"({c1.rms_um:.2f} vs {c2.rms_um:.2f} um, ratio {ratio:.2f})",
+                    )
+                )
             if c1 and c2 and c3:
                 worst = max(c1.rms_um, c2.rms_um)
-                out.append((c3.rms_um >= 2.0 * worst, f"{contour} Set {s}: C3 rms at least twice C1's and C2's "
-                            f"({c3.rms_um:.2f} um vs {worst:.2f} um, x{c3.rms_um / worst:.2f})"))
+                out.append(
+                    (
+                        c3.rms_um >= 2.0 * worst,
+                        f"{contour} Set {s}: C3 rms at least twice C1's and C2's "
+                        f"({c3.rms_um:.2f} um vs {worst:.2f} um, x{c3.rms_um / worst:.2f})",
+                    )
+                )
         for c in ("C1", "C2"):
             r1, r3 = by_key.get((1, contour, c)), by_key.get((3, contour, c))
             if r1 and r3:
-                out.append((r3.max_um >= 3.0 * r1.max_um, f"{contour} {c}: Set 3 max at least 3x Set 1's "
-                            f"({r3.max_um:.2f} vs {r1.max_um:.2f} um, x{r3.max_um / r1.max_um:.2f})"))
+                out.append(
+                    (
+                        r3.max_um >= 3.0 * r1.max_um,
+                        f"{contour} {c}: Set 3 max at least 3x Set 1's "
+                        f"({r3.max_um:.2f} vs {r1.max_um:.2f} um, x{r3.max_um / r1.max_um:.2f})",
+                    )
+                )
             if r3:
                 out.append((r3.rms_um < 4.0, f"{contour} {c}: Set 3 rms below 4 um ({r3.rms_um:.2f} um)"))
     for s in (1, 2):
@@ -269,8 +298,12 @@ def findings(by_key: dict[tuple[int, str, str], CaseResult]) -> list[tuple[bool,
         runs = [r for r in runs if r is not None and r.estimates is not None]
         if runs:
             worst = max(abs(_pct(r.estimates[i], r.true_theta[i])) for r in runs for i in range(6))
-            out.append((worst <= 5.0, f"Set {s}: DIARC recommended estimates of M, B, Af within 5 % "
-                        f"(largest deviation {worst:.1f} %)"))
+            out.append(
+                (
+                    worst <= 5.0,
+                    f"Set {s}: DIARC recommended estimates of M, B, Af within 5 % (largest deviation {worst:.1f} %)",
+                )
+            )
     return out
 
 
@@ -304,8 +337,11 @@ def _figures(by_key: dict[tuple[int, str, str], CaseResult], out: Path) -> list[
         axes[-1, 0].set_xlabel("t (s)")
         fig.suptitle(f"Fig. {fig_no}: {contour} contouring errors, Set {set_id}")
         fig.tight_layout()
-        save(fig, f"fig{fig_no}_set{set_id}_{contour}_contour_error.png",
-             f"Fig. {fig_no}: {contour} contouring error vs time, Set {set_id} (largest |eps_c| per 2 ms)")
+        save(
+            fig,
+            f"fig{fig_no}_set{set_id}_{contour}_contour_error.png",
+            f"Fig. {fig_no}: {contour} contouring error vs time, Set {set_id} (largest |eps_c| per 2 ms)",
+        )
 
     for fig_no, set_id, axis in ((4, 1, 1), (5, 2, 0)):
         runs = [(c, by_key.get((set_id, "circle", c))) for c in ("C2", "C2r")]
@@ -326,8 +362,11 @@ def _figures(by_key: dict[tuple[int, str, str], CaseResult], out: Path) -> list[
         label = "Y" if axis == 1 else "X"
         fig.suptitle(f"Fig. {fig_no}: {label}-axis parameter estimates, Set {set_id} circle (DIARC)")
         fig.tight_layout()
-        save(fig, f"fig{fig_no}_set{set_id}_{label.lower()}_estimates.png",
-             f"Fig. {fig_no}: {label}-axis estimates vs time, Set {set_id} circle; true value dashed")
+        save(
+            fig,
+            f"fig{fig_no}_set{set_id}_{label.lower()}_estimates.png",
+            f"Fig. {fig_no}: {label}-axis estimates vs time, Set {set_id} circle; true value dashed",
+        )
     return made
 
 
@@ -345,7 +384,7 @@ def write_report(results: Sequence[CaseResult], out: Path, overrides: Sequence[s
         "C2r = DIARC with the twin's recommended estimator (50 Hz filters). Set 1: no load; Set 2: 5 kg "
         "payload; Set 3: +0.6 V on the Y input from 1.86 s to 4.86 s.",
         "",
-        "**Reading of \"after running the gantry for one period\"** (control-spec section 8): every run starts "
+        '**Reading of "after running the gantry for one period"** (control-spec section 8): every run starts '
         "on the path (as if already running) and lasts 30 s. The contour metrics of Sets 1-2 cover the second "
         "period [T, 2T] (T = pi s circle, 2 pi/3 s ellipse); Set 3's cover [1.5, 6.5] s, holding both "
         "disturbance edges. The steady-state estimates (Tables 3-4) are the mean of theta^ over the last "
@@ -360,24 +399,41 @@ def write_report(results: Sequence[CaseResult], out: Path, overrides: Sequence[s
         lines += ["", f"## Table {number}: {contour} contouring, ||eps_c||_rms and eps_cM (um)", ""]
         lines += _contour_table(by_key, contour)
     for number, set_id, what in ((3, 1, "without load"), (4, 2, "with 5 kg load")):
-        lines += ["", f"## Table {number}: physical parameter estimates {what} (Set {set_id})", "",
-                  "Estimates are the mean over the last period; % is the deviation from the model's true value "
-                  "(the paper's % is from its off-line estimates).", ""]
+        lines += [
+            "",
+            f"## Table {number}: physical parameter estimates {what} (Set {set_id})",
+            "",
+            "Estimates are the mean over the last period; % is the deviation from the model's true value "
+            "(the paper's % is from its off-line estimates).",
+            "",
+        ]
         lines += _estimate_table(by_key, set_id)
     lines += ["", "## Figures", ""]
     lines += [f"![{caption}]({name})\n\n{caption}\n" for name, caption in figures]
     lines += ["## Runs", "", "| run | steps | rms (um) | max (um) | window (s) | wall time (s) |", "|---" * 6 + "|"]
     for r in results:
-        lines.append(f"| {r.case.key} | {r.steps} | {r.rms_um:.3f} | {r.max_um:.3f} | "
-                     f"[{r.window_s[0]:.3f}, {r.window_s[1]:.3f}] | {r.wall_time_s:.1f} |")
+        lines.append(
+            f"| {r.case.key} | {r.steps} | {r.rms_um:.3f} | {r.max_um:.3f} | "
+            f"[{r.window_s[0]:.3f}, {r.window_s[1]:.3f}] | {r.wall_time_s:.1f} |"
+        )
     path = out / "report.md"
     numbers = [
-        {**asdict(r.case), "key": r.case.key, "rms_um": r.rms_um, "max_um": r.max_um, "window_s": list(r.window_s),
-         "steps": r.steps, "true_theta": r.true_theta, "estimates": r.estimates,
-         "estimates_window_s": list(r.estimates_window_s)}
+        {
+            **asdict(r.case),
+            "key": r.case.key,
+            "rms_um": r.rms_um,
+            "max_um": r.max_um,
+            "window_s": list(r.window_s),
+            "steps": r.steps,
+            "true_theta": r.true_theta,
+            "estimates": r.estimates,
+            "estimates_window_s": list(r.estimates_window_s),
+        }
         for r in results
     ]
-    atomic_write_text(out / "results.json", json.dumps({"runs": numbers, "findings": [
-        {"pass": ok, "text": text} for ok, text in checks]}, indent=2) + "\n")
+    atomic_write_text(
+        out / "results.json",
+        json.dumps({"runs": numbers, "findings": [{"pass": ok, "text": text} for ok, text in checks]}, indent=2) + "\n",
+    )
     atomic_write_text(path, "\n".join(lines) + "\n")
     return path

@@ -536,8 +536,9 @@ def parse_yaml(text: str, source: str) -> dict[str, Any]:
         )
     if not isinstance(data, dict):
         raise ScenarioError(
-            source, "", f"top level must be a mapping of fields ({', '.join(Scenario.model_fields)}), "
-            f"got {type(data).__name__}"
+            source,
+            "",
+            f"top level must be a mapping of fields ({', '.join(Scenario.model_fields)}), got {type(data).__name__}",
         )
     return data
 
@@ -696,17 +697,17 @@ def _check_windows(scenario: Scenario, source: str) -> None:
         if lo < 0.0 or hi > d + 1e-9:
             if given is None:
                 raise ScenarioError(
-                    source, field, f"the default, {what} = [{lo:.4g}, {hi:.4g}] s, lies outside duration_s = "
-                    f"{_fmt(d)} s; set {field} inside [0, {_fmt(d)}] s or lengthen duration_s"
+                    source,
+                    field,
+                    f"the default, {what} = [{lo:.4g}, {hi:.4g}] s, lies outside duration_s = "
+                    f"{_fmt(d)} s; set {field} inside [0, {_fmt(d)}] s or lengthen duration_s",
                 )
             raise ScenarioError(
                 source, field, f"must lie inside [0, duration_s = {_fmt(d)}] s, got [{_fmt(lo)}, {_fmt(hi)}] s"
             )
 
 
-def load_scenario(
-    path: str | Path, overrides: Sequence[str] = (), controller: str | None = None
-) -> Scenario:
+def load_scenario(path: str | Path, overrides: Sequence[str] = (), controller: str | None = None) -> Scenario:
     """Read, override and validate a scenario file.
 
     ``controller`` (the command line's ``--controller``) replaces
@@ -784,8 +785,10 @@ def _check_travel(plant: Plant, path: Ellipse, source: str) -> None:
         reach = (float(p[:, axis].min()), float(p[:, axis].max()))
         if reach[0] < lo - 1e-12 or reach[1] > hi + 1e-12:
             raise ScenarioError(
-                source, "contour", f"the path spans {name} in [{reach[0]:.4g}, {reach[1]:.4g}] m; the travel allows "
-                f"[{lo:.4g}, {hi:.4g}] m (joint range less {TRAVEL_MARGIN_M * 1e3:g} mm); shrink or move it"
+                source,
+                "contour",
+                f"the path spans {name} in [{reach[0]:.4g}, {reach[1]:.4g}] m; the travel allows "
+                f"[{lo:.4g}, {hi:.4g}] m (joint range less {TRAVEL_MARGIN_M * 1e3:g} mm); shrink or move it",
             )
 
 
@@ -814,4 +817,3 @@ def shipped(name: str) -> Path:
 def dump_yaml(data: dict[str, Any]) -> str:
     """Stable YAML text (key order kept, block style)."""
     return yaml.safe_dump(data, sort_keys=False, default_flow_style=None, allow_unicode=True)
-
