@@ -385,7 +385,8 @@ def write_report(results: Sequence[CaseResult], out: Path, overrides: Sequence[s
         "payload; Set 3: +0.6 V on the Y input from 1.86 s to 4.86 s.",
         "",
         '**Reading of "after running the gantry for one period"** (control-spec section 8): every run starts '
-        "on the path (as if already running) and lasts 30 s. The contour metrics of Sets 1-2 cover the second "
+        "on the path (as if already running) and lasts 30 s unless overridden."
+        " The contour metrics of Sets 1-2 cover the second "
         "period [T, 2T] (T = pi s circle, 2 pi/3 s ellipse); Set 3's cover [1.5, 6.5] s, holding both "
         "disturbance edges. The steady-state estimates (Tables 3-4) are the mean of theta^ over the last "
         "period of the run. Set 3 is not used to judge estimates.",
