@@ -48,6 +48,13 @@ MALFORMED = [
     ("window_reversed", "window_s: [4, 2]\n", "window_s", "end must be after start"),
     ("default_window_too_long", "duration_s: 1\n", "window_s", "set window_s inside [0, 1] s"),
     ("estimates_window_outside", "estimates_window_s: [29, 31]\n", "estimates_window_s", "inside [0, duration_s"),
+    ("window_between_samples", "window_s: [0.10001, 0.10011]\n", "window_s", "holds no sample"),
+    (
+        "duration_below_two_samples",
+        "duration_s: 0.0003\nwindow_s: [0, 0.0003]\nestimates_window_s: [0, 0.0003]\n",
+        "duration_s",
+        "at least two samples",
+    ),
     ("duration_negative", "duration_s: -3\n", "duration_s", "(0, 3600] s"),
     ("duration_string", "duration_s: long\n", "duration_s", "valid number"),
     ("disturbance_unknown_axis", "disturbance: {z: []}\n", "disturbance.z", "allowed: x, y"),

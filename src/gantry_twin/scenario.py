@@ -632,7 +632,7 @@ def _friendly(error: dict[str, Any]) -> tuple[str, str]:
     kind = error["type"]
     ctx = error.get("ctx") or {}
     if kind == "unknown_key":
-        loc.append(ctx["key"])
+        loc.append(str(ctx["key"]))
         return _loc_text(loc), f"unknown key; allowed: {ctx['allowed']}"
     if kind == "union_tag_invalid":
         return _loc_text(loc) + ".type", f"unknown type {ctx['tag']!r}; allowed: {ctx['expected_tags']}"
@@ -763,6 +763,7 @@ def build(scenario: Scenario, source: str = "<scenario>") -> BuiltRun:
     plant = Plant(Payload(spec.mass_kg, tuple(spec.offset_m)))
     path = scenario.contour.path()
     _check_travel(plant, path, source)
+    _check_samples(scenario, plant.timestep_s, source)
     kwargs = controller_options(scenario, source)
     try:
         controller = create(scenario.controller.name, **kwargs)
@@ -772,6 +773,23 @@ def build(scenario: Scenario, source: str = "<scenario>") -> BuiltRun:
         raise ScenarioError(source, "controller.options", f"rejected by {name!r}: {first}") from None
     disturbance = None if scenario.disturbance.empty else scenario.disturbance.function()
     return BuiltRun(scenario, plant, path, scenario.timing_law(), controller, scenario.sensing.config(), disturbance)
+
+
+def _check_samples(scenario: Scenario, sample_period_s: float, source: str) -> None:
+    """The run holds two samples and each window at least one (samples at k Ts, k < n)."""
+    n = int(round(scenario.duration_s / sample_period_s))
+    if n < 2:
+        raise ScenarioError(
+            source,
+            "duration_s",
+            f"must hold at least two samples of {sample_period_s:g} s, got {scenario.duration_s:g}",
+        )
+    t = np.arange(n) * sample_period_s
+    for field, (lo, hi) in (("window_s", scenario.metric_window_s), ("estimates_window_s", scenario.estimate_window_s)):
+        if not np.any((t >= lo) & (t < hi)):
+            raise ScenarioError(
+                source, field, f"[{lo:g}, {hi:g}) s holds no sample; samples are at multiples of {sample_period_s:g} s"
+            )
 
 
 def _check_travel(plant: Plant, path: Ellipse, source: str) -> None:
