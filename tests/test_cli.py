@@ -276,6 +276,16 @@ def test_default_scenario_and_default_out_dir(tmp_path, capsys, monkeypatch):
     assert not (out / "trace.parquet").exists()
 
 
+def test_shipped_scenarios_can_be_named_without_a_path(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    code, out, err = run_main(["validate", "load_5kg_circle", "step_disturbance_ellipse"], capsys)
+    assert code == 0, err
+    assert str(shipped("load_5kg_circle")) in out
+    code, _, err = run_main(["validate", "no_such_scenario"], capsys)
+    assert code == 2
+    assert_one_line_error(err, "no_such_scenario", "no such file")
+
+
 def test_set_overrides_reach_the_run(tmp_path, capsys):
     out = tmp_path / "o"
     args = [

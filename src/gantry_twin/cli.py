@@ -104,7 +104,9 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, metavar="{run,validate,report}", parser_class=_Parser)
 
     run = sub.add_parser("run", help="run a scenario and write its results")
-    run.add_argument("scenario", nargs="?", help=f"scenario YAML file (default: the shipped {DEFAULT_SCENARIO}.yaml)")
+    run.add_argument(
+        "scenario", nargs="?", help=f"scenario YAML file or shipped scenario name (default: {DEFAULT_SCENARIO})"
+    )
     run.add_argument("--controller", metavar="NAME", help="controller to use instead of the scenario's")
     _add_set(run)
     run.add_argument("--out", metavar="DIR", type=Path, help="output directory (default: runs/<scenario name>/)")
@@ -157,11 +159,18 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _scenario_path(arg: str | None) -> Path:
-    return shipped(DEFAULT_SCENARIO) if arg is None else Path(arg)
+    """A file path, or the name of a shipped scenario (``no_load_circle``) when no such file exists."""
+    if arg is None:
+        return shipped(DEFAULT_SCENARIO)
+    path = Path(arg)
+    if not path.exists() and "/" not in arg and shipped(arg).is_file():
+        return shipped(arg)
+    return path
 
 
 def _validate(args: argparse.Namespace) -> int:
-    for name in args.scenario:
+    for arg in args.scenario:
+        name = str(_scenario_path(arg))
         scenario = load_scenario(name, args.overrides, args.controller)
         build(scenario, name)
         print(f"{name}: ok ({scenario.controller.name}, {scenario.contour.type}, {scenario.duration_s:g} s)")

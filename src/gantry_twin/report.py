@@ -356,6 +356,7 @@ def _figures(by_key: dict[tuple[int, str, str], CaseResult], out: Path) -> list[
                 ax.plot(r.t_theta_s, r.theta_hat[:, j], lw=0.9, label=CONTROLLERS[c][2])
             ax.axhline(runs[0][1].true_theta[j], ls="--", color="k", lw=0.9, label="true (model)")
             ax.set_ylabel(name)
+            ax.ticklabel_format(axis="y", useOffset=False)
             ax.grid(alpha=0.3)
         axes[0].legend(fontsize=7, loc="best")
         axes[-1].set_xlabel("t (s)")
