@@ -91,7 +91,7 @@ def summary(scenario: Scenario, trace: Trace, controller_name: str) -> dict[str,
         "contour_error_um": {"rms": metrics.rms_um, "max": metrics.max_um, "window_s": list(metrics.window_s)},
     }
     estimate = steady_estimates(trace, scenario.estimate_window_s)
-    if estimate is not None:
+    if estimate is not None and estimate.shape == (len(THETA_NAMES),):  # a plug-in may log another theta_hat
         errors = estimate_errors_pct(estimate, trace.true_theta)
         out["estimates_window_s"] = list(scenario.estimate_window_s)
         out["estimates"] = {
