@@ -1,0 +1,305 @@
+"""The command line: ``gantry-twin run | validate | report`` (docs/cli.md).
+
+Exit codes: 0 success; 2 bad input (one line on stderr naming the file, the
+field and what is allowed; nothing written); 1 the run itself failed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any, NoReturn
+
+from gantry_twin.scenario import (
+    BuiltRun,
+    Scenario,
+    ScenarioError,
+    build,
+    dump_yaml,
+    load_scenario,
+    shipped,
+)
+from gantry_twin.simulate import Observer, RunInfo, Trace, simulate
+
+PROG = "gantry-twin"
+#: The scenario ``run`` uses when none is given.
+DEFAULT_SCENARIO = "no_load_circle"
+
+EXIT_OK = 0
+EXIT_RUN_FAILED = 1
+EXIT_BAD_INPUT = 2
+
+
+class BadInput(Exception):
+    """Bad command-line input that is not a scenario field (exit code 2)."""
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line errors (no usage dump) and exit code 2."""
+
+    def error(self, message: str) -> NoReturn:
+        print(f"{self.prog}: error: {message} (see {self.prog} --help)", file=sys.stderr)
+        raise SystemExit(EXIT_BAD_INPUT)
+
+
+class ProgressBar:
+    """A tqdm bar on stderr in simulated seconds (an Observer; reads nothing it could change).
+
+    Shown only when ``enabled`` (by default: stderr is a terminal) and only
+    once a run has lasted ``delay_s`` of wall time, so short runs stay quiet.
+    """
+
+    def __init__(self, enabled: bool, delay_s: float = 1.0) -> None:
+        self.enabled = enabled
+        self.delay_s = delay_s
+        self._bar: Any = None
+
+    def on_start(self, run: RunInfo, trace: Trace) -> None:
+        if not self.enabled:
+            return
+        from tqdm import tqdm
+
+        self._bar = tqdm(
+            total=trace.t_s.size,
+            unit="s",
+            unit_scale=trace.sample_period_s,
+            desc=f"{run.controller_name}",
+            file=sys.stderr,
+            delay=self.delay_s,
+            leave=False,
+            bar_format="{desc}: {percentage:3.0f}%|{bar}| {n:.2f}/{total:.2f} s simulated [{elapsed}<{remaining}]",
+        )
+
+    def on_chunk(self, trace: Trace, start: int, stop: int) -> None:
+        if self._bar is not None:
+            self._bar.update(stop - start)
+
+    def on_end(self, trace: Trace) -> None:
+        if self._bar is not None:
+            self._bar.close()
+            self._bar = None
+
+
+def _observers(args: argparse.Namespace) -> list[Observer]:
+    """Observers of a ``run``: the progress bar, then any extra ones.
+
+    Telemetry plugs in here: gantry_twin.telemetry provides
+    ``add_telemetry_arguments(parser)`` (call it on the ``run`` parser in
+    :func:`build_parser`) and ``telemetry_observers(args) -> list[Observer]``
+    (extend the list below with it). Observers must not change results.
+    """
+    progress = sys.stderr.isatty() if args.progress is None else args.progress
+    observers: list[Observer] = [ProgressBar(progress)]
+    return observers
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog=PROG, description="MuJoCo digital twin of a biaxial linear-motor gantry.")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="{run,validate,report}", parser_class=_Parser)
+
+    run = sub.add_parser("run", help="run a scenario and write its results")
+    run.add_argument(
+        "scenario", nargs="?", help=f"scenario YAML file or shipped scenario name (default: {DEFAULT_SCENARIO})"
+    )
+    run.add_argument("--controller", metavar="NAME", help="controller to use instead of the scenario's")
+    _add_set(run)
+    run.add_argument("--out", metavar="DIR", type=Path, help="output directory (default: runs/<scenario name>/)")
+    run.add_argument(
+        "--progress",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="progress bar on stderr (default: when stderr is a terminal)",
+    )
+
+    validate = sub.add_parser("validate", help="check scenario files without running them")
+    validate.add_argument("scenario", nargs="+", help="scenario YAML file(s)")
+    validate.add_argument("--controller", metavar="NAME", help="controller to use instead of the scenario's")
+    _add_set(validate)
+
+    report = sub.add_parser("report", help="run the paper's matrix and write a Markdown report with figures")
+    report.add_argument(
+        "--out", metavar="DIR", type=Path, default=Path("runs/report"), help="output directory (default: runs/report/)"
+    )
+    report.add_argument(
+        "--jobs", metavar="N", type=int, default=None, help="parallel processes (default: os.cpu_count())"
+    )
+    _add_set(report, "override a field in every scenario of the matrix, e.g. duration_s=10")
+    return parser
+
+
+def _add_set(parser: argparse.ArgumentParser, text: str = "override one scenario field (value parsed as YAML)") -> None:
+    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE", help=text)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``gantry-twin`` console script; returns the exit code."""
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # --help (0) or a usage error (2)
+        return int(exc.code or 0)
+    try:
+        if args.command == "run":
+            return _run(args)
+        if args.command == "validate":
+            return _validate(args)
+        return _report(args)
+    except (ScenarioError, BadInput) as exc:
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted", file=sys.stderr)
+        return 130
+
+
+def _scenario_path(arg: str | None) -> Path:
+    """A file path, or the name of a shipped scenario (``no_load_circle``) when no such file exists."""
+    if arg is None:
+        return shipped(DEFAULT_SCENARIO)
+    path = Path(arg)
+    if not path.exists() and "/" not in arg and shipped(arg).is_file():
+        return shipped(arg)
+    return path
+
+
+def _validate(args: argparse.Namespace) -> int:
+    for arg in args.scenario:
+        name = str(_scenario_path(arg))
+        scenario = load_scenario(name, args.overrides, args.controller)
+        build(scenario, name)
+        print(f"{name}: ok ({scenario.controller.name}, {scenario.contour.type}, {scenario.duration_s:g} s)")
+    return EXIT_OK
+
+
+def _out_dir(args: argparse.Namespace, scenario: Scenario) -> Path:
+    out = args.out or (Path(scenario.outputs.dir) if scenario.outputs.dir else Path("runs") / str(scenario.name))
+    if out.exists() and not out.is_dir():
+        raise BadInput(f"--out {out}: exists and is not a directory")
+    return out
+
+
+def _run(args: argparse.Namespace) -> int:
+    path = _scenario_path(args.scenario)
+    scenario = load_scenario(path, args.overrides, args.controller)
+    built = build(scenario, str(path))
+    out = _out_dir(args, scenario)
+    try:
+        started = time.perf_counter()
+        trace = execute(built, _observers(args))
+        wall_time_s = time.perf_counter() - started
+        summary = write_run(out, built, trace, wall_time_s)
+    except Exception as exc:  # the run or the writing failed: not the user's input
+        if os.environ.get("GANTRY_TWIN_DEBUG"):
+            raise
+        message = str(exc).splitlines()[0] if str(exc) else ""
+        print(f"{PROG}: run failed: {type(exc).__name__}: {message}", file=sys.stderr)
+        return EXIT_RUN_FAILED
+    print(format_summary(summary, wall_time_s, out))
+    return EXIT_OK
+
+
+def execute(built: BuiltRun, observers: Sequence[Observer] = ()) -> Trace:
+    """Simulate a built scenario."""
+    s = built.scenario
+    return simulate(
+        built.plant,
+        built.path,
+        built.timing,
+        built.controller,
+        duration_s=s.duration_s,
+        sensing=built.sensing,
+        disturbance=built.disturbance,
+        observers=observers,
+        controller_name=s.controller.name,
+    )
+
+
+def write_run(out: Path, built: BuiltRun, trace: Trace, wall_time_s: float) -> dict[str, Any]:
+    """Write scenario.yaml, trace.parquet, run_info.json and (last) summary.json into ``out``.
+
+    A stale summary.json is removed first: summary.json present means the
+    other files of that run are complete.
+    """
+    from gantry_twin.results import atomic_write_text, summary, summary_json, trace_table, write_parquet
+
+    scenario = built.scenario
+    data = summary(scenario, trace, scenario.controller.name)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "summary.json").unlink(missing_ok=True)
+    if scenario.outputs.trace:
+        write_parquet(out / "trace.parquet", trace_table(trace, scenario.outputs.trace_stride))
+    atomic_write_text(out / "scenario.yaml", dump_yaml(scenario.resolved()))
+    atomic_write_text(out / "run_info.json", json.dumps(_run_info(wall_time_s), indent=2) + "\n")
+    atomic_write_text(out / "summary.json", summary_json(data))
+    return data
+
+
+def _run_info(wall_time_s: float) -> dict[str, Any]:
+    """What differs between two runs of the same scenario (kept out of summary.json)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    import mujoco
+
+    try:
+        own = version("gantry-twin")
+    except PackageNotFoundError:
+        own = "unknown"
+    return {
+        "wall_time_s": wall_time_s,
+        "finished_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        "gantry_twin": own,
+        "mujoco": mujoco.__version__,
+        "python": platform.python_version(),
+        "machine": platform.machine(),
+    }
+
+
+def format_summary(data: dict[str, Any], wall_time_s: float, out: Path | None = None) -> str:
+    """The short human summary ``run`` prints."""
+    c = data["contour_error_um"]
+    lines = [
+        f"{data['scenario']} with {data['controller']}: {data['duration_s']:g} s simulated "
+        f"({data['steps']} steps) in {wall_time_s:.1f} s",
+        f"contour error eps_c over [{c['window_s'][0]:.3f}, {c['window_s'][1]:.3f}] s: "
+        f"rms {c['rms']:.3f} um, max {c['max']:.3f} um",
+    ]
+    if "estimates" in data:
+        w = data["estimates_window_s"]
+        lines.append(f"estimates (mean over [{w[0]:.3f}, {w[1]:.3f}] s)  estimate     true    error")
+        for name, e in data["estimates"].items():
+            pct = "      -" if e["error_pct"] is None else f"{e['error_pct']:+7.2f} %"
+            lines.append(f"  {name:<4} {e['estimate']:12.5f} {e['true']:8.4f}  {pct}")
+    if out is not None:
+        lines.append(f"results in {out}/ (summary.json, scenario.yaml, trace.parquet, run_info.json)")
+    return "\n".join(lines)
+
+
+def _report(args: argparse.Namespace) -> int:
+    from gantry_twin.report import paper_matrix, run_matrix, write_report
+
+    if args.jobs is not None and args.jobs < 1:
+        raise BadInput(f"--jobs: must be a positive integer, got {args.jobs}")
+    if args.out.exists() and not args.out.is_dir():
+        raise BadInput(f"--out {args.out}: exists and is not a directory")
+    cases = paper_matrix(args.overrides)  # validates every scenario before anything runs
+    try:
+        results = run_matrix(cases, jobs=args.jobs or os.cpu_count() or 1, progress=sys.stderr.isatty())
+        path = write_report(results, args.out, args.overrides)
+    except Exception as exc:
+        if os.environ.get("GANTRY_TWIN_DEBUG"):
+            raise
+        message = str(exc).splitlines()[0] if str(exc) else ""
+        print(f"{PROG}: report failed: {type(exc).__name__}: {message}", file=sys.stderr)
+        return EXIT_RUN_FAILED
+    print(f"report written to {path}")
+    return EXIT_OK
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,432 @@
+"""The command line through main(): bad input, run outputs, determinism, atomic writes, report."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+
+from gantry_twin import cli, report, results
+from gantry_twin.scenario import shipped
+
+#: Short runs: 0.2 s of simulation (1000 samples) with windows inside it.
+SHORT = ["--set", "duration_s=0.2", "--set", "window_s=[0.05, 0.2]", "--set", "estimates_window_s=[0.1, 0.2]"]
+
+SUMMARY_KEYS = {
+    "schema_version",
+    "scenario",
+    "controller",
+    "duration_s",
+    "sample_period_s",
+    "steps",
+    "contour_error_um",
+    "estimates_window_s",
+    "estimates",
+}
+
+# (id, file text, field named in the message, what is allowed)
+MALFORMED = [
+    ("yaml_syntax", "payload: {mass_kg: 5\n", "line 2", "YAML syntax error"),
+    ("yaml_tab", "payload:\n\tmass_kg: 5\n", "line 2", "YAML syntax error"),
+    ("yaml_duplicate_key", "duration_s: 1\nduration_s: 2\n", "duplicate key 'duration_s'", "line 2"),
+    ("empty", "", "empty file", "YAML mapping"),
+    ("only_comment", "# nothing\n", "empty file", "YAML mapping"),
+    ("top_level_list", "- 1\n- 2\n", "top level", "mapping of fields"),
+    ("top_level_scalar", "circle\n", "top level", "mapping of fields"),
+    ("unknown_top_key", "durations: 3\n", "durations", "allowed: name, description, contour"),
+    ("unknown_nested_key", "payload: {mass: 5}\n", "payload.mass", "allowed: mass_kg, offset_m"),
+    ("mass_wrong_type", "payload: {mass_kg: heavy}\n", "payload.mass_kg", "valid number"),
+    ("mass_negative", "payload: {mass_kg: -1}\n", "payload.mass_kg", "[0, 20] kg"),
+    ("mass_absurd", "payload: {mass_kg: 5000}\n", "payload.mass_kg", "[0, 20] kg"),
+    ("mass_nan", "payload: {mass_kg: .nan}\n", "payload.mass_kg", "[0, 20] kg"),
+    ("mass_bool", "payload: {mass_kg: true}\n", "payload.mass_kg", "number, not a boolean"),
+    ("offset_out_of_plate", "payload: {offset_m: [0, 0, 1.0]}\n", "payload.offset_m[2]", "[-0.2, 0.2] m"),
+    ("window_outside_duration", "window_s: [5, 40]\n", "window_s", "inside [0, duration_s = 30] s"),
+    ("window_reversed", "window_s: [4, 2]\n", "window_s", "end must be after start"),
+    ("default_window_too_long", "duration_s: 1\n", "window_s", "set window_s inside [0, 1] s"),
+    ("estimates_window_outside", "estimates_window_s: [29, 31]\n", "estimates_window_s", "inside [0, duration_s"),
+    ("window_between_samples", "window_s: [0.10001, 0.10011]\n", "window_s", "holds no sample"),
+    (
+        "duration_below_two_samples",
+        "duration_s: 0.0003\nwindow_s: [0, 0.0003]\nestimates_window_s: [0, 0.0003]\n",
+        "duration_s",
+        "at least two samples",
+    ),
+    ("duration_negative", "duration_s: -3\n", "duration_s", "(0, 3600] s"),
+    ("duration_string", "duration_s: long\n", "duration_s", "valid number"),
+    ("disturbance_unknown_axis", "disturbance: {z: []}\n", "disturbance.z", "allowed: x, y"),
+    (
+        "disturbance_unknown_type",
+        "disturbance: {y: [{type: pulse, value_v: 1}]}\n",
+        "disturbance.y[0].type",
+        "allowed: 'step', 'ramp', 'sine'",
+    ),
+    ("disturbance_missing_type", "disturbance: {y: [{value_v: 1}]}\n", "disturbance.y[0].type", "step, ramp, sine"),
+    (
+        "disturbance_end_before_start",
+        "disturbance: {y: [{type: step, value_v: 1, start_s: 3, end_s: 2}]}\n",
+        "disturbance.y[0]",
+        "end_s must be after start_s",
+    ),
+    (
+        "disturbance_absurd_volts",
+        "disturbance: {x: [{type: step, value_v: 50}]}\n",
+        "disturbance.x[0].value_v",
+        "[-10, 10] V",
+    ),
+    ("disturbance_not_list", "disturbance: {y: {type: step, value_v: 1}}\n", "disturbance.y", "valid list"),
+    ("ramp_missing_end", "disturbance: {y: [{type: ramp, to_v: 1}]}\n", "disturbance.y[0].end_s", "required"),
+    ("unknown_controller", "controller: {name: lqr}\n", "controller", "available: darc, diarc, drc, pd"),
+    ("controller_not_mapping", "controller: diarc\n", "controller", "valid dictionary"),
+    (
+        "unknown_controller_option",
+        "controller: {name: diarc, options: {gain: 3}}\n",
+        "controller.options.gain",
+        "allowed: gains, estimator",
+    ),
+    (
+        "bad_estimator_name",
+        "controller: {name: diarc, options: {estimator: fast}}\n",
+        "controller.options.estimator",
+        "'paper' or 'recommended'",
+    ),
+    (
+        "bad_estimator_filter",
+        "controller: {name: diarc, options: {estimator: {filter_hz: [0, 50]}}}\n",
+        "controller.options.estimator.filter_hz[0]",
+        "(0, 2500] Hz",
+    ),
+    (
+        "darc_gamma_short",
+        "controller: {name: darc, options: {gamma: [1, 2]}}\n",
+        "controller.options.gamma",
+        "too few items",
+    ),
+    (
+        "theta0_outside_bounds",
+        "controller: {name: drc, options: {gains: {theta0: [0.3, 0.55, 0.35, 0.5, 0.1, 0.15, 0, 0]}}}\n",
+        "controller.options.gains",
+        "theta_min <= theta0 <= theta_max",
+    ),
+    ("unknown_contour_type", "contour: {type: square}\n", "contour.type", "allowed: 'circle', 'ellipse'"),
+    ("contour_outside_travel", "contour: {type: circle, radius_m: 0.3}\n", "contour", "the travel allows"),
+    ("ellipse_off_centre", "contour: {type: ellipse, centre_m: [0.2, 0]}\n", "contour", "the travel allows"),
+    ("timing_start", "contour: {timing: {start: later}}\n", "contour.timing.start", "'on_path' or 'rest'"),
+    ("timing_rate_negative", "contour: {timing: {rate_rad_s: -2}}\n", "contour.timing.rate_rad_s", "(0, 20] rad/s"),
+    ("centre_three_numbers", "contour: {centre_m: [0, 0, 0]}\n", "contour.centre_m", "at most 2 items"),
+    ("sensing_bool", "sensing: {quantize: maybe}\n", "sensing.quantize", "valid boolean"),
+    ("sensing_resolution", "sensing: {resolution_m: 0.5}\n", "sensing.resolution_m", "(0, 0.001] m"),
+    ("trace_stride_zero", "outputs: {trace_stride: 0}\n", "outputs.trace_stride", "greater than or equal to 1"),
+]
+
+
+def run_main(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
+    code = cli.main(argv)
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
+
+
+def assert_one_line_error(err: str, *fragments: str) -> None:
+    assert "Traceback" not in err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    for fragment in fragments:
+        assert fragment in lines[0], (fragment, lines[0])
+
+
+@pytest.mark.parametrize(("text", "field", "allowed"), [m[1:] for m in MALFORMED], ids=[m[0] for m in MALFORMED])
+def test_malformed_scenario_exit_2_one_line_nothing_written(tmp_path, capsys, text, field, allowed):
+    path = tmp_path / "bad.yaml"
+    path.write_text(text)
+    out = tmp_path / "out"
+    code, stdout, err = run_main(["run", str(path), "--out", str(out)], capsys)
+    assert code == 2
+    assert_one_line_error(err, str(path), field, allowed)
+    assert not out.exists()
+    assert stdout == ""
+
+
+def test_at_least_25_malformed_files():
+    assert len(MALFORMED) >= 25
+
+
+@pytest.mark.parametrize(
+    ("text", "field", "allowed"), [m[1:] for m in MALFORMED[::5]], ids=[m[0] for m in MALFORMED[::5]]
+)
+def test_validate_rejects_the_same_files(tmp_path, capsys, text, field, allowed):
+    path = tmp_path / "bad.yaml"
+    path.write_text(text)
+    code, _, err = run_main(["validate", str(path)], capsys)
+    assert code == 2
+    assert_one_line_error(err, str(path), field, allowed)
+
+
+@pytest.mark.parametrize(
+    ("argv", "fragments"),
+    [
+        (["run", "{tmp}/missing.yaml"], ["missing.yaml", "no such file"]),
+        (["run", "{tmp}"], ["is a directory"]),
+        (["run", "{shipped}", "--set", "payload.mass_kg"], ["--set", "expected key.path=value"]),
+        (["run", "{shipped}", "--set", "payload.mass_kg=[5"], ["--set payload.mass_kg", "not valid YAML"]),
+        (["run", "{shipped}", "--set", "payload.mass_kg=-2"], ["payload.mass_kg", "[0, 20] kg"]),
+        (["run", "{shipped}", "--set", "payload.mass_kg.x=1"], ["payload.mass_kg", "not a mapping"]),
+        (["run", "{shipped}", "--controller", "nope"], ["unknown controller 'nope'", "available:"]),
+        (["run", "{shipped}", "--bogus"], ["unrecognized arguments: --bogus"]),
+        (["report", "--jobs", "0", "--out", "{tmp}/r"], ["--jobs", "positive integer"]),
+        (["report", "--set", "duration_s=-1", "--out", "{tmp}/r"], ["duration_s", "(0, 3600] s"]),
+        (["frobnicate"], ["invalid choice"]),
+    ],
+)
+def test_bad_command_lines_exit_2_with_one_line(tmp_path, capsys, argv, fragments):
+    argv = [a.format(tmp=tmp_path, shipped=shipped("no_load_circle")) for a in argv]
+    code, _, err = run_main(argv, capsys)
+    assert code == 2
+    assert_one_line_error(err, *fragments)
+    assert not (tmp_path / "r").exists()
+
+
+def test_validate_accepts_every_shipped_scenario(capsys):
+    from gantry_twin.scenario import shipped_scenarios
+
+    paths = [str(p) for p in shipped_scenarios()]
+    code, out, err = run_main(["validate", *paths], capsys)
+    assert code == 0, err
+    assert out.count(": ok") == len(paths)
+
+
+def _window_rms_max_um(table, window):
+    t = table.column("t_s").to_numpy()
+    eps = np.abs(table.column("eps_c_m").to_numpy()[(t >= window[0]) & (t < window[1])]) * 1e6
+    return math.sqrt(float(np.mean(eps**2))), float(eps.max())
+
+
+def test_run_writes_scenario_summary_trace(tmp_path, capsys):
+    out = tmp_path / "out"
+    code, stdout, err = run_main(["run", str(shipped("load_5kg_ellipse")), *SHORT, "--out", str(out)], capsys)
+    assert code == 0, err
+    assert "rms" in stdout and "M1" in stdout
+    assert sorted(p.name for p in out.iterdir()) == ["run_info.json", "scenario.yaml", "summary.json", "trace.parquet"]
+    summary = json.loads((out / "summary.json").read_text())
+    assert set(summary) == SUMMARY_KEYS
+    assert summary["scenario"] == "load_5kg_ellipse" and summary["controller"] == "diarc"
+    assert summary["steps"] == 1000 and summary["contour_error_um"]["window_s"] == [0.05, 0.2]
+    assert set(summary["estimates"]) == {"M1", "M2", "B1", "B2", "Af1", "Af2", "dN1", "dN2"}
+    assert summary["estimates"]["dN1"]["error_pct"] is None
+    # 5 kg on the X carriage: M1 = (8.28 + 5) / 69, M2 = (34.5 + 5) / 69 (control-spec section 1).
+    assert summary["estimates"]["M1"]["true"] == pytest.approx(13.28 / 69)
+    assert summary["estimates"]["M2"]["true"] == pytest.approx(39.5 / 69)
+    m1 = summary["estimates"]["M1"]
+    assert m1["error_pct"] == pytest.approx(100 * (m1["estimate"] - m1["true"]) / m1["true"])
+    assert json.loads((out / "run_info.json").read_text())["wall_time_s"] > 0
+
+    table = pq.read_table(out / "trace.parquet")
+    assert table.num_rows == 1000
+    for column in (
+        "t_s",
+        "x_m",
+        "y_m",
+        "x_d_m",
+        "y_d_m",
+        "eps_c_m",
+        "u_x_v",
+        "u_y_v",
+        "d_y_v",
+        "theta_hat_M1",
+        "theta_hat_dN2",
+        "dc_hat_x",
+    ):
+        assert column in table.column_names
+    rms, peak = _window_rms_max_um(table, (0.05, 0.2))
+    assert summary["contour_error_um"]["rms"] == pytest.approx(rms, rel=1e-12)
+    assert summary["contour_error_um"]["max"] == pytest.approx(peak, rel=1e-12)
+    est_t = table.column("t_s").to_numpy()
+    sel = (est_t >= 0.1) & (est_t < 0.2)
+    assert summary["estimates"]["B2"]["estimate"] == pytest.approx(table.column("theta_hat_B2").to_numpy()[sel].mean())
+    # The resolved scenario is complete and runs again to the same summary.
+    resolved = (out / "scenario.yaml").read_text()
+    assert "duration_s: 0.2" in resolved and "mass_kg: 5.0" in resolved
+    again = tmp_path / "again"
+    code, _, err = run_main(["run", str(out / "scenario.yaml"), "--out", str(again)], capsys)
+    assert code == 0, err
+    first = json.loads((out / "summary.json").read_text())
+    second = json.loads((again / "summary.json").read_text())
+    assert {k: v for k, v in first.items() if k != "scenario"} == {k: v for k, v in second.items() if k != "scenario"}
+
+
+def test_same_scenario_twice_gives_byte_identical_summaries(tmp_path, capsys):
+    args = ["run", str(shipped("step_disturbance_circle")), *SHORT, "--set", "disturbance.y.0.start_s=0.1"]
+    assert run_main([*args, "--out", str(tmp_path / "a")], capsys)[0] == 0
+    assert run_main([*args, "--out", str(tmp_path / "b"), "--progress"], capsys)[0] == 0
+    a, b = (tmp_path / "a" / "summary.json").read_bytes(), (tmp_path / "b" / "summary.json").read_bytes()
+    assert a == b
+    assert (tmp_path / "a" / "scenario.yaml").read_bytes() == (tmp_path / "b" / "scenario.yaml").read_bytes()
+
+
+def test_default_scenario_and_default_out_dir(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    code, _, err = run_main(["run", *SHORT, "--controller", "drc", "--set", "outputs.trace=false"], capsys)
+    assert code == 0, err
+    out = tmp_path / "runs" / "no_load_circle"
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["scenario"] == "no_load_circle" and summary["controller"] == "drc"
+    assert "estimates" not in summary  # DRC estimates nothing
+    assert not (out / "trace.parquet").exists()
+
+
+def test_shipped_scenarios_can_be_named_without_a_path(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    code, out, err = run_main(["validate", "load_5kg_circle", "step_disturbance_ellipse"], capsys)
+    assert code == 0, err
+    assert str(shipped("load_5kg_circle")) in out
+    code, _, err = run_main(["validate", "no_such_scenario"], capsys)
+    assert code == 2
+    assert_one_line_error(err, "no_such_scenario", "no such file")
+
+
+def test_set_overrides_reach_the_run(tmp_path, capsys):
+    out = tmp_path / "o"
+    args = [
+        "run",
+        str(shipped("no_load_circle")),
+        *SHORT,
+        "--set",
+        "payload.mass_kg=2.5",
+        "--set",
+        "outputs.trace_stride=10",
+        "--out",
+        str(out),
+    ]
+    assert run_main(args, capsys)[0] == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["estimates"]["M1"]["true"] == pytest.approx((8.28 + 2.5) / 69)
+    assert pq.read_table(out / "trace.parquet").num_rows == 100
+
+
+def test_atomic_write_leaves_nothing_when_the_writer_fails(tmp_path):
+    target = tmp_path / "file.bin"
+
+    def half(fh):
+        fh.write(b"partial")
+        raise OSError("disk full")
+
+    with pytest.raises(OSError, match="disk full"):
+        results.atomic_write(target, half)
+    assert list(tmp_path.iterdir()) == []
+    results.atomic_write_text(target, "done")
+    assert target.read_text() == "done"
+    with pytest.raises(OSError):
+        results.atomic_write(target, half)
+    assert target.read_text() == "done"  # the old complete file survives a failed rewrite
+    assert [p.name for p in tmp_path.iterdir()] == ["file.bin"]
+
+
+def test_failure_mid_write_leaves_no_complete_looking_run(tmp_path, capsys, monkeypatch):
+    out = tmp_path / "out"
+    args = ["run", str(shipped("no_load_circle")), *SHORT, "--out", str(out)]
+    assert run_main(args, capsys)[0] == 0
+    assert (out / "summary.json").exists()
+
+    def broken_write_table(table, where, **kwargs):
+        where.write(b"PAR1 half a file")
+        raise OSError("injected failure mid-write")
+
+    monkeypatch.setattr(results.pq, "write_table", broken_write_table)
+    code, _, err = run_main(args, capsys)
+    assert code == 1
+    assert_one_line_error(err, "run failed", "injected failure mid-write")
+    assert not (out / "summary.json").exists()  # the stale summary is gone: the directory is visibly incomplete
+    assert not [p for p in out.iterdir() if p.name.endswith(".part")]
+    assert pq.read_table(out / "trace.parquet").num_rows == 1000  # the previous trace, untouched
+
+
+def test_run_failure_exit_1(tmp_path, capsys, monkeypatch):
+    from gantry_twin.simulate import SimulationError
+
+    def fail(*args, **kwargs):
+        raise SimulationError("non-finite measurement at t = 0.1 s")
+
+    monkeypatch.setattr(cli, "simulate", fail)
+    out = tmp_path / "o"
+    code, _, err = run_main(["run", str(shipped("no_load_circle")), *SHORT, "--out", str(out)], capsys)
+    assert code == 1
+    assert_one_line_error(err, "run failed", "SimulationError", "non-finite")
+    assert not out.exists()
+
+
+def test_progress_bar_only_reads_the_trace(tmp_path, capsys):
+    from gantry_twin.scenario import build, load_scenario
+
+    overrides = ["duration_s=0.1", "window_s=[0, 0.1]", "estimates_window_s=[0, 0.1]"]
+    plain = cli.execute(build(load_scenario(shipped("no_load_circle"), overrides)))
+    shown = cli.execute(build(load_scenario(shipped("no_load_circle"), overrides)), [cli.ProgressBar(True, 0.0)])
+    np.testing.assert_array_equal(plain.q_m, shown.q_m)
+    assert "simulated" in capsys.readouterr().err
+
+
+# ---------------------------------------------------------------------------
+# The report on a tiny matrix.
+
+TINY = ("duration_s=0.1", "window_s=[0.02, 0.1]", "estimates_window_s=[0.05, 0.1]")
+
+
+def test_paper_matrix_has_16_paper_runs_and_4_recommended():
+    cases = report.paper_matrix(TINY)
+    labels = [(c.set_id, c.contour, c.label) for c in cases]
+    assert len(cases) == 20 and len(set(labels)) == 20
+    assert not [k for k in labels if k[0] == 3 and k[2] in ("C3", "C2r")]
+    assert sum(k[2] == "C2r" for k in labels) == 4
+
+
+def test_report_on_a_tiny_matrix(tmp_path):
+    cases = report.paper_matrix(TINY, sets=(1, 3), contours=("circle",), labels=("C1", "C2", "C2r"))
+    assert len(cases) == 5
+    res = report.run_matrix(cases, jobs=2)
+    assert [r.case for r in res] == cases
+    path = report.write_report(res, tmp_path / "rep", TINY)
+    text = path.read_text()
+    for heading in ("Table 1", "Table 2", "Table 3", "Table 4", "after running the gantry for one period"):
+        assert heading in text
+    assert "| rms paper (um) | 2.03 | 1.99 | 7.33 |" in text
+    assert "DIARC recommended: max deviation %" in text
+    pngs = sorted(p.name for p in (tmp_path / "rep").glob("*.png"))
+    assert pngs == ["fig2_set3_circle_contour_error.png", "fig4_set1_y_estimates.png"]
+    for name in pngs:
+        assert (tmp_path / "rep" / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    numbers = json.loads((tmp_path / "rep" / "results.json").read_text())
+    assert len(numbers["runs"]) == 5
+    c1 = next(r for r in res if r.case.key == "set1_circle_C1")
+    assert numbers["runs"][0]["rms_um"] == c1.rms_um
+
+
+def _fake(set_id, contour, label, rms, peak, est=None, true=None):
+    case = report.Case(set_id, contour, label, "x.yaml", "diarc", ())
+    return report.CaseResult(
+        case, rms, peak, (0.0, 1.0), 10, 0.0, true or [1.0] * 8, est, (0.0, 1.0), np.zeros(1), np.zeros(1)
+    )
+
+
+def test_findings_apply_the_issue_thresholds():
+    rows = [
+        _fake(1, "circle", "C1", 1.0, 2.0),
+        _fake(1, "circle", "C2", 1.39, 2.0),
+        _fake(1, "circle", "C3", 2.7, 5.0),
+        _fake(3, "circle", "C1", 3.9, 6.0),
+        _fake(3, "circle", "C2", 4.1, 5.9),
+        _fake(1, "circle", "C2r", 1.0, 1.0, est=[1.049, 0.96, 1, 1, 1, 1, 5, 5]),
+        _fake(2, "circle", "C2r", 1.0, 1.0, est=[1.0, 1.0, 1, 1, 1, 0.94, 1, 1]),
+    ]
+    got = {
+        text.split(" (")[0]: ok
+        for ok, text in report.findings({(r.case.set_id, r.case.contour, r.case.label): r for r in rows})
+    }
+    assert got["circle Set 1: C1 and C2 rms within 40 % of each other"] is True
+    assert got["circle Set 1: C3 rms at least twice C1's and C2's"] is False  # 2.7 < 2 x 1.39
+    assert got["circle C1: Set 3 max at least 3x Set 1's"] is True
+    assert got["circle C2: Set 3 max at least 3x Set 1's"] is False
+    assert got["circle C1: Set 3 rms below 4 um"] is True
+    assert got["circle C2: Set 3 rms below 4 um"] is False
+    assert got["Set 1: DIARC recommended estimates of M, B, Af within 5 %"] is True  # dN is not judged
+    assert got["Set 2: DIARC recommended estimates of M, B, Af within 5 %"] is False  # Af2 -6 %
