@@ -101,23 +101,23 @@ def test_recording_holds_every_sample_of_the_trace(diarc_recording):
         "gantry/y_carriage",
         "gantry/y_carriage/x_carriage",
         "contour_mm/xy/actual_x10000",
-        *(theta_entity(name) for name in THETA_NAMES),
+        *(f"{theta_entity(name)}/{line}" for name in THETA_NAMES for line in ("estimate", "true")),
     }
     assert expected <= set(data)
     assert theta_entity("M1") == "estimates/M1_V_s2_per_m" and theta_entity("Af2") == "estimates/Af2_V"
 
-    n = trace.t_s.size
     times_ns = np.rint(trace.t_s * 1e9).astype(np.int64)
     eps_c = data["errors/contour/eps_c_um"]
     np.testing.assert_array_equal(eps_c["time_ns"], times_ns)
     np.testing.assert_array_equal(scalars(data, "errors/contour/eps_c_um")[:, 0], trace.eps_c_m * 1e6)
     theta_hat = trace.controller_state["theta_hat"]
     for i, name in enumerate(THETA_NAMES):
-        logged = scalars(data, theta_entity(name))
-        assert logged.shape == (n, 2)
-        np.testing.assert_array_equal(data[theta_entity(name)]["time_ns"], times_ns)
-        np.testing.assert_array_equal(logged[:, 0], theta_hat[:, i])
-        np.testing.assert_array_equal(logged[:, 1], np.full(n, trace.true_theta[i]))
+        estimate = f"{theta_entity(name)}/estimate"
+        np.testing.assert_array_equal(data[estimate]["time_ns"], times_ns)
+        np.testing.assert_array_equal(scalars(data, estimate)[:, 0], theta_hat[:, i])
+        true = scalars(data, f"{theta_entity(name)}/true")[:, 0]
+        np.testing.assert_array_equal(true, np.full(true.size, trace.true_theta[i]))
+        assert data[f"{theta_entity(name)}/true"]["time_ns"][[0, -1]].tolist() == times_ns[[0, -1]].tolist()
     np.testing.assert_array_equal(scalars(data, "estimates/dc_hat_V"), trace.controller_state["dc_hat"])
     np.testing.assert_array_equal(
         scalars(data, "estimates/gamma_lambda_max")[:, 0], trace.controller_state["gamma_lambda_max"]
