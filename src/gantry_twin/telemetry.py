@@ -45,7 +45,6 @@ import argparse
 import atexit
 import math
 import os
-import shutil
 import socket
 import subprocess
 import sys
@@ -291,7 +290,6 @@ class RerunObserver:
         self.marker_rate_hz = float(marker_rate_hz)
         self.contour_rate_hz = float(contour_rate_hz)
         self._run: RunInfo | None = None
-        self._finished = False
 
     # -- constructors for the usual sinks ---------------------------------------------------
 
@@ -307,7 +305,7 @@ class RerunObserver:
         """Start (or reuse) a native viewer on this machine and stream to it."""
         require_display()
         recording = rr.RecordingStream(application_id)
-        recording.spawn()
+        recording.connect_grpc(_spawn_native_viewer(recording))
         return cls(recording, **kwargs)
 
     @classmethod
@@ -349,12 +347,20 @@ class RerunObserver:
         if not self._styled:
             self._log_static_styling(trace)
         self._send(trace, self._sent, trace.filled)
-        self.recording.flush()
-        self._finished = True
+        self.recording.flush(timeout_sec=0.0)  # start pushing the tail out; close() waits for it
 
-    def close(self) -> None:
-        """Flush and detach the sinks (files are complete after this)."""
-        self.recording.flush()
+    def close(self, timeout_s: float = 30.0) -> None:
+        """Flush and detach the sinks (files are complete after this).
+
+        A viewer that does not take the data within ``timeout_s`` is given up on
+        with a warning on stderr rather than blocking the program.
+        """
+        try:
+            self.recording.flush(timeout_sec=timeout_s)
+        except Exception as error:  # rerun raises a bare RuntimeError-like error on timeout
+            print(
+                f"warning: telemetry: not all data reached the viewer within {timeout_s:g} s ({error})", file=sys.stderr
+            )
         self.recording.disconnect()
 
     def __enter__(self) -> RerunObserver:
@@ -543,6 +549,13 @@ def require_display() -> None:
         )
 
 
+def _spawn_native_viewer(recording: rr.RecordingStream) -> str:
+    """Start the native viewer on a free local port (blocks until it listens); its gRPC URL."""
+    port = _free_port()
+    rr.spawn(port=port, connect=False, hide_welcome_screen=True, executable_path=rerun_binary(), recording=recording)
+    return f"rerun+http://127.0.0.1:{port}/proxy"
+
+
 def check_grpc_url(url: str) -> str:
     parsed = urllib.parse.urlparse(url)
     if parsed.scheme not in ("rerun", "rerun+http", "rerun+https") or not parsed.netloc:
@@ -727,8 +740,6 @@ def telemetry_observers(
         check_grpc_url(connect)
     if viewer:
         require_display()
-        if shutil.which("rerun") is None:
-            raise TelemetryError("--viewer: the `rerun` viewer executable is not on PATH (pip install rerun-sdk)")
     observers: list[Observer] = []
     rerun_observer = None
     server = None
@@ -738,16 +749,19 @@ def telemetry_observers(
             server = WebViewerServer()
             sinks.append(rr.GrpcSink(server.grpc_url))
             print(f"Rerun web viewer: {server.url}", file=out, flush=True)
+        recording = rr.RecordingStream(application_id)
         if viewer:
-            port = _free_port()
-            rr.spawn(port=port, connect=False, hide_welcome_screen=True)
-            sinks.append(rr.GrpcSink(f"rerun+http://127.0.0.1:{port}/proxy"))
+            sinks.append(rr.GrpcSink(_spawn_native_viewer(recording)))
         if connect:
             sinks.append(rr.GrpcSink(connect))
-        if save:
-            sinks.append(rr.FileSink(save))
-        recording = rr.RecordingStream(application_id)
-        recording.set_sinks(*sinks)
+        try:
+            if save:
+                sinks.append(rr.FileSink(save))
+            recording.set_sinks(*sinks)
+        except (RuntimeError, OSError) as error:
+            if server is not None:
+                server.stop()
+            raise TelemetryError(f"--save: cannot write {str(save)!r}: {error}") from None
         rerun_observer = RerunObserver(recording)
         observers.append(rerun_observer)
     if realtime is not None:
