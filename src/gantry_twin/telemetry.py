@@ -697,10 +697,9 @@ class TelemetryObservers(list):
             if self.rerun_observer is not None:
                 self.rerun_observer.close()
             if self.server is not None and wait:
-                print(
-                    f"Still serving the viewer at {self.server.url} ; press Ctrl-C to stop.", file=self.out, flush=True
-                )
-                try:
+                try:  # from before the message: Ctrl-C may come as soon as it is printed
+                    print(f"Still serving the viewer at {self.server.url} ; press Ctrl-C to stop.", file=self.out)
+                    self.out.flush()
                     while self.server.process.poll() is None:
                         time.sleep(0.2)
                 except KeyboardInterrupt:
