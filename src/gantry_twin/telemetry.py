@@ -375,7 +375,12 @@ class RerunObserver:
         rec = self.recording
         rec.log("gantry", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         for body in self._bodies:
-            rec.log(body.entity, rr.Transform3D(translation=body.offset_m, quaternion=body.quat_xyzw), static=True)
+            # Static data shadows temporal data of the same component: a moving body gets its
+            # translation only from the 50 Hz columns.
+            if body.slides:
+                rec.log(body.entity, rr.Transform3D(quaternion=body.quat_xyzw), static=True)
+            else:
+                rec.log(body.entity, rr.Transform3D(translation=body.offset_m, quaternion=body.quat_xyzw), static=True)
             if body.half_sizes_m.size:
                 rec.log(
                     body.entity,
