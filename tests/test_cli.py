@@ -430,3 +430,21 @@ def test_findings_apply_the_issue_thresholds():
     assert got["circle C2: Set 3 rms below 4 um"] is False
     assert got["Set 1: DIARC recommended estimates of M, B, Af within 5 %"] is True  # dN is not judged
     assert got["Set 2: DIARC recommended estimates of M, B, Af within 5 %"] is False  # Af2 -6 %
+
+
+def test_run_records_telemetry_to_a_file(tmp_path):
+    rrd = tmp_path / "run.rrd"
+    code = cli.main(["run", "no_load_circle", *SHORT, "--out", str(tmp_path / "out"), "--save", str(rrd)])
+    assert code == 0
+    assert rrd.stat().st_size > 0
+    assert (tmp_path / "out" / "summary.json").is_file()
+
+
+def test_run_viewer_without_display_is_a_one_line_error(tmp_path, monkeypatch, capsys):
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    code = cli.main(["run", "no_load_circle", *SHORT, "--out", str(tmp_path / "out"), "--viewer"])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert len(err.strip().splitlines()) == 1 and "--serve-web" in err and "Traceback" not in err
+    assert not (tmp_path / "out").exists()

@@ -26,6 +26,7 @@ from gantry_twin.scenario import (
     shipped,
 )
 from gantry_twin.simulate import Observer, RunInfo, Trace, simulate
+from gantry_twin.telemetry import TelemetryError, add_telemetry_arguments, telemetry_observers
 
 PROG = "gantry-twin"
 #: The scenario ``run`` uses when none is given.
@@ -86,17 +87,9 @@ class ProgressBar:
             self._bar = None
 
 
-def _observers(args: argparse.Namespace) -> list[Observer]:
-    """Observers of a ``run``: the progress bar, then any extra ones.
-
-    Telemetry plugs in here: gantry_twin.telemetry provides
-    ``add_telemetry_arguments(parser)`` (call it on the ``run`` parser in
-    :func:`build_parser`) and ``telemetry_observers(args) -> list[Observer]``
-    (extend the list below with it). Observers must not change results.
-    """
-    progress = sys.stderr.isatty() if args.progress is None else args.progress
-    observers: list[Observer] = [ProgressBar(progress)]
-    return observers
+def _progress(args: argparse.Namespace) -> ProgressBar:
+    """The progress bar of a ``run`` (on when stderr is a terminal, unless told)."""
+    return ProgressBar(sys.stderr.isatty() if args.progress is None else args.progress)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -116,6 +109,7 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="progress bar on stderr (default: when stderr is a terminal)",
     )
+    add_telemetry_arguments(run)
 
     validate = sub.add_parser("validate", help="check scenario files without running them")
     validate.add_argument("scenario", nargs="+", help="scenario YAML file(s)")
@@ -150,7 +144,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.command == "validate":
             return _validate(args)
         return _report(args)
-    except (ScenarioError, BadInput) as exc:
+    except (ScenarioError, BadInput, TelemetryError) as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:
@@ -189,18 +183,20 @@ def _run(args: argparse.Namespace) -> int:
     scenario = load_scenario(path, args.overrides, args.controller)
     built = build(scenario, str(path))
     out = _out_dir(args, scenario)
-    try:
-        started = time.perf_counter()
-        trace = execute(built, _observers(args))
-        wall_time_s = time.perf_counter() - started
-        summary = write_run(out, built, trace, wall_time_s)
-    except Exception as exc:  # the run or the writing failed: not the user's input
-        if os.environ.get("GANTRY_TWIN_DEBUG"):
-            raise
-        message = str(exc).splitlines()[0] if str(exc) else ""
-        print(f"{PROG}: run failed: {type(exc).__name__}: {message}", file=sys.stderr)
-        return EXIT_RUN_FAILED
-    print(format_summary(summary, wall_time_s, out))
+    telemetry = telemetry_observers(args)  # checks every option before anything runs
+    with telemetry:
+        try:
+            started = time.perf_counter()
+            trace = execute(built, [_progress(args), *telemetry])
+            wall_time_s = time.perf_counter() - started
+            summary = write_run(out, built, trace, wall_time_s)
+        except Exception as exc:  # the run or the writing failed: not the user's input
+            if os.environ.get("GANTRY_TWIN_DEBUG"):
+                raise
+            message = str(exc).splitlines()[0] if str(exc) else ""
+            print(f"{PROG}: run failed: {type(exc).__name__}: {message}", file=sys.stderr)
+            return EXIT_RUN_FAILED
+        print(format_summary(summary, wall_time_s, out), flush=True)
     return EXIT_OK
 
 
