@@ -12,14 +12,23 @@ Control-spec section 7:
   growth from forgetting.
 * The discrete projection in the Gamma^-1 metric (the discrete form of
   eq. 16) and the element-wise projection for a diagonal gain (eq. 9).
+
+The per-sample functions are numba kernels (:mod:`gantry_twin._jit`) on
+float64 arrays that work in place or into preallocated workspaces; the
+functions taking settings objects (:func:`least_squares_step`,
+:func:`project_metric`, :func:`filter_step`) are the convenient public forms.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from scipy.linalg import expm
+
+from gantry_twin._jit import kernel
 
 
 @dataclass(frozen=True)
@@ -52,78 +61,230 @@ def discretise_filter(wn_rad_s: float, zeta: float, sample_period_s: float) -> F
     return FilterDiscretisation(e[:2, :2].copy(), e[:2, 2].copy(), e[:2, 3].copy(), wn_rad_s, zeta)
 
 
-def filter_step(z: np.ndarray, disc: FilterDiscretisation, w_start: float, slope: float) -> None:
-    """Advance one filter state in place over one sample.
+@kernel
+def filter_advance(z, column, phi, hold, ramp, w_start, slope):
+    """Advance the filter state z[:, column] = [w_f, w_f'] in place over one sample.
 
     The input is w_start at the start of the sample and grows at ``slope``
-    (units/s) through it; slope = 0 is a zero-order hold.
+    (units/s) through it; slope = 0 is a zero-order hold. phi, hold, ramp
+    come from :func:`discretise_filter`.
     """
-    z[:] = disc.phi @ z + disc.hold * w_start + disc.ramp * slope
+    w0, w1 = z[0, column], z[1, column]
+    z[0, column] = phi[0, 0] * w0 + phi[0, 1] * w1 + hold[0] * w_start + ramp[0] * slope
+    z[1, column] = phi[1, 0] * w0 + phi[1, 1] * w1 + hold[1] * w_start + ramp[1] * slope
+
+
+def filter_step(z: np.ndarray, disc: FilterDiscretisation, w_start: float, slope: float) -> None:
+    """Advance one filter state z = [w_f, w_f'] (2,) in place over one sample."""
+    column = z.reshape(2, 1)
+    filter_advance(column, 0, disc.phi, disc.hold, disc.ramp, float(w_start), float(slope))
+    z[:] = column[:, 0]
+
+
+@kernel
+def filtered_acceleration(w_f, dw_f, wn_rad_s, zeta, w_now):
+    """w_f'' = wn^2 (w - w_f) - 2 z wn w_f' at the sample time."""
+    return wn_rad_s * wn_rad_s * (w_now - w_f) - 2.0 * zeta * wn_rad_s * dw_f
 
 
 def filter_acceleration(z: np.ndarray, disc: FilterDiscretisation, w_now: float) -> float:
-    """w_f'' = wn^2 (w - w_f) - 2 z wn w_f' at the sample time."""
-    return disc.wn_rad_s**2 * (w_now - z[0]) - 2.0 * disc.zeta * disc.wn_rad_s * z[1]
+    """w_f'' of the filter state z = [w_f, w_f'] (see :func:`filtered_acceleration`)."""
+    return filtered_acceleration(float(z[0]), float(z[1]), disc.wn_rad_s, disc.zeta, float(w_now))
 
 
-def friction_shape(v_m_s: np.ndarray | float, slope_s_per_m: float = 9000.0) -> np.ndarray | float:
-    """Sf(v) = (2/pi) atan(9000 v): the controller's smooth Coulomb model."""
-    return (2.0 / np.pi) * np.arctan(slope_s_per_m * v_m_s)
+@kernel
+def friction_shape(v_m_s, slope_s_per_m=9000.0):
+    """Sf(v) = (2/pi) atan(9000 v): the controller's smooth Coulomb model (one velocity, m/s)."""
+    return (2.0 / math.pi) * math.atan(slope_s_per_m * v_m_s)
 
 
-def project_box(theta: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
+@kernel
+def clip(value, lower, upper):
+    """value limited to [lower, upper]; NaN passes through (so the loop can stop on it)."""
+    if value > upper:
+        return upper
+    if value < lower:
+        return lower
+    return value
+
+
+@kernel
+def project_box(theta, lower, upper, out=None):
     """Element-wise projection onto the box (eq. 9 for a diagonal gain)."""
-    return np.minimum(np.maximum(theta, lower), upper)
+    if out is None:
+        out = np.empty(theta.shape[0])
+    for i in range(theta.shape[0]):
+        out[i] = clip(theta[i], lower[i], upper[i])
+    return out
 
 
-def project_metric(
-    y: np.ndarray, gamma: np.ndarray, lower: np.ndarray, upper: np.ndarray, max_iterations: int = 50
-) -> np.ndarray:
-    """argmin over the box of (x - y)^T Gamma^-1 (x - y): the discrete eq. (16).
+@kernel
+def cholesky_solve(a, n, b, x, factor):
+    """Solve a[:n, :n] x = b[:n] for symmetric positive definite a (Cholesky).
+
+    ``factor`` (at least n x n) is scratch space; x[:n] receives the solution.
+    """
+    for i in range(n):
+        for j in range(i + 1):
+            acc = a[i, j]
+            for k in range(j):
+                acc -= factor[i, k] * factor[j, k]
+            factor[i, j] = math.sqrt(acc) if i == j else acc / factor[j, j]
+    for i in range(n):
+        acc = b[i]
+        for k in range(i):
+            acc -= factor[i, k] * x[k]
+        x[i] = acc / factor[i, i]
+    for i in range(n - 1, -1, -1):
+        acc = x[i]
+        for k in range(i + 1, n):
+            acc -= factor[k, i] * x[k]
+        x[i] = acc / factor[i, i]
+
+
+class ProjectionWork(NamedTuple):
+    """Scratch arrays of :func:`project_metric_into` for p parameters."""
+
+    active: np.ndarray  # (p,) 1 where the variable sits on a bound
+    bound: np.ndarray  # (p,) the bound it sits on
+    active_index: np.ndarray  # (p,) int
+    free_index: np.ndarray  # (p,) int
+    gamma_aa: np.ndarray  # (p, p) Gamma restricted to the active set
+    rhs: np.ndarray  # (p,)
+    delta: np.ndarray  # (p,) Gamma_AA^-1 (x - y)_A
+    factor: np.ndarray  # (p, p) Cholesky scratch
+
+
+def projection_work(p: int) -> ProjectionWork:
+    """Preallocated scratch for :func:`project_metric_into`."""
+    return ProjectionWork(
+        np.zeros(p), np.zeros(p), np.zeros(p, dtype=np.int64), np.zeros(p, dtype=np.int64),
+        np.zeros((p, p)), np.zeros(p), np.zeros(p), np.zeros((p, p)),
+    )  # fmt: skip
+
+
+@kernel
+def project_metric_into(y, gamma, lower, upper, max_iterations, x, work):
+    """x = argmin over the box of (x - y)^T Gamma^-1 (x - y): the discrete eq. (16).
 
     Primal active-set method. With the active set A held at its bounds b_A,
     the free part is the conditional mean x_F = y_F + Gamma_FA Gamma_AA^-1
     (b_A - y_A), so Gamma^-1 is never formed. The gradient g = Gamma^-1 (x - y)
     is zero on F and g_A = Gamma_AA^-1 (x - y)_A; KKT needs g_i <= 0 at an
     upper bound and g_i >= 0 at a lower one. Several faces may be active.
+    Free variables that leave the box join A one at a time (the worst first:
+    adding all at once can overshoot); an active variable whose multiplier
+    has the wrong sign leaves A.
     """
     n = y.shape[0]
-    inside = (y >= lower) & (y <= upper)
-    if inside.all():
-        return y.copy()
-    active = ~inside
-    bound = np.where(y > upper, upper, lower)
-    x = y.copy()
+    inside = True
+    for i in range(n):
+        outside = y[i] > upper[i] or y[i] < lower[i]
+        work.active[i] = 1.0 if outside else 0.0
+        work.bound[i] = upper[i] if y[i] > upper[i] else lower[i]
+        inside = inside and not outside
+    if inside:
+        for i in range(n):
+            x[i] = y[i]
+        return
     for _ in range(max_iterations):
-        a_idx = np.flatnonzero(active)
-        f_idx = np.flatnonzero(~active)
-        x = y.copy()
-        x[a_idx] = bound[a_idx]
-        if a_idx.size:
-            delta = np.linalg.solve(gamma[np.ix_(a_idx, a_idx)], x[a_idx] - y[a_idx])
-            x[f_idx] = y[f_idx] + gamma[np.ix_(f_idx, a_idx)] @ delta
-        else:
-            delta = np.zeros(0)
-        # Free variables that left the box become active at the bound they crossed.
-        over = (~active) & ((x > upper) | (x < lower))
-        if over.any():
-            # Add only the worst violator: adding all at once can overshoot.
-            violation = np.where(x > upper, x - upper, lower - x)
-            violation[~over] = -np.inf
-            i = int(np.argmax(violation))
-            active[i] = True
-            bound[i] = upper[i] if x[i] > upper[i] else lower[i]
+        n_active = 0
+        n_free = 0
+        for i in range(n):
+            x[i] = y[i]
+            if work.active[i] > 0.0:
+                x[i] = work.bound[i]
+                work.active_index[n_active] = i
+                n_active += 1
+            else:
+                work.free_index[n_free] = i
+                n_free += 1
+        if n_active > 0:
+            for j in range(n_active):
+                aj = work.active_index[j]
+                work.rhs[j] = x[aj] - y[aj]
+                for m in range(n_active):
+                    work.gamma_aa[j, m] = gamma[aj, work.active_index[m]]
+            cholesky_solve(work.gamma_aa, n_active, work.rhs, work.delta, work.factor)
+            for j in range(n_free):
+                f = work.free_index[j]
+                acc = 0.0
+                for m in range(n_active):
+                    acc += gamma[f, work.active_index[m]] * work.delta[m]
+                x[f] = y[f] + acc
+        # Free variables that left the box: the worst violator becomes active.
+        worst = -1
+        worst_violation = 0.0
+        for j in range(n_free):
+            f = work.free_index[j]
+            violation = x[f] - upper[f] if x[f] > upper[f] else (lower[f] - x[f] if x[f] < lower[f] else 0.0)
+            if violation > 0.0 and (worst < 0 or violation > worst_violation):
+                worst, worst_violation = f, violation
+        if worst >= 0:
+            work.active[worst] = 1.0
+            work.bound[worst] = upper[worst] if x[worst] > upper[worst] else lower[worst]
             continue
         # Active variables whose multiplier has the wrong sign are released.
-        wrong = np.zeros(n)
-        for j, i in enumerate(a_idx):
-            g = delta[j]
-            wrong[i] = g if bound[i] == upper[i] else -g  # > 0 means wrong sign
-        if a_idx.size and wrong.max() > 1e-15 * max(1.0, np.abs(delta).max()):
-            active[int(np.argmax(wrong))] = False
+        release = -1
+        most_wrong = 0.0
+        scale = 1.0
+        for j in range(n_active):
+            scale = max(scale, abs(work.delta[j]))
+        for j in range(n_active):
+            a = work.active_index[j]
+            wrong = work.delta[j] if work.bound[a] == upper[a] else -work.delta[j]  # > 0: wrong sign
+            if wrong > 1e-15 * scale and (release < 0 or wrong > most_wrong):
+                release, most_wrong = a, wrong
+        if release >= 0:
+            work.active[release] = 0.0
             continue
-        return np.minimum(np.maximum(x, lower), upper)
+        for i in range(n):
+            x[i] = clip(x[i], lower[i], upper[i])
+        return
     raise RuntimeError("project_metric: active-set loop did not converge")
+
+
+def project_metric(
+    y: np.ndarray, gamma: np.ndarray, lower: np.ndarray, upper: np.ndarray, max_iterations: int = 50
+) -> np.ndarray:
+    """argmin over the box of (x - y)^T Gamma^-1 (x - y); see :func:`project_metric_into`."""
+    y = np.ascontiguousarray(y, dtype=float)
+    x = np.empty_like(y)
+    args = (np.ascontiguousarray(gamma, dtype=float), np.asarray(lower, dtype=float), np.asarray(upper, dtype=float))
+    project_metric_into(y, *args, int(max_iterations), x, projection_work(y.shape[0]))
+    return x
+
+
+@kernel
+def largest_eigenvalue(a, v, w, tolerance=1e-15, max_iterations=500):
+    """lambda_max of a symmetric positive definite matrix by warm-started power iteration.
+
+    v: unit start vector (p,), replaced by the new estimate of the top
+    eigenvector (warm start for the next call); w: (p,) scratch. Iterates
+    until the Rayleigh quotient changes by at most ``tolerance`` relative.
+    Gamma changes little per 0.2 ms sample, so one to three iterations
+    usually suffice; tests compare the result with numpy's eigvalsh.
+    """
+    p = a.shape[0]
+    previous = -1.0
+    rayleigh = 0.0
+    for _ in range(max_iterations):
+        norm = 0.0
+        rayleigh = 0.0
+        for i in range(p):
+            acc = 0.0
+            for k in range(p):
+                acc += a[i, k] * v[k]
+            w[i] = acc
+            rayleigh += v[i] * acc
+            norm += acc * acc
+        norm = math.sqrt(norm)
+        for i in range(p):
+            v[i] = w[i] / norm
+        if abs(rayleigh - previous) <= tolerance * rayleigh:
+            break
+        previous = rayleigh
+    return rayleigh
 
 
 @dataclass(frozen=True)
@@ -136,6 +297,107 @@ class LeastSquaresSettings:
     gamma0_diag: tuple[float, ...] = (10.0, 10.0, 10.0, 10.0, 10.0, 10.0, 5000.0, 5000.0)
 
 
+class LeastSquaresWork(NamedTuple):
+    """Scratch arrays of :func:`least_squares_update` for p parameters and m outputs."""
+
+    gamma_g: np.ndarray  # (p, m) Gamma gamma_f
+    zeta: np.ndarray  # (m,) prediction error
+    tau: np.ndarray  # (p,)
+    y: np.ndarray  # (p,) the unprojected new estimate
+    inner: np.ndarray  # (m, m)
+    column: np.ndarray  # (m,)
+    solved: np.ndarray  # (m, p) inner^-1 (Gamma gamma_f)^T
+    eigvec: np.ndarray  # (p,) warm start of the power iteration, carried between samples
+    scratch: np.ndarray  # (p,)
+    projection: ProjectionWork
+
+
+def least_squares_work(p: int, m: int, gamma: np.ndarray) -> LeastSquaresWork:
+    """Scratch for :func:`least_squares_update`, the power iteration started at Gamma's top eigenvector."""
+    _, vectors = np.linalg.eigh(gamma)
+    return LeastSquaresWork(
+        np.zeros((p, m)), np.zeros(m), np.zeros(p), np.zeros(p), np.zeros((m, m)), np.zeros(m),
+        np.zeros((m, p)), np.ascontiguousarray(vectors[:, -1]), np.zeros(p), projection_work(p),
+    )  # fmt: skip
+
+
+@kernel
+def least_squares_update(theta, gamma, g, target, nu, kappa, rho_max, lower, upper, sample_period_s, work):
+    """One sample of eq. (27)-(28) with projection; updates theta, gamma in place.
+
+        n      = 1 + nu tr(gamma_f^T Gamma gamma_f)
+        zeta   = gamma_f^T theta^ - u_f,  tau = -gamma_f zeta / n
+        theta^ = Proj_Gamma(theta^ + Ts Gamma tau)                    (eq. 16, 27)
+        Gamma  = Gamma - Gamma g (n/Ts I + g^T Gamma g)^-1 g^T Gamma  (eq. 28)
+
+    g: gamma_f, shape (p, m) (here 8 x 2); target: u_f, shape (m,). The
+    information term is applied in its exact discrete (inverse-update) form,
+    Gamma+^-1 = Gamma^-1 + Ts gamma_f gamma_f^T / n, which keeps Gamma
+    symmetric positive definite for any step; forgetting multiplies Gamma by
+    exp(kappa Ts) only while lambda_max(Gamma) <= rho_M. Returns
+    lambda_max(Gamma) after the update.
+    """
+    p, m = g.shape
+    gamma_g = work.gamma_g
+    trace = 0.0
+    for i in range(p):
+        for j in range(m):
+            acc = 0.0
+            for k in range(p):
+                acc += gamma[i, k] * g[k, j]
+            gamma_g[i, j] = acc
+            trace += g[i, j] * acc
+    n = 1.0 + nu * trace
+    for j in range(m):
+        acc = 0.0
+        for i in range(p):
+            acc += g[i, j] * theta[i]
+        work.zeta[j] = acc - target[j]
+    for i in range(p):
+        acc = 0.0
+        for j in range(m):
+            acc += g[i, j] * work.zeta[j]
+        work.tau[i] = -acc / n
+    for i in range(p):
+        acc = 0.0
+        for k in range(p):
+            acc += gamma[i, k] * work.tau[k]
+        work.y[i] = theta[i] + sample_period_s * acc
+    project_metric_into(work.y, gamma, lower, upper, 50, theta, work.projection)
+
+    for j in range(m):
+        for k in range(m):
+            acc = n / sample_period_s if j == k else 0.0
+            for i in range(p):
+                acc += g[i, j] * gamma_g[i, k]
+            work.inner[j, k] = acc
+    for i in range(p):
+        for j in range(m):
+            work.column[j] = gamma_g[i, j]
+        cholesky_solve(work.inner, m, work.column, work.scratch, work.projection.factor)
+        for j in range(m):
+            work.solved[j, i] = work.scratch[j]
+    for i in range(p):
+        for k in range(p):
+            acc = 0.0
+            for j in range(m):
+                acc += gamma_g[i, j] * work.solved[j, k]
+            gamma[i, k] -= acc
+    lam_max = largest_eigenvalue(gamma, work.eigvec, work.scratch)
+    if lam_max <= rho_max:
+        growth = math.exp(kappa * sample_period_s)
+        for i in range(p):
+            for k in range(p):
+                gamma[i, k] *= growth
+        lam_max *= growth
+    for i in range(p):
+        for k in range(i + 1, p):
+            mean = 0.5 * (gamma[i, k] + gamma[k, i])
+            gamma[i, k] = mean
+            gamma[k, i] = mean
+    return lam_max
+
+
 def least_squares_step(
     theta: np.ndarray,
     gamma: np.ndarray,
@@ -146,29 +408,11 @@ def least_squares_step(
     upper: np.ndarray,
     sample_period_s: float,
 ) -> float:
-    """One sample of eq. (27)-(28) with projection; updates theta, gamma in place.
-
-    regressor: gamma_f, shape (p, m) (here 8 x 2); target: u_f, shape (m,).
-    The information term is applied in its exact discrete (inverse-update)
-    form, Gamma+^-1 = Gamma^-1 + Ts gamma_f gamma_f^T / n, which keeps Gamma
-    symmetric positive definite for any step; forgetting multiplies Gamma by
-    exp(kappa Ts) only while lambda_max(Gamma) <= rho_M. Returns
-    lambda_max(Gamma) after the update.
-    """
-    g = regressor
-    gamma_g = gamma @ g
-    n = 1.0 + settings.nu * float(np.trace(g.T @ gamma_g))
-    zeta = g.T @ theta - target
-    tau = -(g @ zeta) / n
-    y = theta + sample_period_s * (gamma @ tau)
-    theta[:] = project_metric(y, gamma, lower, upper)
-
-    inner = (n / sample_period_s) * np.eye(g.shape[1]) + g.T @ gamma_g
-    gamma -= gamma_g @ np.linalg.solve(inner, gamma_g.T)
-    lam_max = float(np.linalg.eigvalsh(gamma)[-1])
-    if lam_max <= settings.rho_max:
-        growth = np.exp(settings.kappa * sample_period_s)
-        gamma *= growth
-        lam_max *= growth
-    gamma[:] = 0.5 * (gamma + gamma.T)
-    return lam_max
+    """One sample of eq. (27)-(28); see :func:`least_squares_update`. Returns lambda_max(Gamma)."""
+    g = np.ascontiguousarray(regressor, dtype=float)
+    work = least_squares_work(g.shape[0], g.shape[1], gamma)
+    return least_squares_update(
+        theta, gamma, g, np.asarray(target, dtype=float), float(settings.nu), float(settings.kappa),
+        float(settings.rho_max), np.asarray(lower, dtype=float), np.asarray(upper, dtype=float),
+        float(sample_period_s), work,
+    )  # fmt: skip
