@@ -15,8 +15,11 @@ do the same floating-point operations in the same order.
 
 from __future__ import annotations
 
+import hashlib
+import os
 import types
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any, TypeVar
 
 import numba
@@ -24,10 +27,47 @@ from numba.core.registry import CPUDispatcher
 
 F = TypeVar("F", bound=Callable[..., Any])
 
+#: The modules whose kernels call each other (paths relative to the package).
+KERNEL_MODULES = (
+    "_jit.py",
+    "taskframe.py",
+    "estimation.py",
+    "controllers/law.py",
+    "controllers/arc.py",
+    "controllers/pd.py",
+    "simulate.py",
+)
+
+
+def cache_dir() -> str:
+    """Where compiled kernels are cached: one directory per version of the kernel sources.
+
+    numba invalidates a cached function only when *its own* file changes, not
+    when a kernel it calls (in another file) does; keying the directory on a
+    hash of every kernel module makes any edit recompile everything.
+    NUMBA_CACHE_DIR, if set, is the parent; else ~/.cache/gantry_twin/numba.
+    """
+    package = Path(__file__).resolve().parent
+    digest = hashlib.sha256()
+    for name in KERNEL_MODULES:
+        digest.update((package / name).read_bytes())
+    root = os.environ.get("NUMBA_CACHE_DIR") or os.path.join(
+        os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache"), "gantry_twin", "numba"
+    )
+    return os.path.join(root, digest.hexdigest()[:16])
+
+
+_CACHE_DIR = cache_dir()
+
 
 def kernel(function: F) -> F:
-    """Compile ``function`` in nopython mode, cached on disk."""
-    return numba.njit(cache=True)(function)  # type: ignore[return-value]
+    """Compile ``function`` in nopython mode, cached on disk under :func:`cache_dir`."""
+    saved = numba.config.CACHE_DIR
+    numba.config.CACHE_DIR = _CACHE_DIR  # read once, when the dispatcher's cache is created
+    try:
+        return numba.njit(cache=True)(function)  # type: ignore[return-value]
+    finally:
+        numba.config.CACHE_DIR = saved
 
 
 _reference_functions: dict[int, types.FunctionType] = {}

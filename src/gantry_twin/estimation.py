@@ -119,17 +119,25 @@ def project_box(theta, lower, upper, out=None):
 
 
 @kernel
-def cholesky_solve(a, n, b, x, factor):
-    """Solve a[:n, :n] x = b[:n] for symmetric positive definite a (Cholesky).
-
-    ``factor`` (at least n x n) is scratch space; x[:n] receives the solution.
-    """
+def cholesky_factor(a, n, factor):
+    """Lower Cholesky factor of a[:n, :n] into factor[:n, :n]; False if a is not positive definite."""
     for i in range(n):
         for j in range(i + 1):
             acc = a[i, j]
             for k in range(j):
                 acc -= factor[i, k] * factor[j, k]
-            factor[i, j] = math.sqrt(acc) if i == j else acc / factor[j, j]
+            if i == j:
+                if not acc > 0.0:
+                    return False
+                factor[i, i] = math.sqrt(acc)
+            else:
+                factor[i, j] = acc / factor[j, j]
+    return True
+
+
+@kernel
+def cholesky_substitute(factor, n, b, x):
+    """Solve L L^T x = b[:n] with L = factor[:n, :n] from :func:`cholesky_factor`."""
     for i in range(n):
         acc = b[i]
         for k in range(i):
@@ -140,6 +148,17 @@ def cholesky_solve(a, n, b, x, factor):
         for k in range(i + 1, n):
             acc -= factor[k, i] * x[k]
         x[i] = acc / factor[i, i]
+
+
+@kernel
+def cholesky_solve(a, n, b, x, factor):
+    """Solve a[:n, :n] x = b[:n] for symmetric positive definite a (Cholesky).
+
+    ``factor`` (at least n x n) is scratch space; x[:n] receives the solution.
+    """
+    if not cholesky_factor(a, n, factor):
+        raise np.linalg.LinAlgError("cholesky_solve: matrix is not positive definite")
+    cholesky_substitute(factor, n, b, x)
 
 
 class ProjectionWork(NamedTuple):
@@ -176,12 +195,14 @@ def project_metric_into(y, gamma, lower, upper, max_iterations, x, work):
     adding all at once can overshoot); an active variable whose multiplier
     has the wrong sign leaves A.
     """
+    # Unpacked once: each namedtuple field access costs a reference-count update in numba.
+    active, bound, active_index, free_index, gamma_aa, rhs, delta, factor = work
     n = y.shape[0]
     inside = True
     for i in range(n):
         outside = y[i] > upper[i] or y[i] < lower[i]
-        work.active[i] = 1.0 if outside else 0.0
-        work.bound[i] = upper[i] if y[i] > upper[i] else lower[i]
+        active[i] = 1.0 if outside else 0.0
+        bound[i] = upper[i] if y[i] > upper[i] else lower[i]
         inside = inside and not outside
     if inside:
         for i in range(n):
@@ -192,51 +213,51 @@ def project_metric_into(y, gamma, lower, upper, max_iterations, x, work):
         n_free = 0
         for i in range(n):
             x[i] = y[i]
-            if work.active[i] > 0.0:
-                x[i] = work.bound[i]
-                work.active_index[n_active] = i
+            if active[i] > 0.0:
+                x[i] = bound[i]
+                active_index[n_active] = i
                 n_active += 1
             else:
-                work.free_index[n_free] = i
+                free_index[n_free] = i
                 n_free += 1
         if n_active > 0:
             for j in range(n_active):
-                aj = work.active_index[j]
-                work.rhs[j] = x[aj] - y[aj]
+                aj = active_index[j]
+                rhs[j] = x[aj] - y[aj]
                 for m in range(n_active):
-                    work.gamma_aa[j, m] = gamma[aj, work.active_index[m]]
-            cholesky_solve(work.gamma_aa, n_active, work.rhs, work.delta, work.factor)
+                    gamma_aa[j, m] = gamma[aj, active_index[m]]
+            cholesky_solve(gamma_aa, n_active, rhs, delta, factor)
             for j in range(n_free):
-                f = work.free_index[j]
+                f = free_index[j]
                 acc = 0.0
                 for m in range(n_active):
-                    acc += gamma[f, work.active_index[m]] * work.delta[m]
+                    acc += gamma[f, active_index[m]] * delta[m]
                 x[f] = y[f] + acc
         # Free variables that left the box: the worst violator becomes active.
         worst = -1
         worst_violation = 0.0
         for j in range(n_free):
-            f = work.free_index[j]
+            f = free_index[j]
             violation = x[f] - upper[f] if x[f] > upper[f] else (lower[f] - x[f] if x[f] < lower[f] else 0.0)
             if violation > 0.0 and (worst < 0 or violation > worst_violation):
                 worst, worst_violation = f, violation
         if worst >= 0:
-            work.active[worst] = 1.0
-            work.bound[worst] = upper[worst] if x[worst] > upper[worst] else lower[worst]
+            active[worst] = 1.0
+            bound[worst] = upper[worst] if x[worst] > upper[worst] else lower[worst]
             continue
         # Active variables whose multiplier has the wrong sign are released.
         release = -1
         most_wrong = 0.0
         scale = 1.0
         for j in range(n_active):
-            scale = max(scale, abs(work.delta[j]))
+            scale = max(scale, abs(delta[j]))
         for j in range(n_active):
-            a = work.active_index[j]
-            wrong = work.delta[j] if work.bound[a] == upper[a] else -work.delta[j]  # > 0: wrong sign
+            a = active_index[j]
+            wrong = delta[j] if bound[a] == upper[a] else -delta[j]  # > 0: wrong sign
             if wrong > 1e-15 * scale and (release < 0 or wrong > most_wrong):
                 release, most_wrong = a, wrong
         if release >= 0:
-            work.active[release] = 0.0
+            active[release] = 0.0
             continue
         for i in range(n):
             x[i] = clip(x[i], lower[i], upper[i])
@@ -256,21 +277,118 @@ def project_metric(
 
 
 @kernel
-def largest_eigenvalue(a, v, w, tolerance=1e-15, max_iterations=500):
-    """lambda_max of a symmetric positive definite matrix by warm-started power iteration.
+def tridiagonalise(a, t, diag, off):
+    """Householder reduction of symmetric a (p x p) to tridiagonal form (same eigenvalues).
 
-    v: unit start vector (p,), replaced by the new estimate of the top
-    eigenvector (warm start for the next call); w: (p,) scratch. Iterates
-    until the Rayleigh quotient changes by at most ``tolerance`` relative.
-    Gamma changes little per 0.2 ms sample, so one to three iterations
-    usually suffice; tests compare the result with numpy's eigvalsh.
+    t: (p, p) scratch (a is not modified); diag (p,) and off (p,) receive the
+    diagonal and the sub-diagonal (off[p - 1] unused).
     """
     p = a.shape[0]
-    previous = -1.0
-    rayleigh = 0.0
-    for _ in range(max_iterations):
-        norm = 0.0
+    for i in range(p):
+        for j in range(p):
+            t[i, j] = a[i, j]
+    for k in range(p - 2):
+        # Householder vector v (stored in off[k+1:] scratch-free: use column k of t below the diagonal).
+        alpha_sq = 0.0
+        for i in range(k + 1, p):
+            alpha_sq += t[i, k] * t[i, k]
+        if alpha_sq == 0.0:
+            diag[k] = t[k, k]
+            off[k] = 0.0
+            continue
+        alpha = -math.sqrt(alpha_sq) if t[k + 1, k] >= 0.0 else math.sqrt(alpha_sq)
+        # v = x - alpha e1 (in t[k+1:, k]), beta = 2 / (v^T v)
+        t[k + 1, k] -= alpha
+        vtv = 0.0
+        for i in range(k + 1, p):
+            vtv += t[i, k] * t[i, k]
+        if vtv == 0.0:
+            diag[k] = t[k, k]
+            off[k] = alpha
+            continue
+        beta = 2.0 / vtv
+        # w = beta A v; then w -= (beta/2) (v^T w) v; A -= v w^T + w v^T (trailing block). w kept in t[k, k+1:].
+        vw = 0.0
+        for i in range(k + 1, p):
+            acc = 0.0
+            for j in range(k + 1, p):
+                acc += t[i, j] * t[j, k]
+            t[k, i] = beta * acc
+            vw += t[i, k] * t[k, i]
+        half = 0.5 * beta * vw
+        for i in range(k + 1, p):
+            t[k, i] -= half * t[i, k]
+        for i in range(k + 1, p):
+            for j in range(k + 1, p):
+                t[i, j] -= t[i, k] * t[k, j] + t[k, i] * t[j, k]
+        diag[k] = t[k, k]
+        off[k] = alpha
+    diag[p - 2] = t[p - 2, p - 2] if p >= 2 else 0.0
+    if p >= 2:
+        off[p - 2] = t[p - 1, p - 2]
+    diag[p - 1] = t[p - 1, p - 1]
+
+
+@kernel
+def largest_eigenvalue_exact(a, upper_bound, t, diag, off):
+    """lambda_max of a symmetric matrix a (p x p), exact to rounding.
+
+    Householder reduction to tridiagonal form, then Newton's method on the
+    characteristic polynomial started above the largest root (the Gershgorin
+    bound, or ``upper_bound`` if smaller): for a polynomial with real roots,
+    Newton from the right of the largest root decreases monotonically to it.
+    t (p, p), diag (p,), off (p,): scratch.
+    """
+    p = a.shape[0]
+    tridiagonalise(a, t, diag, off)
+    x = -math.inf
+    for i in range(p):
+        radius = (abs(off[i - 1]) if i > 0 else 0.0) + (abs(off[i]) if i < p - 1 else 0.0)
+        x = max(x, diag[i] + radius)
+    if upper_bound < x:
+        x = upper_bound
+    for _ in range(200):
+        # p_k(x) = (d_k - x) p_{k-1} - e_{k-1}^2 p_{k-2} and its derivative.
+        p_prev, p_cur = 1.0, diag[0] - x
+        q_prev, q_cur = 0.0, -1.0
+        for k in range(1, p):
+            e2 = off[k - 1] * off[k - 1]
+            p_next = (diag[k] - x) * p_cur - e2 * p_prev
+            q_next = -p_cur + (diag[k] - x) * q_cur - e2 * q_prev
+            p_prev, p_cur = p_cur, p_next
+            q_prev, q_cur = q_cur, q_next
+        if q_cur == 0.0:
+            break
+        step = p_cur / q_cur
+        x -= step
+        if abs(step) <= 1e-15 * abs(x):
+            break
+    return x
+
+
+#: largest_eigenvalue's certified relative accuracy.
+EIGENVALUE_TOLERANCE = 1e-11
+
+
+@kernel
+def largest_eigenvalue(a, v, w, t, diag, off, upper_bound=math.inf, power_iterations=6):
+    """lambda_max of a symmetric positive definite a (p x p), certified to EIGENVALUE_TOLERANCE.
+
+    Warm-started power iteration: v (p,) is the previous top eigenvector, a
+    unit vector (updated in place). Its Rayleigh quotient r never exceeds lambda_max; r
+    is accepted once (r (1 + tol)) I - a is positive definite (a Cholesky
+    factorisation succeeds), which proves lambda_max < r (1 + tol). If that
+    does not happen within ``power_iterations`` steps (two close top
+    eigenvalues, or v locked onto another eigenvector after two eigenvalues
+    crossed), the exact :func:`largest_eigenvalue_exact` is used and v is
+    re-aimed by inverse iteration.
+    Gamma changes little per 0.2 ms sample, so one step usually suffices.
+    w (p,), t (p, p), diag, off (p,): scratch.
+    """
+    p = a.shape[0]
+    for _ in range(power_iterations):
         rayleigh = 0.0
+        norm = 0.0
         for i in range(p):
             acc = 0.0
             for k in range(p):
@@ -279,12 +397,36 @@ def largest_eigenvalue(a, v, w, tolerance=1e-15, max_iterations=500):
             rayleigh += v[i] * acc
             norm += acc * acc
         norm = math.sqrt(norm)
+        if not norm > 0.0:
+            break
         for i in range(p):
             v[i] = w[i] / norm
-        if abs(rayleigh - previous) <= tolerance * rayleigh:
-            break
-        previous = rayleigh
-    return rayleigh
+        shift = rayleigh * (1.0 + EIGENVALUE_TOLERANCE)
+        for i in range(p):
+            for k in range(i + 1):
+                t[i, k] = -a[i, k]
+            t[i, i] += shift
+        if cholesky_factor(t, p, t):
+            return rayleigh
+    lam_max = largest_eigenvalue_exact(a, upper_bound, t, diag, off)
+    # Re-aim the warm start at the top eigenvector (it may have locked onto another one when
+    # two eigenvalues crossed): nudge it, then two steps of inverse iteration just above lam_max.
+    shift = lam_max * (1.0 + 1e3 * EIGENVALUE_TOLERANCE) + 1e-300
+    for i in range(p):
+        for k in range(i + 1):
+            t[i, k] = -a[i, k]
+        t[i, i] += shift
+        v[i] += 1e-3 / math.sqrt(p)
+    if cholesky_factor(t, p, t):
+        for _ in range(2):
+            cholesky_substitute(t, p, v, w)
+            norm = 0.0
+            for i in range(p):
+                norm += w[i] * w[i]
+            norm = math.sqrt(norm)
+            for i in range(p):
+                v[i] = w[i] / norm
+    return lam_max
 
 
 @dataclass(frozen=True)
@@ -307,17 +449,23 @@ class LeastSquaresWork(NamedTuple):
     inner: np.ndarray  # (m, m)
     column: np.ndarray  # (m,)
     solved: np.ndarray  # (m, p) inner^-1 (Gamma gamma_f)^T
-    eigvec: np.ndarray  # (p,) warm start of the power iteration, carried between samples
+    lambda_bound: np.ndarray  # (1,) an upper bound of lambda_max(Gamma): the last one computed
+    eigvec: np.ndarray  # (p,) Gamma's top eigenvector, the warm start of largest_eigenvalue
+    eig_scratch: np.ndarray  # (p,)
+    tridiagonal: np.ndarray  # (p, p) scratch of largest_eigenvalue
+    diag: np.ndarray  # (p,)
+    off: np.ndarray  # (p,)
     scratch: np.ndarray  # (p,)
     projection: ProjectionWork
 
 
-def least_squares_work(p: int, m: int, gamma: np.ndarray) -> LeastSquaresWork:
-    """Scratch for :func:`least_squares_update`, the power iteration started at Gamma's top eigenvector."""
-    _, vectors = np.linalg.eigh(gamma)
+def least_squares_work(p: int, m: int, gamma: np.ndarray | None = None) -> LeastSquaresWork:
+    """Scratch for :func:`least_squares_update`; the eigenvector warm start from ``gamma`` if given."""
+    eigvec = np.full(p, 1.0 / np.sqrt(p)) if gamma is None else np.ascontiguousarray(np.linalg.eigh(gamma)[1][:, -1])
     return LeastSquaresWork(
-        np.zeros((p, m)), np.zeros(m), np.zeros(p), np.zeros(p), np.zeros((m, m)), np.zeros(m),
-        np.zeros((m, p)), np.ascontiguousarray(vectors[:, -1]), np.zeros(p), projection_work(p),
+        np.zeros((p, m)), np.zeros(m), np.zeros(p), np.zeros(p), np.zeros((m, m)), np.zeros(m), np.zeros((m, p)),
+        np.array([np.inf]), eigvec, np.zeros(p), np.zeros((p, p)), np.zeros(p), np.zeros(p), np.zeros(p),
+        projection_work(p),
     )  # fmt: skip
 
 
@@ -335,10 +483,12 @@ def least_squares_update(theta, gamma, g, target, nu, kappa, rho_max, lower, upp
     Gamma+^-1 = Gamma^-1 + Ts gamma_f gamma_f^T / n, which keeps Gamma
     symmetric positive definite for any step; forgetting multiplies Gamma by
     exp(kappa Ts) only while lambda_max(Gamma) <= rho_M. Returns
-    lambda_max(Gamma) after the update.
+    lambda_max(Gamma) after the update (:func:`largest_eigenvalue`: relative
+    accuracy EIGENVALUE_TOLERANCE, certified).
     """
     p, m = g.shape
-    gamma_g = work.gamma_g
+    gamma_g, zeta, tau, y, inner, column, solved, lambda_bound, eigvec, eig_scratch, tridiagonal, diag, off, scratch, \
+        projection = work
     trace = 0.0
     for i in range(p):
         for j in range(m):
@@ -352,38 +502,42 @@ def least_squares_update(theta, gamma, g, target, nu, kappa, rho_max, lower, upp
         acc = 0.0
         for i in range(p):
             acc += g[i, j] * theta[i]
-        work.zeta[j] = acc - target[j]
+        zeta[j] = acc - target[j]
     for i in range(p):
         acc = 0.0
         for j in range(m):
-            acc += g[i, j] * work.zeta[j]
-        work.tau[i] = -acc / n
+            acc += g[i, j] * zeta[j]
+        tau[i] = -acc / n
     for i in range(p):
         acc = 0.0
         for k in range(p):
-            acc += gamma[i, k] * work.tau[k]
-        work.y[i] = theta[i] + sample_period_s * acc
-    project_metric_into(work.y, gamma, lower, upper, 50, theta, work.projection)
+            acc += gamma[i, k] * tau[k]
+        y[i] = theta[i] + sample_period_s * acc
+    project_metric_into(y, gamma, lower, upper, 50, theta, projection)
 
     for j in range(m):
         for k in range(m):
             acc = n / sample_period_s if j == k else 0.0
             for i in range(p):
                 acc += g[i, j] * gamma_g[i, k]
-            work.inner[j, k] = acc
+            inner[j, k] = acc
+    factor = projection.factor
+    if not cholesky_factor(inner, m, factor):
+        raise np.linalg.LinAlgError("least_squares_update: n/Ts I + g^T Gamma g is not positive definite")
     for i in range(p):
         for j in range(m):
-            work.column[j] = gamma_g[i, j]
-        cholesky_solve(work.inner, m, work.column, work.scratch, work.projection.factor)
+            column[j] = gamma_g[i, j]
+        cholesky_substitute(factor, m, column, scratch)
         for j in range(m):
-            work.solved[j, i] = work.scratch[j]
+            solved[j, i] = scratch[j]
     for i in range(p):
         for k in range(p):
             acc = 0.0
             for j in range(m):
-                acc += gamma_g[i, j] * work.solved[j, k]
+                acc += gamma_g[i, j] * solved[j, k]
             gamma[i, k] -= acc
-    lam_max = largest_eigenvalue(gamma, work.eigvec, work.scratch)
+    # The information term only shrinks Gamma: the last lambda_max bounds the new one (rounding aside).
+    lam_max = largest_eigenvalue(gamma, eigvec, eig_scratch, tridiagonal, diag, off, lambda_bound[0] * (1.0 + 1e-12))
     if lam_max <= rho_max:
         growth = math.exp(kappa * sample_period_s)
         for i in range(p):
@@ -395,6 +549,7 @@ def least_squares_update(theta, gamma, g, target, nu, kappa, rho_max, lower, upp
             mean = 0.5 * (gamma[i, k] + gamma[k, i])
             gamma[i, k] = mean
             gamma[k, i] = mean
+    lambda_bound[0] = lam_max
     return lam_max
 
 

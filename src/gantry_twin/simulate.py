@@ -223,36 +223,41 @@ STATUS_OK, STATUS_BAD_MEASUREMENT, STATUS_BAD_COMMAND = 0, 1, 2
 @kernel
 def _measure(plant, sensor, sample):
     """Encoder reading of this sample (same arithmetic as sensing.Encoder); False if not finite."""
+    qpos, qvel, qpos_index, dof_index = plant.qpos, plant.qvel, plant.qpos_index, plant.dof_index
+    previous_m, resolution_m = sensor.previous_m, sensor.resolution_m
+    q_true, position, velocity = sample.q_true, sample.position, sample.velocity
     finite = True
     for i in range(2):
-        q = plant.qpos[plant.qpos_index[i]]
-        sample.q_true[i] = q
-        position = np.rint(q / sensor.resolution_m) * sensor.resolution_m if sensor.quantize else q
+        q = qpos[qpos_index[i]]
+        q_true[i] = q
+        position[i] = np.rint(q / resolution_m) * resolution_m if sensor.quantize else q
         if sensor.velocity_by_difference:
-            velocity = (position - sensor.previous_m[i]) / sensor.sample_period_s
+            velocity[i] = (position[i] - previous_m[i]) / sensor.sample_period_s
         else:
-            velocity = plant.qvel[plant.dof_index[i]]
-        sensor.previous_m[i] = position
-        sample.position[i] = position
-        sample.velocity[i] = velocity
-        finite = finite and np.isfinite(position) and np.isfinite(velocity)
+            velocity[i] = qvel[dof_index[i]]
+        previous_m[i] = position[i]
+        finite = finite and np.isfinite(position[i]) and np.isfinite(velocity[i])
     return finite
 
 
 @kernel
 def _record_and_step(plant, recording, k, sample, command):
     """Check the command; record the sample; hold u and the disturbance; mj_step. False if u not finite."""
+    kept = sample.command
     for i in range(2):
-        sample.command[i] = command[i]
+        kept[i] = command[i]
         if not np.isfinite(command[i]):
             return False
+    ctrl, u_max_v, motors, disturbances = plant.ctrl, plant.u_max_v, plant.motor_index, plant.disturbance_index
+    q_true, position = sample.q_true, sample.position
+    _, disturbance_v, q_m, q_meas_m, u_v = recording
     for i in range(2):
-        u = min(max(command[i], -plant.u_max_v[i]), plant.u_max_v[i])
-        recording.q_m[k, i] = sample.q_true[i]
-        recording.q_meas_m[k, i] = sample.position[i]
-        recording.u_v[k, i] = u
-        plant.ctrl[plant.motor_index[i]] = u
-        plant.ctrl[plant.disturbance_index[i]] = recording.disturbance_v[k, i]
+        u = min(max(command[i], -u_max_v[i]), u_max_v[i])
+        q_m[k, i] = q_true[i]
+        q_meas_m[k, i] = position[i]
+        u_v[k, i] = u
+        ctrl[motors[i]] = u
+        ctrl[disturbances[i]] = disturbance_v[k, i]
     mj_step(plant.model_address, plant.data_address)
     return True
 
@@ -261,31 +266,35 @@ def _record_and_step(plant, recording, k, sample, command):
 def _run_arc_chunk(start, stop, plant, sensor, recording, sample, params, state, theta_log, dc_log, gamma_log,
                    lambda_log):  # fmt: skip
     """Samples [start, stop) with DRC/DARC/DIARC; returns (status, sample index)."""
+    rows, position, velocity = recording.rows, sample.position, sample.velocity
+    theta, dc, u_v = state.theta, state.dc, state.law.u_v
+    gamma, clock = state.estimator.gamma, state.estimator.clock
     for k in range(start, stop):
         if not _measure(plant, sensor, sample):
             return STATUS_BAD_MEASUREMENT, k
-        arc_step(params, state, sample.position, sample.velocity, recording.rows[k])
-        if not _record_and_step(plant, recording, k, sample, state.law.u_v):
+        arc_step(params, state, position, velocity, rows[k])
+        if not _record_and_step(plant, recording, k, sample, u_v):
             return STATUS_BAD_COMMAND, k
         if theta_log.shape[0] > 0:
-            theta_log[k, :] = state.theta
+            theta_log[k, :] = theta
         if dc_log.shape[0] > 0:
-            dc_log[k, :] = state.dc
+            dc_log[k, :] = dc
         if gamma_log.shape[0] > 0:
             for j in range(gamma_log.shape[1]):
-                gamma_log[k, j] = state.estimator.gamma[j, j]
+                gamma_log[k, j] = gamma[j, j]
         if lambda_log.shape[0] > 0:
-            lambda_log[k] = state.estimator.clock[CLOCK_LAMBDA_MAX]
+            lambda_log[k] = clock[CLOCK_LAMBDA_MAX]
     return STATUS_OK, stop
 
 
 @kernel
 def _run_pd_chunk(start, stop, plant, sensor, recording, sample, params, u_v):
     """Samples [start, stop) with the PD baseline; returns (status, sample index)."""
+    rows, position, velocity = recording.rows, sample.position, sample.velocity
     for k in range(start, stop):
         if not _measure(plant, sensor, sample):
             return STATUS_BAD_MEASUREMENT, k
-        pd_step(params, sample.position, sample.velocity, recording.rows[k], u_v)
+        pd_step(params, position, velocity, rows[k], u_v)
         if not _record_and_step(plant, recording, k, sample, u_v):
             return STATUS_BAD_COMMAND, k
     return STATUS_OK, stop

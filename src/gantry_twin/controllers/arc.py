@@ -152,14 +152,16 @@ class ArcState(NamedTuple):
 @kernel
 def estimator_start(params, est, q_m, dq_m_s, u_v):
     """Put each filter in steady state for the first sample's inputs."""
+    wn, zeta = params.estimator.filter_wn_rad_s, params.estimator.filter_zeta
+    z_all, previous_q_m, clock = est.z, est.previous_q_m, est.clock
     for axis in range(2):
         sf = friction_shape(dq_m_s[axis], params.friction_slope_s_m)
-        lag = 2.0 * params.estimator.filter_zeta[axis] / params.estimator.filter_wn_rad_s[axis]
-        z = est.z[axis]
+        lag = 2.0 * zeta[axis] / wn[axis]
+        z = z_all[axis]
         z[0, 0], z[0, 1], z[0, 2], z[0, 3] = q_m[axis] - lag * dq_m_s[axis], sf, 1.0, u_v[axis]
         z[1, 0], z[1, 1], z[1, 2], z[1, 3] = dq_m_s[axis], 0.0, 0.0, 0.0
-        est.previous_q_m[axis] = q_m[axis]
-    est.clock[CLOCK_STARTED] = 1.0
+        previous_q_m[axis] = q_m[axis]
+    clock[CLOCK_STARTED] = 1.0
 
 
 @kernel
@@ -169,36 +171,36 @@ def estimator_regression(params, est, q_m, dq_m_s, u_previous_v):
     The position rises linearly from the previous sample (first-order hold);
     Sf(q'), the constant and the applied u are held (zero-order hold).
     """
-    ep = params.estimator
+    f_phi, f_hold, f_ramp, f_wn, f_zeta = params.estimator[:5]
+    z_all, previous_q_m, g, u_f = est.z, est.previous_q_m, est.regression, est.u_f
     ts = params.sample_period_s
     for axis in range(2):
-        z = est.z[axis]
-        phi, hold, ramp = ep.filter_phi[axis], ep.filter_hold[axis], ep.filter_ramp[axis]
+        z = z_all[axis]
+        phi, hold, ramp = f_phi[axis], f_hold[axis], f_ramp[axis]
         sf = friction_shape(dq_m_s[axis], params.friction_slope_s_m)
-        q_previous = est.previous_q_m[axis]
+        q_previous = previous_q_m[axis]
         filter_advance(z, 0, phi, hold, ramp, q_previous, (q_m[axis] - q_previous) / ts)
         filter_advance(z, 1, phi, hold, ramp, sf, 0.0)
         filter_advance(z, 2, phi, hold, ramp, 1.0, 0.0)
         filter_advance(z, 3, phi, hold, ramp, u_previous_v[axis], 0.0)
-        g = est.regression
-        wn, zeta = ep.filter_wn_rad_s[axis], ep.filter_zeta[axis]
-        g[axis, axis] = filtered_acceleration(z[0, 0], z[1, 0], wn, zeta, q_m[axis])
+        g[axis, axis] = filtered_acceleration(z[0, 0], z[1, 0], f_wn[axis], f_zeta[axis], q_m[axis])
         g[2 + axis, axis] = z[1, 0]
         g[4 + axis, axis] = z[0, 1]
         g[6 + axis, axis] = -z[0, 2]
-        est.u_f[axis] = z[0, 3]
-        est.previous_q_m[axis] = q_m[axis]
+        u_f[axis] = z[0, 3]
+        previous_q_m[axis] = q_m[axis]
 
 
 @kernel
 def estimator_update(params, theta, est, q_m, dq_m_s, u_previous_v):
     """One sample of the indirect estimator: filter, then least squares on theta (in place)."""
     estimator_regression(params, est, q_m, dq_m_s, u_previous_v)
-    est.clock[CLOCK_TIME_S] += params.sample_period_s
-    if est.clock[CLOCK_TIME_S] < params.estimator.settle_s:
-        return
+    clock = est.clock
+    clock[CLOCK_TIME_S] += params.sample_period_s
     ep = params.estimator
-    est.clock[CLOCK_LAMBDA_MAX] = least_squares_update(
+    if clock[CLOCK_TIME_S] < ep.settle_s:
+        return
+    clock[CLOCK_LAMBDA_MAX] = least_squares_update(
         theta, est.gamma, est.regression, est.u_f, ep.nu, ep.kappa, ep.rho_max,
         params.lower, params.upper, params.sample_period_s, est.work,
     )  # fmt: skip
@@ -212,25 +214,26 @@ def arc_step(params, state, q_m, dq_m_s, ref):
     shared law (eq. 13-14, 17, 21); then DARC's gradient step (eq. 8-9) or
     DIARC's dc^ step (eq. 21-22), both driven by this sample's s_c.
     """
-    est = state.estimator
-    if params.kind == KIND_DIARC and est.clock[CLOCK_STARTED] > 0.0:
-        estimator_update(params, state.theta, est, q_m, dq_m_s, state.u_previous_v)
-    law = state.law
-    arc_law(q_m, dq_m_s, ref, state.theta, state.dc, params.lam, params.ks, params.friction_slope_s_m,
-            params.u_max_v, law)  # fmt: skip
+    theta, dc, u_previous_v, est, law = state
+    started = est.clock[CLOCK_STARTED] > 0.0
+    if params.kind == KIND_DIARC and started:
+        estimator_update(params, theta, est, q_m, dq_m_s, u_previous_v)
+    arc_law(q_m, dq_m_s, ref, theta, dc, params.lam, params.ks, params.friction_slope_s_m, params.u_max_v, law)
     ts = params.sample_period_s
+    phi, s_c, u_v = law.phi, law.s_c, law.u_v
     if params.kind == KIND_DARC:
+        rates = params.darc_gamma
         for j in range(8):
-            phi_s = law.phi[0, j] * law.s_c[0] + law.phi[1, j] * law.s_c[1]
-            state.theta[j] = state.theta[j] - ts * params.darc_gamma[j] * phi_s
-        project_box(state.theta, params.lower, params.upper, state.theta)
+            phi_s = phi[0, j] * s_c[0] + phi[1, j] * s_c[1]
+            theta[j] = theta[j] - ts * rates[j] * phi_s
+        project_box(theta, params.lower, params.upper, theta)
     elif params.kind == KIND_DIARC:
-        if est.clock[CLOCK_STARTED] == 0.0:
-            estimator_start(params, est, q_m, dq_m_s, law.u_v)
+        if not started:
+            estimator_start(params, est, q_m, dq_m_s, u_v)
+        gamma_d, dc_max = params.gamma_d, params.dc_max_v
         for i in range(2):
-            state.u_previous_v[i] = law.u_v[i]
-            bound = params.dc_max_v[i]
-            state.dc[i] = clip(state.dc[i] + ts * params.gamma_d[i] * law.s_c[i], -bound, bound)
+            u_previous_v[i] = u_v[i]
+            dc[i] = clip(dc[i] + ts * gamma_d[i] * s_c[i], -dc_max[i], dc_max[i])
 
 
 class IndirectEstimator:
@@ -364,7 +367,7 @@ class ArcController:
         if estimator is None:
             gamma = np.zeros((8, 8))
             est = EstimatorState(gamma, np.zeros((2, 2, 4)), np.zeros(2), np.zeros(3), np.zeros((8, 2)), np.zeros(2),
-                                 least_squares_work(8, 2, np.eye(8)))  # fmt: skip
+                                 least_squares_work(8, 2))  # fmt: skip
         else:
             est = estimator.state
         return ArcState(np.array(self.gains.theta0, dtype=float), np.zeros(2), np.zeros(2), est, law_work())

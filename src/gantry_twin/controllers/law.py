@@ -110,23 +110,24 @@ def arc_law(q_m, dq_m_s, ref, theta, dc_v, lam, ks, friction_slope_s_m, u_max_v,
     controller without dc^); lam, ks: diagonals of Lambda 1/s and Ks V/(m/s).
     Fills ``work`` (s_c, phi, u_v, ...) for the adaptation laws.
     """
+    # Unpacked once: each namedtuple field access costs a reference-count update in numba.
+    t, big_l, big_l_dot, e, de, s_c, a_r, phi, u_v = work
     for i in range(2):
-        work.e[i] = q_m[i] - ref[REF_Q + i]
-        work.de[i] = dq_m_s[i] - ref[REF_DQ + i]
-    error_gains(ref[REF_ALPHA], ref[REF_DALPHA], ref[REF_DDALPHA], lam, work.t, work.big_l, work.big_l_dot)
-    sliding_variable(work.e, work.de, work.big_l, work.s_c)
-    t, e, de = work.t, work.e, work.de
+        e[i] = q_m[i] - ref[REF_Q + i]
+        de[i] = dq_m_s[i] - ref[REF_DQ + i]
+    error_gains(ref[REF_ALPHA], ref[REF_DALPHA], ref[REF_DDALPHA], lam, t, big_l, big_l_dot)
+    sliding_variable(e, de, big_l, s_c)
     for i in range(2):
-        ldot_e = work.big_l_dot[i, 0] * e[0] + work.big_l_dot[i, 1] * e[1]
-        l_de = work.big_l[i, 0] * de[0] + work.big_l[i, 1] * de[1]
-        work.a_r[i] = ref[REF_DDQ + i] - ldot_e - l_de
-    regressor(work.a_r, dq_m_s, friction_slope_s_m, work.phi)
+        ldot_e = big_l_dot[i, 0] * e[0] + big_l_dot[i, 1] * e[1]
+        l_de = big_l[i, 0] * de[0] + big_l[i, 1] * de[1]
+        a_r[i] = ref[REF_DDQ + i] - ldot_e - l_de
+    regressor(a_r, dq_m_s, friction_slope_s_m, phi)
     # Task-frame robust feedback: s = T s_c, then back with T (T = T^-1).
-    s_n = ks[0] * (t[0, 0] * work.s_c[0] + t[0, 1] * work.s_c[1])
-    s_t = ks[1] * (t[1, 0] * work.s_c[0] + t[1, 1] * work.s_c[1])
+    s_n = ks[0] * (t[0, 0] * s_c[0] + t[0, 1] * s_c[1])
+    s_t = ks[1] * (t[1, 0] * s_c[0] + t[1, 1] * s_c[1])
     for i in range(2):
         model = 0.0
         for j in range(8):
-            model += work.phi[i, j] * theta[j]
+            model += phi[i, j] * theta[j]
         u = model - (t[i, 0] * s_n + t[i, 1] * s_t) - dc_v[i]
-        work.u_v[i] = clip(u, -u_max_v[i], u_max_v[i])
+        u_v[i] = clip(u, -u_max_v[i], u_max_v[i])

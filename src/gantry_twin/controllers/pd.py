@@ -37,12 +37,12 @@ class PDParams(NamedTuple):
 @kernel
 def pd_step(params, q_m, dq_m_s, ref, u_v):
     """u = clip(-kp e - kd e' + kv x_d' + ka x_d'') per axis, into u_v (2,) volts."""
+    kp, kd, kv, ka, u_max = params
     for i in range(2):
         e = q_m[i] - ref[REF_Q + i]
         de = dq_m_s[i] - ref[REF_DQ + i]
-        u = -params.kp_v_m[i] * e - params.kd_v_s_m[i] * de + params.kv_v_s_m[i] * ref[REF_DQ + i]
-        u = u + params.ka_v_s2_m[i] * ref[REF_DDQ + i]
-        u_v[i] = clip(u, -params.u_max_v[i], params.u_max_v[i])
+        u = -kp[i] * e - kd[i] * de + kv[i] * ref[REF_DQ + i] + ka[i] * ref[REF_DDQ + i]
+        u_v[i] = clip(u, -u_max[i], u_max[i])
 
 
 @dataclass
