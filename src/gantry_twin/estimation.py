@@ -367,40 +367,80 @@ def largest_eigenvalue_exact(a, upper_bound, t, diag, off):
 
 
 #: largest_eigenvalue's certified relative accuracy.
-EIGENVALUE_TOLERANCE = 1e-11
+EIGENVALUE_TOLERANCE = 1e-10
 
 
 @kernel
-def largest_eigenvalue(a, v, w, t, diag, off, upper_bound=math.inf, power_iterations=6):
+def _orthonormalise(w, v):
+    """v = Gram-Schmidt orthonormal basis of the two rows of w (2, p); False if they are dependent."""
+    p = w.shape[1]
+    norm = 0.0
+    for i in range(p):
+        norm += w[0, i] * w[0, i]
+    norm = math.sqrt(norm)
+    if not norm > 0.0:
+        return False
+    dot = 0.0
+    for i in range(p):
+        v[0, i] = w[0, i] / norm
+        dot += v[0, i] * w[1, i]
+    norm = 0.0
+    for i in range(p):
+        v[1, i] = w[1, i] - dot * v[0, i]
+        norm += v[1, i] * v[1, i]
+    norm = math.sqrt(norm)
+    if not norm > 0.0:
+        return False
+    for i in range(p):
+        v[1, i] /= norm
+    return True
+
+
+@kernel
+def largest_eigenvalue(a, v, w, t, diag, off, upper_bound=math.inf, iterations=12):
     """lambda_max of a symmetric positive definite a (p x p), certified to EIGENVALUE_TOLERANCE.
 
-    Warm-started power iteration: v (p,) is the previous top eigenvector, a
-    unit vector (updated in place). Its Rayleigh quotient r never exceeds lambda_max; r
-    is accepted once (r (1 + tol)) I - a is positive definite (a Cholesky
-    factorisation succeeds), which proves lambda_max < r (1 + tol). If that
-    does not happen within ``power_iterations`` steps (two close top
-    eigenvalues, or v locked onto another eigenvector after two eigenvalues
-    crossed), the exact :func:`largest_eigenvalue_exact` is used and v is
-    re-aimed by inverse iteration.
-    Gamma changes little per 0.2 ms sample, so one step usually suffices.
-    w (p,), t (p, p), diag, off (p,): scratch.
+    Warm-started subspace iteration on two vectors: v (2, p) holds an
+    orthonormal basis close to the top two eigenvectors from the previous
+    call (updated in place). The larger Ritz value r of a on span(v) never
+    exceeds lambda_max; r is accepted once (r (1 + tol)) I - a is positive
+    definite (its Cholesky factorisation succeeds), which proves
+    lambda_max < r (1 + tol); it is tried once r has settled (changed by
+    less than tol / 10 in the last step). Two vectors make a pair of close top
+    eigenvalues (DIARC's dN1, dN2 start equal) converge at once. If no
+    certificate comes within ``iterations`` steps (e.g. after eigenvalues
+    crossed), the exact :func:`largest_eigenvalue_exact` is used and v
+    restarted. Gamma changes little per 0.2 ms sample, so one step usually
+    suffices. w (2, p), t (p, p), diag, off (p,): scratch.
     """
     p = a.shape[0]
-    for _ in range(power_iterations):
-        rayleigh = 0.0
-        norm = 0.0
+    previous = -math.inf
+    for _ in range(iterations):
+        # w = a v (two rows); h = v a v^T (2 x 2); r = its larger eigenvalue.
+        h00 = 0.0
+        h01 = 0.0
+        h11 = 0.0
         for i in range(p):
-            acc = 0.0
+            acc0 = 0.0
+            acc1 = 0.0
             for k in range(p):
-                acc += a[i, k] * v[k]
-            w[i] = acc
-            rayleigh += v[i] * acc
-            norm += acc * acc
-        norm = math.sqrt(norm)
-        if not norm > 0.0:
+                acc0 += a[i, k] * v[0, k]
+                acc1 += a[i, k] * v[1, k]
+            w[0, i] = acc0
+            w[1, i] = acc1
+            h00 += v[0, i] * acc0
+            h01 += v[0, i] * acc1
+            h11 += v[1, i] * acc1
+        mean = 0.5 * (h00 + h11)
+        half_gap = 0.5 * (h00 - h11)
+        rayleigh = mean + math.sqrt(half_gap * half_gap + h01 * h01)
+        if not _orthonormalise(w, v):
             break
-        for i in range(p):
-            v[i] = w[i] / norm
+        # Try the (costlier) certificate only once the Ritz value has settled.
+        settled = rayleigh - previous <= 0.1 * EIGENVALUE_TOLERANCE * rayleigh
+        previous = rayleigh
+        if not settled:
+            continue
         shift = rayleigh * (1.0 + EIGENVALUE_TOLERANCE)
         for i in range(p):
             for k in range(i + 1):
@@ -409,23 +449,20 @@ def largest_eigenvalue(a, v, w, t, diag, off, upper_bound=math.inf, power_iterat
         if cholesky_factor(t, p, t):
             return rayleigh
     lam_max = largest_eigenvalue_exact(a, upper_bound, t, diag, off)
-    # Re-aim the warm start at the top eigenvector (it may have locked onto another one when
-    # two eigenvalues crossed): nudge it, then two steps of inverse iteration just above lam_max.
-    shift = lam_max * (1.0 + 1e3 * EIGENVALUE_TOLERANCE) + 1e-300
+    # Restart the warm basis with vectors that cannot be orthogonal to the top eigenvectors
+    # in general position, then let a few subspace steps pull it in.
     for i in range(p):
-        for k in range(i + 1):
-            t[i, k] = -a[i, k]
-        t[i, i] += shift
-        v[i] += 1e-3 / math.sqrt(p)
-    if cholesky_factor(t, p, t):
-        for _ in range(2):
-            cholesky_substitute(t, p, v, w)
-            norm = 0.0
+        v[0, i] = 1.0 / math.sqrt(p)
+        v[1, i] = (1.0 if i % 2 == 0 else -1.0) / math.sqrt(p) + 1e-3 * i
+    _orthonormalise(v.copy(), v)
+    for _ in range(30):
+        for r in range(2):
             for i in range(p):
-                norm += w[i] * w[i]
-            norm = math.sqrt(norm)
-            for i in range(p):
-                v[i] = w[i] / norm
+                acc = 0.0
+                for k in range(p):
+                    acc += a[i, k] * v[r, k]
+                w[r, i] = acc
+        _orthonormalise(w, v)
     return lam_max
 
 
@@ -450,8 +487,8 @@ class LeastSquaresWork(NamedTuple):
     column: np.ndarray  # (m,)
     solved: np.ndarray  # (m, p) inner^-1 (Gamma gamma_f)^T
     lambda_bound: np.ndarray  # (1,) an upper bound of lambda_max(Gamma): the last one computed
-    eigvec: np.ndarray  # (p,) Gamma's top eigenvector, the warm start of largest_eigenvalue
-    eig_scratch: np.ndarray  # (p,)
+    eigvecs: np.ndarray  # (2, p) near Gamma's top two eigenvectors: largest_eigenvalue's warm start
+    eig_scratch: np.ndarray  # (2, p)
     tridiagonal: np.ndarray  # (p, p) scratch of largest_eigenvalue
     diag: np.ndarray  # (p,)
     off: np.ndarray  # (p,)
@@ -461,10 +498,16 @@ class LeastSquaresWork(NamedTuple):
 
 def least_squares_work(p: int, m: int, gamma: np.ndarray | None = None) -> LeastSquaresWork:
     """Scratch for :func:`least_squares_update`; the eigenvector warm start from ``gamma`` if given."""
-    eigvec = np.full(p, 1.0 / np.sqrt(p)) if gamma is None else np.ascontiguousarray(np.linalg.eigh(gamma)[1][:, -1])
+    # Warm start: the unit vectors of Gamma's two largest diagonal entries (its top
+    # eigenvectors when Gamma is diagonal, as Gamma(0) is). No LAPACK call: OpenBLAS
+    # threads would then spin on the second core while the loop runs.
+    diagonal = np.ones(p) if gamma is None else np.diag(gamma)
+    order = np.argsort(-diagonal, kind="stable")
+    eigvecs = np.zeros((2, p))
+    eigvecs[0, order[0]] = eigvecs[1, order[1]] = 1.0
     return LeastSquaresWork(
         np.zeros((p, m)), np.zeros(m), np.zeros(p), np.zeros(p), np.zeros((m, m)), np.zeros(m), np.zeros((m, p)),
-        np.array([np.inf]), eigvec, np.zeros(p), np.zeros((p, p)), np.zeros(p), np.zeros(p), np.zeros(p),
+        np.array([np.inf]), eigvecs, np.zeros((2, p)), np.zeros((p, p)), np.zeros(p), np.zeros(p), np.zeros(p),
         projection_work(p),
     )  # fmt: skip
 
@@ -481,13 +524,14 @@ def least_squares_update(theta, gamma, g, target, nu, kappa, rho_max, lower, upp
     g: gamma_f, shape (p, m) (here 8 x 2); target: u_f, shape (m,). The
     information term is applied in its exact discrete (inverse-update) form,
     Gamma+^-1 = Gamma^-1 + Ts gamma_f gamma_f^T / n, which keeps Gamma
-    symmetric positive definite for any step; forgetting multiplies Gamma by
+    symmetric positive definite for any step (Gamma must be exactly
+    symmetric on entry; the update keeps it so); forgetting multiplies Gamma by
     exp(kappa Ts) only while lambda_max(Gamma) <= rho_M. Returns
     lambda_max(Gamma) after the update (:func:`largest_eigenvalue`: relative
     accuracy EIGENVALUE_TOLERANCE, certified).
     """
     p, m = g.shape
-    gamma_g, zeta, tau, y, inner, column, solved, lambda_bound, eigvec, eig_scratch, tridiagonal, diag, off, scratch, \
+    gamma_g, zeta, tau, y, inner, column, solved, lambda_bound, eigvecs, eig_scratch, tridiagonal, diag, off, scratch, \
         projection = work
     trace = 0.0
     for i in range(p):
@@ -530,25 +574,22 @@ def least_squares_update(theta, gamma, g, target, nu, kappa, rho_max, lower, upp
         cholesky_substitute(factor, m, column, scratch)
         for j in range(m):
             solved[j, i] = scratch[j]
+    # The downdate is symmetric: compute the lower triangle and mirror it (Gamma stays exactly symmetric).
     for i in range(p):
-        for k in range(p):
+        for k in range(i + 1):
             acc = 0.0
             for j in range(m):
                 acc += gamma_g[i, j] * solved[j, k]
             gamma[i, k] -= acc
+            gamma[k, i] = gamma[i, k]
     # The information term only shrinks Gamma: the last lambda_max bounds the new one (rounding aside).
-    lam_max = largest_eigenvalue(gamma, eigvec, eig_scratch, tridiagonal, diag, off, lambda_bound[0] * (1.0 + 1e-12))
+    lam_max = largest_eigenvalue(gamma, eigvecs, eig_scratch, tridiagonal, diag, off, lambda_bound[0] * (1.0 + 1e-12))
     if lam_max <= rho_max:
         growth = math.exp(kappa * sample_period_s)
         for i in range(p):
             for k in range(p):
                 gamma[i, k] *= growth
         lam_max *= growth
-    for i in range(p):
-        for k in range(i + 1, p):
-            mean = 0.5 * (gamma[i, k] + gamma[k, i])
-            gamma[i, k] = mean
-            gamma[k, i] = mean
     lambda_bound[0] = lam_max
     return lam_max
 
