@@ -129,9 +129,10 @@ def main() -> None:
 
     if not args.skip_memory:
         mem = _child(_MEMORY)
+        before, after = mem["rss_before_kb"] / 1e3, mem["rss_after_kb"] / 1e3
         print(f"\n60 s DIARC run, full 5 kHz recording ({mem['samples']} samples): trace arrays "
-              f"{mem['trace_bytes'] / 1e6:.1f} MB; process peak RSS {mem['rss_before_kb'] / 1e3:.0f} MB before "
-              f"the run, {mem['rss_after_kb'] / 1e3:.0f} MB after (+{(mem['rss_after_kb'] - mem['rss_before_kb']) / 1e3:.0f} MB)")
+              f"{mem['trace_bytes'] / 1e6:.1f} MB; process peak RSS {before:.0f} MB before the run, "
+              f"{after:.0f} MB after (+{after - before:.0f} MB)")
 
 
 if __name__ == "__main__":

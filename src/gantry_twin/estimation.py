@@ -393,6 +393,12 @@ def _orthonormalise(w, v):
         return False
     for i in range(p):
         v[1, i] /= norm
+    # Components that have decayed to nothing are set to zero before they become
+    # subnormal numbers, whose arithmetic is ~100x slower on x86.
+    for r in range(2):
+        for i in range(p):
+            if abs(v[r, i]) < 1e-150:
+                v[r, i] = 0.0
     return True
 
 
