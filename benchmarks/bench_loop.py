@@ -26,6 +26,7 @@ import numpy as np
 
 from gantry_twin import Plant, TimingLaw, circle, simulate
 from gantry_twin.controllers import create
+from gantry_twin.paths import reference
 
 SRC = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "src")
 CONTROLLERS = ("pd", "drc", "darc", "diarc")
@@ -35,6 +36,7 @@ import time, json
 t0 = time.perf_counter()
 from gantry_twin import Plant, TimingLaw, circle, simulate
 from gantry_twin.controllers import create
+from gantry_twin.paths import reference
 t1 = time.perf_counter()
 for name in {names!r}:
     simulate(Plant(), circle(), TimingLaw(2.0), create(name), duration_s=0.01)
@@ -47,6 +49,7 @@ import json, resource
 import numpy as np
 from gantry_twin import Plant, TimingLaw, circle, simulate
 from gantry_twin.controllers import create
+from gantry_twin.paths import reference
 simulate(Plant(), circle(), TimingLaw(2.0), create("diarc"), duration_s=0.01)
 before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
 trace = simulate(Plant(), circle(), TimingLaw(2.0), create("diarc"), duration_s=60.0)
@@ -88,6 +91,19 @@ def loop(name: str, seconds: float, backend: str = "compiled") -> tuple[float, f
     return _timed(lambda: simulate(plant, circle(), TimingLaw(2.0), controller, seconds, backend=backend))
 
 
+def derived_errors_cost(seconds: float) -> float:
+    """Seconds simulate() spends on e, eps_n and the true eps_c (paths.contour_error) per chunk of 0.1 s."""
+    finish = sys.modules["gantry_twin.simulate"]._finish_chunk
+    path, timing = circle(), TimingLaw(2.0)
+    trace = simulate(Plant(), path, timing, create("pd"), seconds)
+    ref = reference(path, timing, trace.t_s)
+    chunk = 500
+    t0 = time.perf_counter()
+    for start in range(0, trace.t_s.size, chunk):
+        finish(trace, ref, path, start, min(trace.t_s.size, start + chunk))
+    return time.perf_counter() - t0
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=4.0, help="simulated seconds per loop measurement")
@@ -113,6 +129,7 @@ def main() -> None:
         results["bare mj_step"].append(bare_steps(n))
         for name in CONTROLLERS:
             results[name].append(loop(name, args.seconds))
+    derived = min(derived_errors_cost(args.seconds) for _ in range(args.repeats)) / n * 1e6
     ref_seconds = min(0.5, args.seconds)
     results["diarc (reference)"] = [loop("diarc", ref_seconds, "reference")]
     steps = {key: (int(round(ref_seconds / ts)) if "reference" in key else n) for key in results}
@@ -122,10 +139,16 @@ def main() -> None:
     bare_wall, bare_cpu = best["bare mj_step"]
     print(f"\nloops of {args.seconds:g} s simulated ({n} steps), best of {args.repeats}; "
           f"simulate() with recording to memory, circle, default sensing")
-    print(f"{'loop':<20}{'us/step':>9}{'x bare':>8}{'RT factor':>11}{'CPU us/step':>13}{'x bare':>8}")
+    print(f"{'loop':<20}{'us/step':>9}{'x bare':>8}{'RT factor':>11}{'CPU us/step':>13}{'x bare':>8}"
+          f"{'loop w/o eps_c':>16}{'x bare':>8}")
     for key, (wall, cpu) in best.items():
         label = key if key == "bare mj_step" or "reference" in key else f"{key} (compiled)"
-        print(f"{label:<20}{wall:9.2f}{wall / bare_wall:8.2f}{200.0 / wall:11.1f}{cpu:13.2f}{cpu / bare_cpu:8.2f}")
+        row = f"{label:<20}{wall:9.2f}{wall / bare_wall:8.2f}{200.0 / wall:11.1f}{cpu:13.2f}{cpu / bare_cpu:8.2f}"
+        if key in CONTROLLERS:
+            row += f"{wall - derived:16.2f}{(wall - derived) / bare_wall:8.2f}"
+        print(row)
+    print(f"(derived errors e, eps_n and the true contour error eps_c, computed per 0.1 s chunk with numpy: "
+          f"{derived:.2f} us/step; 'loop w/o eps_c' = measure, control, record, mj_step)")
 
     if not args.skip_memory:
         mem = _child(_MEMORY)
