@@ -12,14 +12,23 @@ Control-spec section 7:
   growth from forgetting.
 * The discrete projection in the Gamma^-1 metric (the discrete form of
   eq. 16) and the element-wise projection for a diagonal gain (eq. 9).
+
+The per-sample functions are numba kernels (:mod:`gantry_twin._jit`) on
+float64 arrays that work in place or into preallocated workspaces; the
+functions taking settings objects (:func:`least_squares_step`,
+:func:`project_metric`, :func:`filter_step`) are the convenient public forms.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from scipy.linalg import expm
+
+from gantry_twin._jit import kernel
 
 
 @dataclass(frozen=True)
@@ -52,78 +61,415 @@ def discretise_filter(wn_rad_s: float, zeta: float, sample_period_s: float) -> F
     return FilterDiscretisation(e[:2, :2].copy(), e[:2, 2].copy(), e[:2, 3].copy(), wn_rad_s, zeta)
 
 
-def filter_step(z: np.ndarray, disc: FilterDiscretisation, w_start: float, slope: float) -> None:
-    """Advance one filter state in place over one sample.
+@kernel
+def filter_advance(z, column, phi, hold, ramp, w_start, slope):
+    """Advance the filter state z[:, column] = [w_f, w_f'] in place over one sample.
 
     The input is w_start at the start of the sample and grows at ``slope``
-    (units/s) through it; slope = 0 is a zero-order hold.
+    (units/s) through it; slope = 0 is a zero-order hold. phi, hold, ramp
+    come from :func:`discretise_filter`.
     """
-    z[:] = disc.phi @ z + disc.hold * w_start + disc.ramp * slope
+    w0, w1 = z[0, column], z[1, column]
+    z[0, column] = phi[0, 0] * w0 + phi[0, 1] * w1 + hold[0] * w_start + ramp[0] * slope
+    z[1, column] = phi[1, 0] * w0 + phi[1, 1] * w1 + hold[1] * w_start + ramp[1] * slope
+
+
+def filter_step(z: np.ndarray, disc: FilterDiscretisation, w_start: float, slope: float) -> None:
+    """Advance one filter state z = [w_f, w_f'] (2,) in place over one sample."""
+    column = z.reshape(2, 1)
+    filter_advance(column, 0, disc.phi, disc.hold, disc.ramp, float(w_start), float(slope))
+    z[:] = column[:, 0]
+
+
+@kernel
+def filtered_acceleration(w_f, dw_f, wn_rad_s, zeta, w_now):
+    """w_f'' = wn^2 (w - w_f) - 2 z wn w_f' at the sample time."""
+    return wn_rad_s * wn_rad_s * (w_now - w_f) - 2.0 * zeta * wn_rad_s * dw_f
 
 
 def filter_acceleration(z: np.ndarray, disc: FilterDiscretisation, w_now: float) -> float:
-    """w_f'' = wn^2 (w - w_f) - 2 z wn w_f' at the sample time."""
-    return disc.wn_rad_s**2 * (w_now - z[0]) - 2.0 * disc.zeta * disc.wn_rad_s * z[1]
+    """w_f'' of the filter state z = [w_f, w_f'] (see :func:`filtered_acceleration`)."""
+    return filtered_acceleration(float(z[0]), float(z[1]), disc.wn_rad_s, disc.zeta, float(w_now))
 
 
-def friction_shape(v_m_s: np.ndarray | float, slope_s_per_m: float = 9000.0) -> np.ndarray | float:
-    """Sf(v) = (2/pi) atan(9000 v): the controller's smooth Coulomb model."""
-    return (2.0 / np.pi) * np.arctan(slope_s_per_m * v_m_s)
+@kernel
+def friction_shape(v_m_s, slope_s_per_m=9000.0):
+    """Sf(v) = (2/pi) atan(9000 v): the controller's smooth Coulomb model (one velocity, m/s)."""
+    return (2.0 / math.pi) * math.atan(slope_s_per_m * v_m_s)
 
 
-def project_box(theta: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
+@kernel
+def clip(value, lower, upper):
+    """value limited to [lower, upper]; NaN passes through (so the loop can stop on it)."""
+    if value > upper:
+        return upper
+    if value < lower:
+        return lower
+    return value
+
+
+@kernel
+def project_box(theta, lower, upper, out=None):
     """Element-wise projection onto the box (eq. 9 for a diagonal gain)."""
-    return np.minimum(np.maximum(theta, lower), upper)
+    if out is None:
+        out = np.empty(theta.shape[0])
+    for i in range(theta.shape[0]):
+        out[i] = clip(theta[i], lower[i], upper[i])
+    return out
 
 
-def project_metric(
-    y: np.ndarray, gamma: np.ndarray, lower: np.ndarray, upper: np.ndarray, max_iterations: int = 50
-) -> np.ndarray:
-    """argmin over the box of (x - y)^T Gamma^-1 (x - y): the discrete eq. (16).
+@kernel
+def cholesky_factor(a, n, factor):
+    """Lower Cholesky factor of a[:n, :n] into factor[:n, :n]; False if a is not positive definite."""
+    for i in range(n):
+        for j in range(i + 1):
+            acc = a[i, j]
+            for k in range(j):
+                acc -= factor[i, k] * factor[j, k]
+            if i == j:
+                if not acc > 0.0:
+                    return False
+                factor[i, i] = math.sqrt(acc)
+            else:
+                factor[i, j] = acc / factor[j, j]
+    return True
+
+
+@kernel
+def cholesky_substitute(factor, n, b, x):
+    """Solve L L^T x = b[:n] with L = factor[:n, :n] from :func:`cholesky_factor`."""
+    for i in range(n):
+        acc = b[i]
+        for k in range(i):
+            acc -= factor[i, k] * x[k]
+        x[i] = acc / factor[i, i]
+    for i in range(n - 1, -1, -1):
+        acc = x[i]
+        for k in range(i + 1, n):
+            acc -= factor[k, i] * x[k]
+        x[i] = acc / factor[i, i]
+
+
+@kernel
+def cholesky_solve(a, n, b, x, factor):
+    """Solve a[:n, :n] x = b[:n] for symmetric positive definite a (Cholesky).
+
+    ``factor`` (at least n x n) is scratch space; x[:n] receives the solution.
+    """
+    if not cholesky_factor(a, n, factor):
+        raise np.linalg.LinAlgError("cholesky_solve: matrix is not positive definite")
+    cholesky_substitute(factor, n, b, x)
+
+
+class ProjectionWork(NamedTuple):
+    """Scratch arrays of :func:`project_metric_into` for p parameters."""
+
+    active: np.ndarray  # (p,) 1 where the variable sits on a bound
+    bound: np.ndarray  # (p,) the bound it sits on
+    active_index: np.ndarray  # (p,) int
+    free_index: np.ndarray  # (p,) int
+    gamma_aa: np.ndarray  # (p, p) Gamma restricted to the active set
+    rhs: np.ndarray  # (p,)
+    delta: np.ndarray  # (p,) Gamma_AA^-1 (x - y)_A
+    factor: np.ndarray  # (p, p) Cholesky scratch
+
+
+def projection_work(p: int) -> ProjectionWork:
+    """Preallocated scratch for :func:`project_metric_into`."""
+    return ProjectionWork(
+        np.zeros(p), np.zeros(p), np.zeros(p, dtype=np.int64), np.zeros(p, dtype=np.int64),
+        np.zeros((p, p)), np.zeros(p), np.zeros(p), np.zeros((p, p)),
+    )  # fmt: skip
+
+
+@kernel
+def project_metric_into(y, gamma, lower, upper, max_iterations, x, work):
+    """x = argmin over the box of (x - y)^T Gamma^-1 (x - y): the discrete eq. (16).
 
     Primal active-set method. With the active set A held at its bounds b_A,
     the free part is the conditional mean x_F = y_F + Gamma_FA Gamma_AA^-1
     (b_A - y_A), so Gamma^-1 is never formed. The gradient g = Gamma^-1 (x - y)
     is zero on F and g_A = Gamma_AA^-1 (x - y)_A; KKT needs g_i <= 0 at an
     upper bound and g_i >= 0 at a lower one. Several faces may be active.
+    Free variables that leave the box join A one at a time (the worst first:
+    adding all at once can overshoot); an active variable whose multiplier
+    has the wrong sign leaves A.
     """
+    # Unpacked once: each namedtuple field access costs a reference-count update in numba.
+    active, bound, active_index, free_index, gamma_aa, rhs, delta, factor = work
     n = y.shape[0]
-    inside = (y >= lower) & (y <= upper)
-    if inside.all():
-        return y.copy()
-    active = ~inside
-    bound = np.where(y > upper, upper, lower)
-    x = y.copy()
+    inside = True
+    for i in range(n):
+        outside = y[i] > upper[i] or y[i] < lower[i]
+        active[i] = 1.0 if outside else 0.0
+        bound[i] = upper[i] if y[i] > upper[i] else lower[i]
+        inside = inside and not outside
+    if inside:
+        for i in range(n):
+            x[i] = y[i]
+        return
     for _ in range(max_iterations):
-        a_idx = np.flatnonzero(active)
-        f_idx = np.flatnonzero(~active)
-        x = y.copy()
-        x[a_idx] = bound[a_idx]
-        if a_idx.size:
-            delta = np.linalg.solve(gamma[np.ix_(a_idx, a_idx)], x[a_idx] - y[a_idx])
-            x[f_idx] = y[f_idx] + gamma[np.ix_(f_idx, a_idx)] @ delta
-        else:
-            delta = np.zeros(0)
-        # Free variables that left the box become active at the bound they crossed.
-        over = (~active) & ((x > upper) | (x < lower))
-        if over.any():
-            # Add only the worst violator: adding all at once can overshoot.
-            violation = np.where(x > upper, x - upper, lower - x)
-            violation[~over] = -np.inf
-            i = int(np.argmax(violation))
-            active[i] = True
-            bound[i] = upper[i] if x[i] > upper[i] else lower[i]
+        n_active = 0
+        n_free = 0
+        for i in range(n):
+            x[i] = y[i]
+            if active[i] > 0.0:
+                x[i] = bound[i]
+                active_index[n_active] = i
+                n_active += 1
+            else:
+                free_index[n_free] = i
+                n_free += 1
+        if n_active > 0:
+            for j in range(n_active):
+                aj = active_index[j]
+                rhs[j] = x[aj] - y[aj]
+                for m in range(n_active):
+                    gamma_aa[j, m] = gamma[aj, active_index[m]]
+            cholesky_solve(gamma_aa, n_active, rhs, delta, factor)
+            for j in range(n_free):
+                f = free_index[j]
+                acc = 0.0
+                for m in range(n_active):
+                    acc += gamma[f, active_index[m]] * delta[m]
+                x[f] = y[f] + acc
+        # Free variables that left the box: the worst violator becomes active.
+        worst = -1
+        worst_violation = 0.0
+        for j in range(n_free):
+            f = free_index[j]
+            violation = x[f] - upper[f] if x[f] > upper[f] else (lower[f] - x[f] if x[f] < lower[f] else 0.0)
+            if violation > 0.0 and (worst < 0 or violation > worst_violation):
+                worst, worst_violation = f, violation
+        if worst >= 0:
+            active[worst] = 1.0
+            bound[worst] = upper[worst] if x[worst] > upper[worst] else lower[worst]
             continue
         # Active variables whose multiplier has the wrong sign are released.
-        wrong = np.zeros(n)
-        for j, i in enumerate(a_idx):
-            g = delta[j]
-            wrong[i] = g if bound[i] == upper[i] else -g  # > 0 means wrong sign
-        if a_idx.size and wrong.max() > 1e-15 * max(1.0, np.abs(delta).max()):
-            active[int(np.argmax(wrong))] = False
+        release = -1
+        most_wrong = 0.0
+        scale = 1.0
+        for j in range(n_active):
+            scale = max(scale, abs(delta[j]))
+        for j in range(n_active):
+            a = active_index[j]
+            wrong = delta[j] if bound[a] == upper[a] else -delta[j]  # > 0: wrong sign
+            if wrong > 1e-15 * scale and (release < 0 or wrong > most_wrong):
+                release, most_wrong = a, wrong
+        if release >= 0:
+            active[release] = 0.0
             continue
-        return np.minimum(np.maximum(x, lower), upper)
+        for i in range(n):
+            x[i] = clip(x[i], lower[i], upper[i])
+        return
     raise RuntimeError("project_metric: active-set loop did not converge")
+
+
+def project_metric(
+    y: np.ndarray, gamma: np.ndarray, lower: np.ndarray, upper: np.ndarray, max_iterations: int = 50
+) -> np.ndarray:
+    """argmin over the box of (x - y)^T Gamma^-1 (x - y); see :func:`project_metric_into`."""
+    y = np.ascontiguousarray(y, dtype=float)
+    x = np.empty_like(y)
+    args = (np.ascontiguousarray(gamma, dtype=float), np.asarray(lower, dtype=float), np.asarray(upper, dtype=float))
+    project_metric_into(y, *args, int(max_iterations), x, projection_work(y.shape[0]))
+    return x
+
+
+@kernel
+def tridiagonalise(a, t, diag, off):
+    """Householder reduction of symmetric a (p x p) to tridiagonal form (same eigenvalues).
+
+    t: (p, p) scratch (a is not modified); diag (p,) and off (p,) receive the
+    diagonal and the sub-diagonal (off[p - 1] unused).
+    """
+    p = a.shape[0]
+    for i in range(p):
+        for j in range(p):
+            t[i, j] = a[i, j]
+    for k in range(p - 2):
+        # Householder vector v (stored in off[k+1:] scratch-free: use column k of t below the diagonal).
+        alpha_sq = 0.0
+        for i in range(k + 1, p):
+            alpha_sq += t[i, k] * t[i, k]
+        if alpha_sq == 0.0:
+            diag[k] = t[k, k]
+            off[k] = 0.0
+            continue
+        alpha = -math.sqrt(alpha_sq) if t[k + 1, k] >= 0.0 else math.sqrt(alpha_sq)
+        # v = x - alpha e1 (in t[k+1:, k]), beta = 2 / (v^T v)
+        t[k + 1, k] -= alpha
+        vtv = 0.0
+        for i in range(k + 1, p):
+            vtv += t[i, k] * t[i, k]
+        if vtv == 0.0:
+            diag[k] = t[k, k]
+            off[k] = alpha
+            continue
+        beta = 2.0 / vtv
+        # w = beta A v; then w -= (beta/2) (v^T w) v; A -= v w^T + w v^T (trailing block). w kept in t[k, k+1:].
+        vw = 0.0
+        for i in range(k + 1, p):
+            acc = 0.0
+            for j in range(k + 1, p):
+                acc += t[i, j] * t[j, k]
+            t[k, i] = beta * acc
+            vw += t[i, k] * t[k, i]
+        half = 0.5 * beta * vw
+        for i in range(k + 1, p):
+            t[k, i] -= half * t[i, k]
+        for i in range(k + 1, p):
+            for j in range(k + 1, p):
+                t[i, j] -= t[i, k] * t[k, j] + t[k, i] * t[j, k]
+        diag[k] = t[k, k]
+        off[k] = alpha
+    diag[p - 2] = t[p - 2, p - 2] if p >= 2 else 0.0
+    if p >= 2:
+        off[p - 2] = t[p - 1, p - 2]
+    diag[p - 1] = t[p - 1, p - 1]
+
+
+@kernel
+def largest_eigenvalue_exact(a, upper_bound, t, diag, off):
+    """lambda_max of a symmetric matrix a (p x p), exact to rounding.
+
+    Householder reduction to tridiagonal form, then Newton's method on the
+    characteristic polynomial started above the largest root (the Gershgorin
+    bound, or ``upper_bound`` if smaller): for a polynomial with real roots,
+    Newton from the right of the largest root decreases monotonically to it.
+    t (p, p), diag (p,), off (p,): scratch.
+    """
+    p = a.shape[0]
+    tridiagonalise(a, t, diag, off)
+    x = -math.inf
+    for i in range(p):
+        radius = (abs(off[i - 1]) if i > 0 else 0.0) + (abs(off[i]) if i < p - 1 else 0.0)
+        x = max(x, diag[i] + radius)
+    if upper_bound < x:
+        x = upper_bound
+    for _ in range(200):
+        # p_k(x) = (d_k - x) p_{k-1} - e_{k-1}^2 p_{k-2} and its derivative.
+        p_prev, p_cur = 1.0, diag[0] - x
+        q_prev, q_cur = 0.0, -1.0
+        for k in range(1, p):
+            e2 = off[k - 1] * off[k - 1]
+            p_next = (diag[k] - x) * p_cur - e2 * p_prev
+            q_next = -p_cur + (diag[k] - x) * q_cur - e2 * q_prev
+            p_prev, p_cur = p_cur, p_next
+            q_prev, q_cur = q_cur, q_next
+        if q_cur == 0.0:
+            break
+        step = p_cur / q_cur
+        x -= step
+        if abs(step) <= 1e-15 * abs(x):
+            break
+    return x
+
+
+#: largest_eigenvalue's certified relative accuracy.
+EIGENVALUE_TOLERANCE = 1e-10
+
+
+@kernel
+def _orthonormalise(w, v):
+    """v = Gram-Schmidt orthonormal basis of the two rows of w (2, p); False if they are dependent."""
+    p = w.shape[1]
+    norm = 0.0
+    for i in range(p):
+        norm += w[0, i] * w[0, i]
+    norm = math.sqrt(norm)
+    if not norm > 0.0:
+        return False
+    dot = 0.0
+    for i in range(p):
+        v[0, i] = w[0, i] / norm
+        dot += v[0, i] * w[1, i]
+    norm = 0.0
+    for i in range(p):
+        v[1, i] = w[1, i] - dot * v[0, i]
+        norm += v[1, i] * v[1, i]
+    norm = math.sqrt(norm)
+    if not norm > 0.0:
+        return False
+    for i in range(p):
+        v[1, i] /= norm
+    # Components that have decayed to nothing are set to zero before they become
+    # subnormal numbers, whose arithmetic is ~100x slower on x86.
+    for r in range(2):
+        for i in range(p):
+            if abs(v[r, i]) < 1e-150:
+                v[r, i] = 0.0
+    return True
+
+
+@kernel
+def largest_eigenvalue(a, v, w, t, diag, off, upper_bound=math.inf, iterations=12):
+    """lambda_max of a symmetric positive definite a (p x p), certified to EIGENVALUE_TOLERANCE.
+
+    Warm-started subspace iteration on two vectors: v (2, p) holds an
+    orthonormal basis close to the top two eigenvectors from the previous
+    call (updated in place). The larger Ritz value r of a on span(v) never
+    exceeds lambda_max; r is accepted once (r (1 + tol)) I - a is positive
+    definite (its Cholesky factorisation succeeds), which proves
+    lambda_max < r (1 + tol); it is tried once r has settled (changed by
+    less than tol / 10 in the last step). Two vectors make a pair of close top
+    eigenvalues (DIARC's dN1, dN2 start equal) converge at once. If no
+    certificate comes within ``iterations`` steps (e.g. after eigenvalues
+    crossed), the exact :func:`largest_eigenvalue_exact` is used and v
+    restarted. Gamma changes little per 0.2 ms sample, so one step usually
+    suffices. w (2, p), t (p, p), diag, off (p,): scratch.
+    """
+    p = a.shape[0]
+    previous = -math.inf
+    for _ in range(iterations):
+        # w = a v (two rows); h = v a v^T (2 x 2); r = its larger eigenvalue.
+        h00 = 0.0
+        h01 = 0.0
+        h11 = 0.0
+        for i in range(p):
+            acc0 = 0.0
+            acc1 = 0.0
+            for k in range(p):
+                acc0 += a[i, k] * v[0, k]
+                acc1 += a[i, k] * v[1, k]
+            w[0, i] = acc0
+            w[1, i] = acc1
+            h00 += v[0, i] * acc0
+            h01 += v[0, i] * acc1
+            h11 += v[1, i] * acc1
+        mean = 0.5 * (h00 + h11)
+        half_gap = 0.5 * (h00 - h11)
+        rayleigh = mean + math.sqrt(half_gap * half_gap + h01 * h01)
+        if not _orthonormalise(w, v):
+            break
+        # Try the (costlier) certificate only once the Ritz value has settled.
+        settled = rayleigh - previous <= 0.1 * EIGENVALUE_TOLERANCE * rayleigh
+        previous = rayleigh
+        if not settled:
+            continue
+        shift = rayleigh * (1.0 + EIGENVALUE_TOLERANCE)
+        for i in range(p):
+            for k in range(i + 1):
+                t[i, k] = -a[i, k]
+            t[i, i] += shift
+        if cholesky_factor(t, p, t):
+            return rayleigh
+    lam_max = largest_eigenvalue_exact(a, upper_bound, t, diag, off)
+    # Restart the warm basis with vectors that cannot be orthogonal to the top eigenvectors
+    # in general position, then let a few subspace steps pull it in.
+    for i in range(p):
+        v[0, i] = 1.0 / math.sqrt(p)
+        v[1, i] = (1.0 if i % 2 == 0 else -1.0) / math.sqrt(p) + 1e-3 * i
+    _orthonormalise(v.copy(), v)
+    for _ in range(30):
+        for r in range(2):
+            for i in range(p):
+                acc = 0.0
+                for k in range(p):
+                    acc += a[i, k] * v[r, k]
+                w[r, i] = acc
+        _orthonormalise(w, v)
+    return lam_max
 
 
 @dataclass(frozen=True)
@@ -136,6 +482,124 @@ class LeastSquaresSettings:
     gamma0_diag: tuple[float, ...] = (10.0, 10.0, 10.0, 10.0, 10.0, 10.0, 5000.0, 5000.0)
 
 
+class LeastSquaresWork(NamedTuple):
+    """Scratch arrays of :func:`least_squares_update` for p parameters and m outputs."""
+
+    gamma_g: np.ndarray  # (p, m) Gamma gamma_f
+    zeta: np.ndarray  # (m,) prediction error
+    tau: np.ndarray  # (p,)
+    y: np.ndarray  # (p,) the unprojected new estimate
+    inner: np.ndarray  # (m, m)
+    column: np.ndarray  # (m,)
+    solved: np.ndarray  # (m, p) inner^-1 (Gamma gamma_f)^T
+    lambda_bound: np.ndarray  # (1,) an upper bound of lambda_max(Gamma): the last one computed
+    eigvecs: np.ndarray  # (2, p) near Gamma's top two eigenvectors: largest_eigenvalue's warm start
+    eig_scratch: np.ndarray  # (2, p)
+    tridiagonal: np.ndarray  # (p, p) scratch of largest_eigenvalue
+    diag: np.ndarray  # (p,)
+    off: np.ndarray  # (p,)
+    scratch: np.ndarray  # (p,)
+    projection: ProjectionWork
+
+
+def least_squares_work(p: int, m: int, gamma: np.ndarray | None = None) -> LeastSquaresWork:
+    """Scratch for :func:`least_squares_update`; the eigenvector warm start from ``gamma`` if given."""
+    # Warm start: the unit vectors of Gamma's two largest diagonal entries (its top
+    # eigenvectors when Gamma is diagonal, as Gamma(0) is). No LAPACK call: OpenBLAS
+    # threads would then spin on the second core while the loop runs.
+    diagonal = np.ones(p) if gamma is None else np.diag(gamma)
+    order = np.argsort(-diagonal, kind="stable")
+    eigvecs = np.zeros((2, p))
+    eigvecs[0, order[0]] = eigvecs[1, order[1]] = 1.0
+    return LeastSquaresWork(
+        np.zeros((p, m)), np.zeros(m), np.zeros(p), np.zeros(p), np.zeros((m, m)), np.zeros(m), np.zeros((m, p)),
+        np.array([np.inf]), eigvecs, np.zeros((2, p)), np.zeros((p, p)), np.zeros(p), np.zeros(p), np.zeros(p),
+        projection_work(p),
+    )  # fmt: skip
+
+
+@kernel
+def least_squares_update(theta, gamma, g, target, nu, kappa, rho_max, lower, upper, sample_period_s, work):
+    """One sample of eq. (27)-(28) with projection; updates theta, gamma in place.
+
+        n      = 1 + nu tr(gamma_f^T Gamma gamma_f)
+        zeta   = gamma_f^T theta^ - u_f,  tau = -gamma_f zeta / n
+        theta^ = Proj_Gamma(theta^ + Ts Gamma tau)                    (eq. 16, 27)
+        Gamma  = Gamma - Gamma g (n/Ts I + g^T Gamma g)^-1 g^T Gamma  (eq. 28)
+
+    g: gamma_f, shape (p, m) (here 8 x 2); target: u_f, shape (m,). The
+    information term is applied in its exact discrete (inverse-update) form,
+    Gamma+^-1 = Gamma^-1 + Ts gamma_f gamma_f^T / n, which keeps Gamma
+    symmetric positive definite for any step (Gamma must be exactly
+    symmetric on entry; the update keeps it so); forgetting multiplies Gamma by
+    exp(kappa Ts) only while lambda_max(Gamma) <= rho_M. Returns
+    lambda_max(Gamma) after the update (:func:`largest_eigenvalue`: relative
+    accuracy EIGENVALUE_TOLERANCE, certified).
+    """
+    p, m = g.shape
+    gamma_g, zeta, tau, y, inner, column, solved, lambda_bound, eigvecs, eig_scratch, tridiagonal, diag, off, scratch, \
+        projection = work
+    trace = 0.0
+    for i in range(p):
+        for j in range(m):
+            acc = 0.0
+            for k in range(p):
+                acc += gamma[i, k] * g[k, j]
+            gamma_g[i, j] = acc
+            trace += g[i, j] * acc
+    n = 1.0 + nu * trace
+    for j in range(m):
+        acc = 0.0
+        for i in range(p):
+            acc += g[i, j] * theta[i]
+        zeta[j] = acc - target[j]
+    for i in range(p):
+        acc = 0.0
+        for j in range(m):
+            acc += g[i, j] * zeta[j]
+        tau[i] = -acc / n
+    for i in range(p):
+        acc = 0.0
+        for k in range(p):
+            acc += gamma[i, k] * tau[k]
+        y[i] = theta[i] + sample_period_s * acc
+    project_metric_into(y, gamma, lower, upper, 50, theta, projection)
+
+    for j in range(m):
+        for k in range(m):
+            acc = n / sample_period_s if j == k else 0.0
+            for i in range(p):
+                acc += g[i, j] * gamma_g[i, k]
+            inner[j, k] = acc
+    factor = projection.factor
+    if not cholesky_factor(inner, m, factor):
+        raise np.linalg.LinAlgError("least_squares_update: n/Ts I + g^T Gamma g is not positive definite")
+    for i in range(p):
+        for j in range(m):
+            column[j] = gamma_g[i, j]
+        cholesky_substitute(factor, m, column, scratch)
+        for j in range(m):
+            solved[j, i] = scratch[j]
+    # The downdate is symmetric: compute the lower triangle and mirror it (Gamma stays exactly symmetric).
+    for i in range(p):
+        for k in range(i + 1):
+            acc = 0.0
+            for j in range(m):
+                acc += gamma_g[i, j] * solved[j, k]
+            gamma[i, k] -= acc
+            gamma[k, i] = gamma[i, k]
+    # The information term only shrinks Gamma: the last lambda_max bounds the new one (rounding aside).
+    lam_max = largest_eigenvalue(gamma, eigvecs, eig_scratch, tridiagonal, diag, off, lambda_bound[0] * (1.0 + 1e-12))
+    if lam_max <= rho_max:
+        growth = math.exp(kappa * sample_period_s)
+        for i in range(p):
+            for k in range(p):
+                gamma[i, k] *= growth
+        lam_max *= growth
+    lambda_bound[0] = lam_max
+    return lam_max
+
+
 def least_squares_step(
     theta: np.ndarray,
     gamma: np.ndarray,
@@ -146,29 +610,11 @@ def least_squares_step(
     upper: np.ndarray,
     sample_period_s: float,
 ) -> float:
-    """One sample of eq. (27)-(28) with projection; updates theta, gamma in place.
-
-    regressor: gamma_f, shape (p, m) (here 8 x 2); target: u_f, shape (m,).
-    The information term is applied in its exact discrete (inverse-update)
-    form, Gamma+^-1 = Gamma^-1 + Ts gamma_f gamma_f^T / n, which keeps Gamma
-    symmetric positive definite for any step; forgetting multiplies Gamma by
-    exp(kappa Ts) only while lambda_max(Gamma) <= rho_M. Returns
-    lambda_max(Gamma) after the update.
-    """
-    g = regressor
-    gamma_g = gamma @ g
-    n = 1.0 + settings.nu * float(np.trace(g.T @ gamma_g))
-    zeta = g.T @ theta - target
-    tau = -(g @ zeta) / n
-    y = theta + sample_period_s * (gamma @ tau)
-    theta[:] = project_metric(y, gamma, lower, upper)
-
-    inner = (n / sample_period_s) * np.eye(g.shape[1]) + g.T @ gamma_g
-    gamma -= gamma_g @ np.linalg.solve(inner, gamma_g.T)
-    lam_max = float(np.linalg.eigvalsh(gamma)[-1])
-    if lam_max <= settings.rho_max:
-        growth = np.exp(settings.kappa * sample_period_s)
-        gamma *= growth
-        lam_max *= growth
-    gamma[:] = 0.5 * (gamma + gamma.T)
-    return lam_max
+    """One sample of eq. (27)-(28); see :func:`least_squares_update`. Returns lambda_max(Gamma)."""
+    g = np.ascontiguousarray(regressor, dtype=float)
+    work = least_squares_work(g.shape[0], g.shape[1], gamma)
+    return least_squares_update(
+        theta, gamma, g, np.asarray(target, dtype=float), float(settings.nu), float(settings.kappa),
+        float(settings.rho_max), np.asarray(lower, dtype=float), np.asarray(upper, dtype=float),
+        float(sample_period_s), work,
+    )  # fmt: skip

@@ -9,18 +9,35 @@ The loop records into a :class:`Trace` preallocated for the whole run and
 hands it to observers (progress bars, live telemetry, pacing) after every
 chunk of ``chunk_s`` simulated seconds. Observers only read the trace:
 nothing they do changes the simulation.
+
+Two backends run the same equations (docs/performance.md):
+
+* ``reference``: a Python loop that calls ``controller.update()`` every
+  sample and ``mujoco.mj_step``; any plug-in controller runs this way, and
+  the built-in controllers then run their kernels uncompiled.
+* ``compiled``: for the built-in controllers (drc, darc, diarc, pd), each
+  chunk is one numba kernel that measures, runs the controller's compiled
+  step, records and calls MuJoCo's C ``mj_step`` directly (through the
+  shared library the mujoco wheel ships), with no Python in the 0.2 ms loop.
+  It leaves the controller object in the state the reference run leaves.
 """
 
 from __future__ import annotations
 
+import glob
+import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Literal, NamedTuple, Protocol
 
 import mujoco
 import numpy as np
+from numba import types
 
+from gantry_twin._jit import kernel
+from gantry_twin.controllers.arc import CLOCK_LAMBDA_MAX, DARC, DIARC, DRC, arc_step
 from gantry_twin.controllers.base import Controller, Measurement, ReferenceSample, RunContext
+from gantry_twin.controllers.pd import PD, pd_step
 from gantry_twin.paths import Path, Reference, TimingLaw, contour_error, reference
 from gantry_twin.plant import Plant
 from gantry_twin.sensing import Encoder, SensingConfig
@@ -81,15 +98,20 @@ class Trace:
     def sample_period_s(self) -> float:
         return float(self.t_s[1] - self.t_s[0]) if self.t_s.size > 1 else 0.0
 
+    def allocate_state(self, state: dict[str, np.ndarray]) -> None:
+        """NaN buffers for each logged key not yet allocated, shaped like one sample of ``state``."""
+        n = self.t_s.size
+        for key, value in state.items():
+            if key not in self.controller_state:
+                value = np.asarray(value, dtype=float)
+                self.controller_state[key] = np.full((n,) if value.size == 1 else (n, *value.shape), np.nan)
+
     def record_state(self, k: int, state: dict[str, np.ndarray]) -> None:
         """Store one sample of the controller's logged state."""
+        self.allocate_state(state)
         buffers = self.controller_state
         for key, value in state.items():
-            value = np.asarray(value, dtype=float)
-            if key not in buffers:
-                n = self.t_s.size
-                buffers[key] = np.full((n,) if value.size == 1 else (n, *value.shape), np.nan)
-            buffers[key][k] = value.reshape(buffers[key][k].shape)
+            buffers[key][k] = np.asarray(value, dtype=float).reshape(buffers[key][k].shape)
 
 
 @dataclass(frozen=True)
@@ -123,6 +145,170 @@ def _finish_chunk(trace: Trace, ref: Reference, path: Path, start: int, stop: in
     trace.filled = stop
 
 
+Backend = Literal["auto", "compiled", "reference"]
+
+
+def _load_mj_step() -> types.ExternalFunction | None:
+    """MuJoCo's C ``mj_step(const mjModel*, mjData*)`` for numba, or None if the library is not found.
+
+    The mujoco wheel ships ``libmujoco.so.*`` (``libmujoco*.dylib`` on macOS)
+    next to its Python module, which has already loaded it; making its
+    symbols visible to LLVM lets compiled code call ``mj_step`` by name.
+    The pointers are passed as integers (MjModel._address, MjData._address).
+    """
+    import llvmlite.binding as llvm
+
+    here = os.path.dirname(mujoco.__file__)
+    for pattern in ("libmujoco.so*", "libmujoco*.dylib"):
+        for path in sorted(glob.glob(os.path.join(here, pattern))):
+            try:
+                llvm.load_library_permanently(path)
+            except RuntimeError:
+                continue
+            return types.ExternalFunction("mj_step", types.void(types.intp, types.intp))
+    return None
+
+
+mj_step = _load_mj_step()
+
+
+class PlantIO(NamedTuple):
+    """What the compiled loop touches in MuJoCo: raw pointers, views into mjData, indices."""
+
+    model_address: int
+    data_address: int
+    qpos: np.ndarray
+    qvel: np.ndarray
+    ctrl: np.ndarray
+    qpos_index: np.ndarray
+    dof_index: np.ndarray
+    motor_index: np.ndarray
+    disturbance_index: np.ndarray
+    u_max_v: np.ndarray
+
+
+class SensorState(NamedTuple):
+    """The encoder of :mod:`gantry_twin.sensing` for the compiled loop; previous_m (2,) is its memory."""
+
+    quantize: bool
+    resolution_m: float
+    velocity_by_difference: bool
+    sample_period_s: float
+    previous_m: np.ndarray
+
+
+class Recording(NamedTuple):
+    """Inputs (reference rows, disturbance) and the trace arrays the compiled loop writes."""
+
+    rows: np.ndarray
+    disturbance_v: np.ndarray
+    q_m: np.ndarray
+    q_meas_m: np.ndarray
+    u_v: np.ndarray
+
+
+class SampleWork(NamedTuple):
+    """One sample: true position m, measured position m and velocity m/s, command volts (2,) each."""
+
+    q_true: np.ndarray
+    position: np.ndarray
+    velocity: np.ndarray
+    command: np.ndarray
+
+
+#: Status codes of the compiled chunk kernels.
+STATUS_OK, STATUS_BAD_MEASUREMENT, STATUS_BAD_COMMAND = 0, 1, 2
+
+
+@kernel
+def _measure(plant, sensor, sample):
+    """Encoder reading of this sample (same arithmetic as sensing.Encoder); False if not finite."""
+    qpos, qvel, qpos_index, dof_index = plant.qpos, plant.qvel, plant.qpos_index, plant.dof_index
+    previous_m, resolution_m = sensor.previous_m, sensor.resolution_m
+    q_true, position, velocity = sample.q_true, sample.position, sample.velocity
+    finite = True
+    for i in range(2):
+        q = qpos[qpos_index[i]]
+        q_true[i] = q
+        position[i] = np.rint(q / resolution_m) * resolution_m if sensor.quantize else q
+        if sensor.velocity_by_difference:
+            velocity[i] = (position[i] - previous_m[i]) / sensor.sample_period_s
+        else:
+            velocity[i] = qvel[dof_index[i]]
+        previous_m[i] = position[i]
+        finite = finite and np.isfinite(position[i]) and np.isfinite(velocity[i])
+    return finite
+
+
+@kernel
+def _record_and_step(plant, recording, k, sample, command):
+    """Check the command; record the sample; hold u and the disturbance; mj_step. False if u not finite."""
+    kept = sample.command
+    for i in range(2):
+        kept[i] = command[i]
+        if not np.isfinite(command[i]):
+            return False
+    ctrl, u_max_v, motors, disturbances = plant.ctrl, plant.u_max_v, plant.motor_index, plant.disturbance_index
+    q_true, position = sample.q_true, sample.position
+    _, disturbance_v, q_m, q_meas_m, u_v = recording
+    for i in range(2):
+        u = min(max(command[i], -u_max_v[i]), u_max_v[i])
+        q_m[k, i] = q_true[i]
+        q_meas_m[k, i] = position[i]
+        u_v[k, i] = u
+        ctrl[motors[i]] = u
+        ctrl[disturbances[i]] = disturbance_v[k, i]
+    mj_step(plant.model_address, plant.data_address)
+    return True
+
+
+@kernel
+def _run_arc_chunk(start, stop, plant, sensor, recording, sample, params, state, theta_log, dc_log, gamma_log,
+                   lambda_log):  # fmt: skip
+    """Samples [start, stop) with DRC/DARC/DIARC; returns (status, sample index)."""
+    rows, position, velocity = recording.rows, sample.position, sample.velocity
+    theta, dc, u_v = state.theta, state.dc, state.law.u_v
+    gamma, clock = state.estimator.gamma, state.estimator.clock
+    for k in range(start, stop):
+        if not _measure(plant, sensor, sample):
+            return STATUS_BAD_MEASUREMENT, k
+        arc_step(params, state, position, velocity, rows[k])
+        if not _record_and_step(plant, recording, k, sample, u_v):
+            return STATUS_BAD_COMMAND, k
+        if theta_log.shape[0] > 0:
+            theta_log[k, :] = theta
+        if dc_log.shape[0] > 0:
+            dc_log[k, :] = dc
+        if gamma_log.shape[0] > 0:
+            for j in range(gamma_log.shape[1]):
+                gamma_log[k, j] = gamma[j, j]
+        if lambda_log.shape[0] > 0:
+            lambda_log[k] = clock[CLOCK_LAMBDA_MAX]
+    return STATUS_OK, stop
+
+
+@kernel
+def _run_pd_chunk(start, stop, plant, sensor, recording, sample, params, u_v):
+    """Samples [start, stop) with the PD baseline; returns (status, sample index)."""
+    rows, position, velocity = recording.rows, sample.position, sample.velocity
+    for k in range(start, stop):
+        if not _measure(plant, sensor, sample):
+            return STATUS_BAD_MEASUREMENT, k
+        pd_step(params, position, velocity, rows[k], u_v)
+        if not _record_and_step(plant, recording, k, sample, u_v):
+            return STATUS_BAD_COMMAND, k
+    return STATUS_OK, stop
+
+
+#: The controllers the compiled backend runs (exact types: a subclass may override update()).
+COMPILED_CONTROLLERS = (DRC, DARC, DIARC, PD)
+
+
+def compiled_available() -> bool:
+    """True if MuJoCo's mj_step could be made callable from compiled code."""
+    return mj_step is not None
+
+
 def simulate(
     plant: Plant,
     path: Path,
@@ -134,12 +320,26 @@ def simulate(
     observers: Sequence[Observer] = (),
     chunk_s: float = 0.1,
     controller_name: str | None = None,
+    backend: Backend = "auto",
 ) -> Trace:
     """Run the closed loop for ``duration_s`` seconds and return the trace.
 
     The plant starts at q_d(0) moving at q_d'(0): for an ``on_path`` timing
     law that is the paper's "already running" start; for ``rest``, standstill.
+    backend: ``auto`` (compiled for the built-in controllers drc, darc, diarc,
+    pd when MuJoCo's library is found, else reference), ``compiled`` or
+    ``reference``; both give the same trace (tests/test_backends.py).
     """
+    if backend not in ("auto", "compiled", "reference"):
+        raise ValueError(f"backend must be 'auto', 'compiled' or 'reference', got {backend!r}")
+    builtin = type(controller) in COMPILED_CONTROLLERS
+    if backend == "compiled" and not builtin:
+        raise ValueError(f"backend 'compiled' runs only {', '.join(c.__name__ for c in COMPILED_CONTROLLERS)}; "
+                         f"got {type(controller).__name__}")  # fmt: skip
+    if backend == "compiled" and not compiled_available():
+        raise RuntimeError("backend 'compiled': MuJoCo's shared library was not found next to the mujoco module")
+    compiled = backend == "compiled" or (backend == "auto" and builtin and compiled_available())
+
     sensing = sensing or SensingConfig()
     ts = plant.timestep_s
     n = int(round(duration_s / ts))
@@ -147,36 +347,57 @@ def simulate(
         raise ValueError(f"duration_s must hold at least two samples of {ts} s, got {duration_s}")
     t = np.arange(n) * ts
     ref = reference(path, timing, t)
-    rows = ref.packed()
+    rows = np.ascontiguousarray(ref.packed())
     dist = np.zeros((n, 2)) if disturbance is None else np.asarray(disturbance(t), dtype=float)
     if dist.shape != (n, 2):
         raise ValueError(f"disturbance must give shape ({n}, 2) volts, got {dist.shape}")
+    dist = np.ascontiguousarray(dist)
 
-    model, data = plant.model, plant.data
     plant.reset(ref.q_d[0], ref.dq_d[0])
     encoder = Encoder(sensing, ts)
     encoder.reset(plant.q_m, plant.dq_m_s)
     trace = Trace.allocate(ref, dist, plant.true_parameters())
-    u_max = plant.ctrl_range_v[:, 1]
-    motors, dist_act = plant.motor_index, plant.disturbance_index
     info = RunInfo(plant, path, timing, ref, duration_s, controller_name or type(controller).__name__)
     for observer in observers:
         observer.on_start(info, trace)
-
     chunk = max(1, int(round(chunk_s / ts)))
+    run = _run_compiled if compiled else _run_reference
+    for start, stop in run(plant, encoder, controller, trace, rows, chunk):
+        _finish_chunk(trace, ref, path, start, stop)
+        for observer in observers:
+            observer.on_chunk(trace, start, stop)
+    for observer in observers:
+        observer.on_end(trace)
+    return trace
+
+
+def _bad_measurement(t_s: float, position: np.ndarray, velocity: np.ndarray) -> SimulationError:
+    return SimulationError(f"non-finite measurement at t = {t_s:.4f} s: q = {position}, q' = {velocity}")
+
+
+def _bad_command(t_s: float, command: np.ndarray) -> SimulationError:
+    return SimulationError(f"controller returned {command!r} at t = {t_s:.4f} s; expected 2 finite volts")
+
+
+def _run_reference(plant: Plant, encoder: Encoder, controller: Controller, trace: Trace, rows: np.ndarray, chunk: int):
+    """The Python loop, chunk by chunk: yields (start, stop) after filling samples [start, stop)."""
+    model, data = plant.model, plant.data
+    u_max = plant.ctrl_range_v[:, 1]
+    motors, dist_act = plant.motor_index, plant.disturbance_index
+    t, dist, n = trace.t_s, trace.disturbance_v, trace.t_s.size
     for start in range(0, n, chunk):
         stop = min(n, start + chunk)
         for k in range(start, stop):
             q_true = plant.q_m.copy()
             position, velocity = encoder.measure(q_true, plant.dq_m_s)
             if not (np.isfinite(position).all() and np.isfinite(velocity).all()):
-                raise SimulationError(f"non-finite measurement at t = {t[k]:.4f} s: q = {position}, q' = {velocity}")
+                raise _bad_measurement(t[k], position, velocity)
             measurement = Measurement(float(t[k]), position, velocity)
             if k == 0:
-                controller.reset(RunContext(ts, u_max.copy(), measurement))
+                controller.reset(RunContext(plant.timestep_s, u_max.copy(), measurement))
             command = np.asarray(controller.update(measurement, ReferenceSample.from_row(rows[k])), dtype=float)
             if command.shape != (2,) or not np.isfinite(command).all():
-                raise SimulationError(f"controller returned {command!r} at t = {t[k]:.4f} s; expected 2 finite volts")
+                raise _bad_command(t[k], command)
             u = np.clip(command, -u_max, u_max)
             trace.q_m[k] = q_true
             trace.q_meas_m[k] = position
@@ -185,9 +406,52 @@ def simulate(
             data.ctrl[motors] = u
             data.ctrl[dist_act] = dist[k]
             mujoco.mj_step(model, data)
-        _finish_chunk(trace, ref, path, start, stop)
-        for observer in observers:
-            observer.on_chunk(trace, start, stop)
-    for observer in observers:
-        observer.on_end(trace)
-    return trace
+        yield start, stop
+
+
+def _run_compiled(plant: Plant, encoder: Encoder, controller: Controller, trace: Trace, rows: np.ndarray, chunk: int):
+    """The compiled loop: one kernel call per chunk; yields (start, stop) like :func:`_run_reference`."""
+    t, n = trace.t_s, trace.t_s.size
+    u_max = np.ascontiguousarray(plant.ctrl_range_v[:, 1])
+    config = encoder.config
+    sensor = SensorState(bool(config.quantize), float(config.resolution_m), bool(config.velocity_by_difference),
+                         float(plant.timestep_s), encoder._previous_m.copy())  # fmt: skip
+    # The first measurement, for the controller's RunContext (the kernel measures it again).
+    position, velocity = encoder.measure(plant.q_m.copy(), plant.dq_m_s)
+    if not (np.isfinite(position).all() and np.isfinite(velocity).all()):
+        raise _bad_measurement(t[0], position, velocity)
+    controller.reset(RunContext(plant.timestep_s, u_max.copy(), Measurement(float(t[0]), position, velocity)))
+    trace.allocate_state(controller.state_for_logging())
+
+    data = plant.data
+    io = PlantIO(plant.model._address, data._address, data.qpos, data.qvel, data.ctrl,
+                 *(np.ascontiguousarray(i, dtype=np.int64) for i in (plant.qpos_index, plant.dof_index,
+                                                                     plant.motor_index, plant.disturbance_index)),
+                 u_max)  # fmt: skip
+    recording = Recording(rows, trace.disturbance_v, trace.q_m, trace.q_meas_m, trace.u_v)
+    sample = SampleWork(np.zeros(2), np.zeros(2), np.zeros(2), np.zeros(2))
+    if isinstance(controller, PD):
+        params, u_v = controller.kernel_arguments(), np.zeros(2)
+
+        def run_chunk(start: int, stop: int) -> tuple[int, int]:
+            return _run_pd_chunk(start, stop, io, sensor, recording, sample, params, u_v)
+    else:
+        arc_params, state = controller.kernel_arguments()
+        logs = trace.controller_state
+        theta_log = logs.get("theta_hat", np.empty((0, 8)))
+        dc_log = logs.get("dc_hat", np.empty((0, 2)))
+        gamma_log = logs.get("gamma_diag", np.empty((0, 8)))
+        lambda_log = logs.get("gamma_lambda_max", np.empty(0))
+
+        def run_chunk(start: int, stop: int) -> tuple[int, int]:
+            return _run_arc_chunk(start, stop, io, sensor, recording, sample, arc_params, state, theta_log, dc_log,
+                                  gamma_log, lambda_log)  # fmt: skip
+
+    for start in range(0, n, chunk):
+        stop = min(n, start + chunk)
+        status, k = run_chunk(start, stop)
+        if status == STATUS_BAD_MEASUREMENT:
+            raise _bad_measurement(t[k], sample.position.copy(), sample.velocity.copy())
+        if status == STATUS_BAD_COMMAND:
+            raise _bad_command(t[k], sample.command.copy())
+        yield start, stop

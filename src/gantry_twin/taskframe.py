@@ -10,28 +10,44 @@ Control-spec sections 4 and 5:
     L'  = alpha'' J + T' Lambda T + T Lambda T'
 
 Lambda = diag(lambda_n, lambda_t) acts in the task frame; s = T s_c.
-Functions take one sample (scalar alpha, 2-vectors) so the 0.2 ms loop can
-call them directly.
+The per-sample functions are numba kernels (:mod:`gantry_twin._jit`): they
+take one sample (scalar alpha, 2-vectors) and write into ``out`` arrays when
+given, so the compiled 0.2 ms loop allocates nothing; called without ``out``
+they return new arrays.
 """
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
+
+from gantry_twin._jit import kernel
 
 #: T R, the constant skew matrix of the frame's rotation.
 J = np.array([[0.0, 1.0], [-1.0, 0.0]])
 
 
-def frame(alpha: float) -> np.ndarray:
+@kernel
+def frame(alpha, out=None):
     """T(alpha), eq. (1): rows are the normal and tangent directions."""
-    s, c = np.sin(alpha), np.cos(alpha)
-    return np.array([[-s, c], [c, s]])
+    if out is None:
+        out = np.empty((2, 2))
+    s, c = math.sin(alpha), math.cos(alpha)
+    out[0, 0], out[0, 1] = -s, c
+    out[1, 0], out[1, 1] = c, s
+    return out
 
 
-def frame_rate_basis(alpha: float) -> np.ndarray:
+@kernel
+def frame_rate_basis(alpha, out=None):
     """R(alpha) = dT/dalpha."""
-    s, c = np.sin(alpha), np.cos(alpha)
-    return np.array([[-c, -s], [-s, c]])
+    if out is None:
+        out = np.empty((2, 2))
+    s, c = math.sin(alpha), math.cos(alpha)
+    out[0, 0], out[0, 1] = -c, -s
+    out[1, 0], out[1, 1] = -s, c
+    return out
 
 
 def frame_derivatives(alpha: float, dalpha: float, ddalpha: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -41,21 +57,46 @@ def frame_derivatives(alpha: float, dalpha: float, ddalpha: float) -> tuple[np.n
     return t, dalpha * r, ddalpha * r - dalpha * dalpha * t
 
 
-def error_gains(
-    alpha: float, dalpha: float, ddalpha: float, lam: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """T, L and L' of control-spec section 5 (lam = [lambda_n, lambda_t], 1/s)."""
-    t, dt, _ = frame_derivatives(alpha, dalpha, ddalpha)
-    lam_diag = np.diag(lam)
-    t_lam = t @ lam_diag
-    big_l = dalpha * J + t_lam @ t
-    big_l_dot = ddalpha * J + dt @ lam_diag @ t + t_lam @ dt
+@kernel
+def error_gains(alpha, dalpha, ddalpha, lam, t=None, big_l=None, big_l_dot=None):
+    """T, L and L' of control-spec section 5 (lam = [lambda_n, lambda_t], 1/s).
+
+    L = alpha' J + T Lambda T and L' = alpha'' J + T' Lambda T + T Lambda T',
+    with T' = alpha' R.
+    """
+    if t is None:
+        t = np.empty((2, 2))
+    if big_l is None:
+        big_l = np.empty((2, 2))
+    if big_l_dot is None:
+        big_l_dot = np.empty((2, 2))
+    s, c = math.sin(alpha), math.cos(alpha)
+    t[0, 0], t[0, 1], t[1, 0], t[1, 1] = -s, c, c, s
+    # T' = alpha' R
+    d00, d01, d10, d11 = -dalpha * c, -dalpha * s, -dalpha * s, dalpha * c
+    l0, l1 = lam[0], lam[1]
+    j = ((0.0, 1.0), (-1.0, 0.0))
+    for row in range(2):
+        for col in range(2):
+            t_lam_t = t[row, 0] * l0 * t[0, col] + t[row, 1] * l1 * t[1, col]
+            big_l[row, col] = dalpha * j[row][col] + t_lam_t
+    dt = ((d00, d01), (d10, d11))
+    for row in range(2):
+        for col in range(2):
+            dt_lam_t = dt[row][0] * l0 * t[0, col] + dt[row][1] * l1 * t[1, col]
+            t_lam_dt = t[row, 0] * l0 * dt[0][col] + t[row, 1] * l1 * dt[1][col]
+            big_l_dot[row, col] = ddalpha * j[row][col] + dt_lam_t + t_lam_dt
     return t, big_l, big_l_dot
 
 
-def sliding_variable(e: np.ndarray, de: np.ndarray, big_l: np.ndarray) -> np.ndarray:
+@kernel
+def sliding_variable(e, de, big_l, out=None):
     """Cartesian s_c = e' + L e (eq. 11 expressed in X, Y; s = T s_c)."""
-    return de + big_l @ e
+    if out is None:
+        out = np.empty(2)
+    for row in range(2):
+        out[row] = de[row] + (big_l[row, 0] * e[0] + big_l[row, 1] * e[1])
+    return out
 
 
 def task_errors(alpha: np.ndarray, e: np.ndarray) -> np.ndarray:

@@ -9,103 +9,46 @@ in how theta^ (and for DIARC dc^) move after each sample:
 * DIARC: theta^ from the indirect least-squares estimator of section 4.2
   (:class:`IndirectEstimator`) and the fast dynamic compensation
   dc^' = Proj(gamma_d s_c), |dc^| <= dcmax (eq. 21-22).
+
+A controller's settings are an :class:`ArcParams` and its whole state an
+:class:`ArcState` of float64 arrays, both built by ``reset``. One sample is
+:func:`arc_step`, a numba kernel: ``update()`` runs its plain-Python
+reference version (the plug-in protocol), and the compiled loop of
+:mod:`gantry_twin.simulate` runs the compiled one on the same arrays.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
+from gantry_twin import _jit
+from gantry_twin._jit import kernel
 from gantry_twin.controllers.base import Measurement, ReferenceSample, RunContext
-from gantry_twin.controllers.law import ArcGains, LawTerms, arc_law
+from gantry_twin.controllers.law import ArcGains, LawWork, arc_law, law_work
 from gantry_twin.estimation import (
     FilterDiscretisation,
     LeastSquaresSettings,
+    LeastSquaresWork,
+    clip,
     discretise_filter,
-    filter_acceleration,
+    filter_advance,
+    filtered_acceleration,
     friction_shape,
-    least_squares_step,
+    least_squares_update,
+    least_squares_work,
     project_box,
 )
 
 #: DARC's adaptation rates (paper section 5).
 DARC_GAMMA = (10.0, 10.0, 10.0, 10.0, 1.0, 1.0, 10000.0, 10000.0)
 
-
-class ArcController:
-    """The shared DRC/DARC/DIARC machinery; subclasses move theta^ and dc^."""
-
-    def __init__(self, gains: ArcGains | None = None) -> None:
-        self.gains = gains or ArcGains()
-        self.theta = np.array(self.gains.theta0, dtype=float)
-        self.sample_period_s = 0.0
-        self.u_max_v = np.full(2, 10.0)
-
-    def reset(self, context: RunContext) -> None:
-        self.theta = np.array(self.gains.theta0, dtype=float)
-        self.sample_period_s = context.sample_period_s
-        self.u_max_v = np.asarray(context.u_max_v, dtype=float)
-
-    def dynamic_compensation(self) -> np.ndarray | None:
-        """dc^ in volts (X, Y), or None for a controller without it."""
-        return None
-
-    def before_control(self, measurement: Measurement) -> None:
-        """Hook: estimation that uses data up to this sample (DIARC)."""
-
-    def after_control(self, measurement: Measurement, terms: LawTerms) -> None:
-        """Hook: adaptation driven by this sample's s_c (DARC, DIARC's dc^)."""
-
-    def update(self, measurement: Measurement, reference: ReferenceSample) -> np.ndarray:
-        self.before_control(measurement)
-        terms = arc_law(
-            measurement.q_m,
-            measurement.dq_m_s,
-            reference.q_d,
-            reference.dq_d,
-            reference.ddq_d,
-            reference.alpha,
-            reference.dalpha,
-            reference.ddalpha,
-            self.theta,
-            self.dynamic_compensation(),
-            self.gains,
-            self.u_max_v,
-        )
-        self.after_control(measurement, terms)
-        return terms.u_v
-
-    def state_for_logging(self) -> dict[str, np.ndarray]:
-        return {"theta_hat": self.theta.copy()}
-
-
-class DRC(ArcController):
-    """Deterministic robust control (C3): theta^ fixed.
-
-    ``theta`` overrides theta0 (e.g. the true parameters, to test the
-    feed-forward); nothing is estimated, so nothing is logged.
-    """
-
-    def __init__(self, gains: ArcGains | None = None, theta: tuple[float, ...] | None = None) -> None:
-        if theta is not None:
-            gains = ArcGains(**{**_gain_fields(gains or ArcGains()), "theta0": tuple(theta)})
-        super().__init__(gains)
-
-    def state_for_logging(self) -> dict[str, np.ndarray]:
-        return {}
-
-
-class DARC(ArcController):
-    """Direct adaptive robust control (C1): gradient adaptation, eq. (8)-(9)."""
-
-    def __init__(self, gains: ArcGains | None = None, gamma: tuple[float, ...] = DARC_GAMMA) -> None:
-        super().__init__(gains)
-        self.gamma = np.asarray(gamma, dtype=float)
-
-    def after_control(self, measurement: Measurement, terms: LawTerms) -> None:
-        step = -self.sample_period_s * self.gamma * (terms.phi.T @ terms.s_c)
-        self.theta = project_box(self.theta + step, self.gains.lower, self.gains.upper)
+#: ArcParams.kind: where theta^ comes from.
+KIND_DRC, KIND_DARC, KIND_DIARC = 0, 1, 2
+#: Entries of EstimatorState.clock.
+CLOCK_TIME_S, CLOCK_STARTED, CLOCK_LAMBDA_MAX = 0, 1, 2
 
 
 @dataclass(frozen=True)
@@ -135,6 +78,164 @@ class EstimatorSettings:
 RECOMMENDED_ESTIMATOR = EstimatorSettings(filter_hz=(50.0, 50.0))
 
 
+class EstimatorParams(NamedTuple):
+    """DIARC's estimator settings as arrays (per axis X, Y).
+
+    filter_phi (2, 2, 2), filter_hold (2, 2), filter_ramp (2, 2): the exact
+    discretisation of Hf per axis; filter_wn_rad_s, filter_zeta (2,);
+    nu, kappa, rho_max: eq. (27)-(28); settle_s: see EstimatorSettings.
+    """
+
+    filter_phi: np.ndarray
+    filter_hold: np.ndarray
+    filter_ramp: np.ndarray
+    filter_wn_rad_s: np.ndarray
+    filter_zeta: np.ndarray
+    nu: float
+    kappa: float
+    rho_max: float
+    settle_s: float
+
+
+class EstimatorState(NamedTuple):
+    """DIARC's estimator state, owned by :class:`IndirectEstimator`.
+
+    gamma (8, 8): the adaptation gain Gamma; z (2, 2, 4): filter states per
+    axis, rows [w_f, w_f'], columns [q, Sf, 1, u]; previous_q_m (2,);
+    clock (3,): [time since start s, started 0/1, lambda_max(Gamma)];
+    regression (8, 2) gamma_f and u_f (2,) of the last sample; work: scratch.
+    """
+
+    gamma: np.ndarray
+    z: np.ndarray
+    previous_q_m: np.ndarray
+    clock: np.ndarray
+    regression: np.ndarray
+    u_f: np.ndarray
+    work: LeastSquaresWork
+
+
+class ArcParams(NamedTuple):
+    """Everything fixed during a run of DRC, DARC or DIARC (float64 arrays, SI/volts).
+
+    kind: KIND_DRC, KIND_DARC or KIND_DIARC; lam (2,) 1/s and ks (2,)
+    V/(m/s): diagonals of Lambda and Ks; lower, upper (8,): theta bounds;
+    u_max_v (2,); darc_gamma (8,): DARC's rates; gamma_d (2,), dc_max_v (2,):
+    DIARC's dc^ law; estimator: DIARC's (placeholders for the others).
+    """
+
+    kind: int
+    sample_period_s: float
+    lam: np.ndarray
+    ks: np.ndarray
+    friction_slope_s_m: float
+    lower: np.ndarray
+    upper: np.ndarray
+    u_max_v: np.ndarray
+    darc_gamma: np.ndarray
+    gamma_d: np.ndarray
+    dc_max_v: np.ndarray
+    estimator: EstimatorParams
+
+
+class ArcState(NamedTuple):
+    """The controller's whole state: theta (8,), dc (2,) volts, the last command (2,) volts,
+    the estimator's state and the law's per-sample work (its u_v is the command)."""
+
+    theta: np.ndarray
+    dc: np.ndarray
+    u_previous_v: np.ndarray
+    estimator: EstimatorState
+    law: LawWork
+
+
+@kernel
+def estimator_start(params, est, q_m, dq_m_s, u_v):
+    """Put each filter in steady state for the first sample's inputs."""
+    wn, zeta = params.estimator.filter_wn_rad_s, params.estimator.filter_zeta
+    z_all, previous_q_m, clock = est.z, est.previous_q_m, est.clock
+    for axis in range(2):
+        sf = friction_shape(dq_m_s[axis], params.friction_slope_s_m)
+        lag = 2.0 * zeta[axis] / wn[axis]
+        z = z_all[axis]
+        z[0, 0], z[0, 1], z[0, 2], z[0, 3] = q_m[axis] - lag * dq_m_s[axis], sf, 1.0, u_v[axis]
+        z[1, 0], z[1, 1], z[1, 2], z[1, 3] = dq_m_s[axis], 0.0, 0.0, 0.0
+        previous_q_m[axis] = q_m[axis]
+    clock[CLOCK_STARTED] = 1.0
+
+
+@kernel
+def estimator_regression(params, est, q_m, dq_m_s, u_previous_v):
+    """Advance the filters to this sample (eq. 25); fill est.regression (gamma_f) and est.u_f.
+
+    The position rises linearly from the previous sample (first-order hold);
+    Sf(q'), the constant and the applied u are held (zero-order hold).
+    """
+    f_phi, f_hold, f_ramp, f_wn, f_zeta = params.estimator[:5]
+    z_all, previous_q_m, g, u_f = est.z, est.previous_q_m, est.regression, est.u_f
+    ts = params.sample_period_s
+    for axis in range(2):
+        z = z_all[axis]
+        phi, hold, ramp = f_phi[axis], f_hold[axis], f_ramp[axis]
+        sf = friction_shape(dq_m_s[axis], params.friction_slope_s_m)
+        q_previous = previous_q_m[axis]
+        filter_advance(z, 0, phi, hold, ramp, q_previous, (q_m[axis] - q_previous) / ts)
+        filter_advance(z, 1, phi, hold, ramp, sf, 0.0)
+        filter_advance(z, 2, phi, hold, ramp, 1.0, 0.0)
+        filter_advance(z, 3, phi, hold, ramp, u_previous_v[axis], 0.0)
+        g[axis, axis] = filtered_acceleration(z[0, 0], z[1, 0], f_wn[axis], f_zeta[axis], q_m[axis])
+        g[2 + axis, axis] = z[1, 0]
+        g[4 + axis, axis] = z[0, 1]
+        g[6 + axis, axis] = -z[0, 2]
+        u_f[axis] = z[0, 3]
+        previous_q_m[axis] = q_m[axis]
+
+
+@kernel
+def estimator_update(params, theta, est, q_m, dq_m_s, u_previous_v):
+    """One sample of the indirect estimator: filter, then least squares on theta (in place)."""
+    estimator_regression(params, est, q_m, dq_m_s, u_previous_v)
+    clock = est.clock
+    clock[CLOCK_TIME_S] += params.sample_period_s
+    ep = params.estimator
+    if clock[CLOCK_TIME_S] < ep.settle_s:
+        return
+    clock[CLOCK_LAMBDA_MAX] = least_squares_update(
+        theta, est.gamma, est.regression, est.u_f, ep.nu, ep.kappa, ep.rho_max,
+        params.lower, params.upper, params.sample_period_s, est.work,
+    )  # fmt: skip
+
+
+@kernel
+def arc_step(params, state, q_m, dq_m_s, ref):
+    """One 0.2 ms sample of DRC/DARC/DIARC; the command (volts) is left in state.law.u_v.
+
+    DIARC first updates theta^ from the data up to this sample; then the
+    shared law (eq. 13-14, 17, 21); then DARC's gradient step (eq. 8-9) or
+    DIARC's dc^ step (eq. 21-22), both driven by this sample's s_c.
+    """
+    theta, dc, u_previous_v, est, law = state
+    started = est.clock[CLOCK_STARTED] > 0.0
+    if params.kind == KIND_DIARC and started:
+        estimator_update(params, theta, est, q_m, dq_m_s, u_previous_v)
+    arc_law(q_m, dq_m_s, ref, theta, dc, params.lam, params.ks, params.friction_slope_s_m, params.u_max_v, law)
+    ts = params.sample_period_s
+    phi, s_c, u_v = law.phi, law.s_c, law.u_v
+    if params.kind == KIND_DARC:
+        rates = params.darc_gamma
+        for j in range(8):
+            phi_s = phi[0, j] * s_c[0] + phi[1, j] * s_c[1]
+            theta[j] = theta[j] - ts * rates[j] * phi_s
+        project_box(theta, params.lower, params.upper, theta)
+    elif params.kind == KIND_DIARC:
+        if not started:
+            estimator_start(params, est, q_m, dq_m_s, u_v)
+        gamma_d, dc_max = params.gamma_d, params.dc_max_v
+        for i in range(2):
+            u_previous_v[i] = u_v[i]
+            dc[i] = clip(dc[i] + ts * gamma_d[i] * s_c[i], -dc_max[i], dc_max[i])
+
+
 class IndirectEstimator:
     """Filtered regression (eq. 25) and least squares (eq. 27-28) for both axes.
 
@@ -143,6 +244,7 @@ class IndirectEstimator:
     constant 1 and the applied input u (zero-order hold: the DAC holds u and
     the measured velocity is the mean over the last sample). Filter states are
     ``z[axis]`` of shape (2, 4): rows [w_f, w_f'], columns [q, Sf, 1, u].
+    The arrays live in :attr:`state` (:class:`EstimatorState`).
     """
 
     def __init__(self, settings: EstimatorSettings, gains: ArcGains, sample_period_s: float) -> None:
@@ -152,96 +254,222 @@ class IndirectEstimator:
         self.filters: list[FilterDiscretisation] = [
             discretise_filter(2.0 * np.pi * hz, settings.filter_zeta, sample_period_s) for hz in settings.filter_hz
         ]
-        self.gamma = np.diag(np.asarray(settings.least_squares.gamma0_diag, dtype=float))
-        self.lambda_max = float(np.max(settings.least_squares.gamma0_diag))
-        self.z = np.zeros((2, 2, 4))
-        self.previous_q_m = np.zeros(2)
-        self.time_s = 0.0
-        self.started = False
+        ls = settings.least_squares
+        self.params = EstimatorParams(
+            np.array([f.phi for f in self.filters]),
+            np.array([f.hold for f in self.filters]),
+            np.array([f.ramp for f in self.filters]),
+            np.array([f.wn_rad_s for f in self.filters], dtype=float),
+            np.array([f.zeta for f in self.filters], dtype=float),
+            float(ls.nu),
+            float(ls.kappa),
+            float(ls.rho_max),
+            float(settings.settle_s),
+        )
+        gamma = np.diag(np.asarray(ls.gamma0_diag, dtype=float))
+        clock = np.array([0.0, 0.0, float(np.max(ls.gamma0_diag))])
+        self.state = EstimatorState(
+            gamma, np.zeros((2, 2, 4)), np.zeros(2), clock, np.zeros((8, 2)), np.zeros(2),
+            least_squares_work(8, 2, gamma),
+        )  # fmt: skip
+
+    @property
+    def gamma(self) -> np.ndarray:
+        return self.state.gamma
+
+    @property
+    def z(self) -> np.ndarray:
+        return self.state.z
+
+    @property
+    def previous_q_m(self) -> np.ndarray:
+        return self.state.previous_q_m
+
+    @property
+    def time_s(self) -> float:
+        return float(self.state.clock[CLOCK_TIME_S])
+
+    @property
+    def started(self) -> bool:
+        return bool(self.state.clock[CLOCK_STARTED])
+
+    @property
+    def lambda_max(self) -> float:
+        return float(self.state.clock[CLOCK_LAMBDA_MAX])
+
+    def _arc_params(self) -> ArcParams:
+        return _arc_params(KIND_DIARC, self.gains, self.sample_period_s, np.full(2, 10.0), estimator=self.params)
 
     def start(self, q_m: np.ndarray, dq_m_s: np.ndarray, u_v: np.ndarray) -> None:
         """Put each filter in steady state for the first sample's inputs."""
-        sf = friction_shape(dq_m_s, self.gains.friction_slope_s_m)
-        for axis, disc in enumerate(self.filters):
-            lag = 2.0 * disc.zeta / disc.wn_rad_s
-            self.z[axis] = [[q_m[axis] - lag * dq_m_s[axis], sf[axis], 1.0, u_v[axis]], [dq_m_s[axis], 0.0, 0.0, 0.0]]
-        self.previous_q_m = np.array(q_m, dtype=float)
-        self.started = True
+        estimator_start(self._arc_params(), self.state, _vec(q_m), _vec(dq_m_s), _vec(u_v))
 
     def regression(
         self, q_m: np.ndarray, dq_m_s: np.ndarray, u_previous_v: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
         """Advance the filters to this sample; return (gamma_f 8 x 2, u_f 2)."""
-        ts = self.sample_period_s
-        sf = friction_shape(dq_m_s, self.gains.friction_slope_s_m)
-        g = np.zeros((8, 2))
-        u_f = np.zeros(2)
-        for axis, disc in enumerate(self.filters):
-            start = np.array([self.previous_q_m[axis], sf[axis], 1.0, u_previous_v[axis]])
-            slope = np.array([(q_m[axis] - self.previous_q_m[axis]) / ts, 0.0, 0.0, 0.0])
-            self.z[axis] = disc.phi @ self.z[axis] + np.outer(disc.hold, start) + np.outer(disc.ramp, slope)
-            z = self.z[axis]
-            g[axis, axis] = filter_acceleration(z[:, 0], disc, q_m[axis])
-            g[2 + axis, axis] = z[1, 0]
-            g[4 + axis, axis] = z[0, 1]
-            g[6 + axis, axis] = -z[0, 2]
-            u_f[axis] = z[0, 3]
-        self.previous_q_m = np.array(q_m, dtype=float)
-        return g, u_f
+        estimator_regression(self._arc_params(), self.state, _vec(q_m), _vec(dq_m_s), _vec(u_previous_v))
+        return self.state.regression.copy(), self.state.u_f.copy()
 
     def update(self, theta: np.ndarray, q_m: np.ndarray, dq_m_s: np.ndarray, u_previous_v: np.ndarray) -> None:
         """One sample: filter, then least squares on theta (in place)."""
-        g, u_f = self.regression(q_m, dq_m_s, u_previous_v)
-        self.time_s += self.sample_period_s
-        if self.time_s < self.settings.settle_s:
-            return
-        self.lambda_max = least_squares_step(
-            theta,
-            self.gamma,
-            g,
-            u_f,
-            self.settings.least_squares,
-            self.gains.lower,
-            self.gains.upper,
-            self.sample_period_s,
-        )
+        estimator_update(self._arc_params(), theta, self.state, _vec(q_m), _vec(dq_m_s), _vec(u_previous_v))
+
+
+def _vec(x: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(x, dtype=float)
+
+
+def _placeholder_estimator() -> EstimatorParams:
+    """Estimator settings for DRC and DARC, which have no estimator (never read)."""
+    z2 = np.ones(2)
+    return EstimatorParams(np.zeros((2, 2, 2)), np.zeros((2, 2)), np.zeros((2, 2)), z2, z2, 0.0, 0.0, 0.0, 0.0)
+
+
+def _arc_params(
+    kind: int,
+    gains: ArcGains,
+    sample_period_s: float,
+    u_max_v: np.ndarray,
+    darc_gamma: np.ndarray | None = None,
+    settings: EstimatorSettings | None = None,
+    estimator: EstimatorParams | None = None,
+) -> ArcParams:
+    return ArcParams(
+        kind,
+        float(sample_period_s),
+        gains.lam.copy(),
+        gains.ks.copy(),
+        float(gains.friction_slope_s_m),
+        gains.lower.copy(),
+        gains.upper.copy(),
+        _vec(u_max_v).copy(),
+        np.zeros(8) if darc_gamma is None else _vec(darc_gamma).copy(),
+        np.zeros(2) if settings is None else np.asarray(settings.gamma_d, dtype=float),
+        np.zeros(2) if settings is None else np.asarray(settings.dc_max_v, dtype=float),
+        estimator if estimator is not None else _placeholder_estimator(),
+    )
+
+
+class ArcController:
+    """The shared DRC/DARC/DIARC machinery; subclasses say where theta^ and dc^ come from."""
+
+    kind = KIND_DRC
+
+    def __init__(self, gains: ArcGains | None = None) -> None:
+        self.gains = gains or ArcGains()
+        self.sample_period_s = 0.0
+        self.u_max_v = np.full(2, 10.0)
+        self.params: ArcParams | None = None
+        self.state = self._fresh_state(None)
+
+    def _fresh_state(self, estimator: IndirectEstimator | None) -> ArcState:
+        if estimator is None:
+            gamma = np.zeros((8, 8))
+            est = EstimatorState(gamma, np.zeros((2, 2, 4)), np.zeros(2), np.zeros(3), np.zeros((8, 2)), np.zeros(2),
+                                 least_squares_work(8, 2))  # fmt: skip
+        else:
+            est = estimator.state
+        return ArcState(np.array(self.gains.theta0, dtype=float), np.zeros(2), np.zeros(2), est, law_work())
+
+    def _make_params(self) -> ArcParams:
+        return _arc_params(self.kind, self.gains, self.sample_period_s, self.u_max_v)
+
+    def reset(self, context: RunContext) -> None:
+        self.sample_period_s = float(context.sample_period_s)
+        self.u_max_v = np.asarray(context.u_max_v, dtype=float)
+        self.state = self._fresh_state(None)
+        self.params = self._make_params()
+
+    @property
+    def theta(self) -> np.ndarray:
+        """theta^ (8,), volt units (the state array itself)."""
+        return self.state.theta
+
+    @theta.setter
+    def theta(self, value: np.ndarray) -> None:
+        self.state.theta[:] = value
+
+    def kernel_arguments(self) -> tuple[ArcParams, ArcState]:
+        """(params, state) for :func:`arc_step`; valid after ``reset``."""
+        assert self.params is not None, "reset() must be called before update()"
+        return self.params, self.state
+
+    def update(self, measurement: Measurement, reference: ReferenceSample) -> np.ndarray:
+        params, state = self.kernel_arguments()
+        row = np.concatenate([reference.q_d, reference.dq_d, reference.ddq_d,
+                              [reference.alpha, reference.dalpha, reference.ddalpha]]).astype(float)  # fmt: skip
+        _reference_arc_step()(params, state, _vec(measurement.q_m), _vec(measurement.dq_m_s), row)
+        return state.law.u_v.copy()
+
+    def state_for_logging(self) -> dict[str, np.ndarray]:
+        return {"theta_hat": self.theta.copy()}
+
+
+def _reference_arc_step():  # noqa: ANN202
+    return _jit.reference(arc_step)
+
+
+class DRC(ArcController):
+    """Deterministic robust control (C3): theta^ fixed.
+
+    ``theta`` overrides theta0 (e.g. the true parameters, to test the
+    feed-forward); nothing is estimated, so nothing is logged.
+    """
+
+    kind = KIND_DRC
+
+    def __init__(self, gains: ArcGains | None = None, theta: tuple[float, ...] | None = None) -> None:
+        if theta is not None:
+            gains = ArcGains(**{**_gain_fields(gains or ArcGains()), "theta0": tuple(theta)})
+        super().__init__(gains)
+
+    def state_for_logging(self) -> dict[str, np.ndarray]:
+        return {}
+
+
+class DARC(ArcController):
+    """Direct adaptive robust control (C1): gradient adaptation, eq. (8)-(9)."""
+
+    kind = KIND_DARC
+
+    def __init__(self, gains: ArcGains | None = None, gamma: tuple[float, ...] = DARC_GAMMA) -> None:
+        super().__init__(gains)
+        self.gamma = np.asarray(gamma, dtype=float)
+
+    def _make_params(self) -> ArcParams:
+        return _arc_params(self.kind, self.gains, self.sample_period_s, self.u_max_v, darc_gamma=self.gamma)
 
 
 class DIARC(ArcController):
     """Integrated direct/indirect adaptive robust control (C2), section 4."""
 
+    kind = KIND_DIARC
+
     def __init__(self, gains: ArcGains | None = None, estimator: EstimatorSettings | None = None) -> None:
         super().__init__(gains)
         self.estimator_settings = estimator or EstimatorSettings()
-        self.dc = np.zeros(2)
-        self.u_previous_v = np.zeros(2)
         self.estimator: IndirectEstimator | None = None
 
     def reset(self, context: RunContext) -> None:
-        super().reset(context)
-        self.dc = np.zeros(2)
-        self.u_previous_v = np.zeros(2)
-        self.estimator = IndirectEstimator(self.estimator_settings, self.gains, context.sample_period_s)
+        self.sample_period_s = float(context.sample_period_s)
+        self.u_max_v = np.asarray(context.u_max_v, dtype=float)
+        self.estimator = IndirectEstimator(self.estimator_settings, self.gains, self.sample_period_s)
+        self.state = self._fresh_state(self.estimator)
+        self.params = _arc_params(self.kind, self.gains, self.sample_period_s, self.u_max_v,
+                                  settings=self.estimator_settings, estimator=self.estimator.params)  # fmt: skip
 
-    def dynamic_compensation(self) -> np.ndarray:
-        return self.dc
+    @property
+    def dc(self) -> np.ndarray:
+        """dc^ (2,), volts."""
+        return self.state.dc
 
-    def before_control(self, measurement: Measurement) -> None:
-        assert self.estimator is not None, "reset() must be called before update()"
-        if self.estimator.started:
-            self.estimator.update(self.theta, measurement.q_m, measurement.dq_m_s, self.u_previous_v)
-
-    def after_control(self, measurement: Measurement, terms: LawTerms) -> None:
-        assert self.estimator is not None
-        if not self.estimator.started:
-            self.estimator.start(measurement.q_m, measurement.dq_m_s, terms.u_v)
-        self.u_previous_v = terms.u_v
-        dc_max = np.asarray(self.estimator_settings.dc_max_v)
-        step = self.sample_period_s * np.asarray(self.estimator_settings.gamma_d) * terms.s_c
-        self.dc = project_box(self.dc + step, -dc_max, dc_max)
+    @property
+    def u_previous_v(self) -> np.ndarray:
+        return self.state.u_previous_v
 
     def state_for_logging(self) -> dict[str, np.ndarray]:
-        assert self.estimator is not None
+        assert self.estimator is not None, "reset() must be called before update()"
         return {
             "theta_hat": self.theta.copy(),
             "dc_hat": self.dc.copy(),

@@ -6,16 +6,20 @@
     u_s = -T Ks T s_c                                robust feedback (eq. 14)
     u   = clip(Phi theta^ - dc^ + u_s)               (eq. 13, 17, 21)
 
-The controllers differ only in where theta^ and dc^ come from.
+The controllers differ only in where theta^ and dc^ come from. The
+per-sample functions are numba kernels (:mod:`gantry_twin._jit`) writing
+into a preallocated :class:`LawWork`.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
-from gantry_twin.estimation import friction_shape
+from gantry_twin._jit import kernel
+from gantry_twin.estimation import clip, friction_shape
 from gantry_twin.taskframe import error_gains, sliding_variable
 
 #: The paper's initial estimates theta0 (section 5), volt units.
@@ -23,6 +27,9 @@ THETA0 = (0.1, 0.55, 0.35, 0.5, 0.1, 0.15, 0.0, 0.0)
 #: Parameter bounds of eq. (7), section 5.
 THETA_MIN = (0.05, 0.45, 0.35, 0.5, 0.05, 0.08, -0.5, -1.0)
 THETA_MAX = (0.20, 0.60, 0.55, 0.8, 0.15, 0.25, 0.5, 1.0)
+
+#: Columns of one row of :meth:`gantry_twin.paths.Reference.packed`.
+REF_Q, REF_DQ, REF_DDQ, REF_ALPHA, REF_DALPHA, REF_DDALPHA = 0, 2, 4, 6, 7, 8
 
 
 @dataclass(frozen=True)
@@ -48,57 +55,79 @@ class ArcGains:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "lam", np.asarray(self.lambda_1_s, dtype=float))
-        object.__setattr__(self, "ks", np.diag(np.asarray(self.ks_v_s_m, dtype=float)))
+        object.__setattr__(self, "ks", np.asarray(self.ks_v_s_m, dtype=float))
         object.__setattr__(self, "lower", np.asarray(self.theta_min, dtype=float))
         object.__setattr__(self, "upper", np.asarray(self.theta_max, dtype=float))
 
 
-def regressor(a_r: np.ndarray, dq_m_s: np.ndarray, friction_slope_s_m: float) -> np.ndarray:
-    """Cartesian regressor Phi (2 x 8) of control-spec section 5."""
-    sf = friction_shape(dq_m_s, friction_slope_s_m)
-    phi = np.zeros((2, 8))
-    phi[0, 0], phi[1, 1] = a_r[0], a_r[1]
-    phi[0, 2], phi[1, 3] = dq_m_s[0], dq_m_s[1]
-    phi[0, 4], phi[1, 5] = sf[0], sf[1]
-    phi[0, 6] = phi[1, 7] = -1.0
-    return phi
+class LawWork(NamedTuple):
+    """One sample of the shared law, preallocated (SI units, volts).
 
-
-@dataclass
-class LawTerms:
-    """One sample of the shared law: what the adaptation laws need next.
-
-    u_v: the clipped command (X, Y), volts; s_c: Cartesian sliding variable,
-    m/s; phi: the regressor (2 x 8).
+    t, big_l, big_l_dot: T, L, L' (2 x 2); e, de: tracking errors m, m/s;
+    s_c: Cartesian sliding variable, m/s; a_r: reference acceleration m/s^2;
+    phi: the regressor (2 x 8); u_v: the clipped command (X, Y), volts.
     """
 
-    u_v: np.ndarray
+    t: np.ndarray
+    big_l: np.ndarray
+    big_l_dot: np.ndarray
+    e: np.ndarray
+    de: np.ndarray
     s_c: np.ndarray
+    a_r: np.ndarray
     phi: np.ndarray
+    u_v: np.ndarray
 
 
-def arc_law(
-    q_m: np.ndarray,
-    dq_m_s: np.ndarray,
-    q_d: np.ndarray,
-    dq_d: np.ndarray,
-    ddq_d: np.ndarray,
-    alpha: float,
-    dalpha: float,
-    ddalpha: float,
-    theta: np.ndarray,
-    dc_v: np.ndarray | None,
-    gains: ArcGains,
-    u_max_v: np.ndarray,
-) -> LawTerms:
-    """u = clip(Phi theta^ - dc^ + u_s) with u_s = -T Ks T s_c (eq. 13-14, 17, 21)."""
-    e = q_m - q_d
-    de = dq_m_s - dq_d
-    t, big_l, big_l_dot = error_gains(alpha, dalpha, ddalpha, gains.lam)
-    s_c = sliding_variable(e, de, big_l)
-    a_r = ddq_d - big_l_dot @ e - big_l @ de
-    phi = regressor(a_r, dq_m_s, gains.friction_slope_s_m)
-    u = phi @ theta - t @ (gains.ks @ (t @ s_c))
-    if dc_v is not None:
-        u = u - dc_v
-    return LawTerms(np.clip(u, -u_max_v, u_max_v), s_c, phi)
+def law_work() -> LawWork:
+    """A zeroed :class:`LawWork`."""
+    z2 = np.zeros(2)
+    return LawWork(np.zeros((2, 2)), np.zeros((2, 2)), np.zeros((2, 2)), z2.copy(), z2.copy(), z2.copy(), z2.copy(),
+                   np.zeros((2, 8)), z2.copy())  # fmt: skip
+
+
+@kernel
+def regressor(a_r, dq_m_s, friction_slope_s_m, out=None):
+    """Cartesian regressor Phi (2 x 8) of control-spec section 5."""
+    if out is None:
+        out = np.empty((2, 8))
+    out[:, :] = 0.0
+    out[0, 0], out[1, 1] = a_r[0], a_r[1]
+    out[0, 2], out[1, 3] = dq_m_s[0], dq_m_s[1]
+    out[0, 4] = friction_shape(dq_m_s[0], friction_slope_s_m)
+    out[1, 5] = friction_shape(dq_m_s[1], friction_slope_s_m)
+    out[0, 6] = -1.0
+    out[1, 7] = -1.0
+    return out
+
+
+@kernel
+def arc_law(q_m, dq_m_s, ref, theta, dc_v, lam, ks, friction_slope_s_m, u_max_v, work):
+    """u = clip(Phi theta^ - dc^ + u_s) with u_s = -T Ks T s_c (eq. 13-14, 17, 21).
+
+    q_m, dq_m_s: measured position m and velocity m/s (X, Y); ref: one row
+    of :meth:`Reference.packed`; theta (8,), dc_v (2,) volts (zeros for a
+    controller without dc^); lam, ks: diagonals of Lambda 1/s and Ks V/(m/s).
+    Fills ``work`` (s_c, phi, u_v, ...) for the adaptation laws.
+    """
+    # Unpacked once: each namedtuple field access costs a reference-count update in numba.
+    t, big_l, big_l_dot, e, de, s_c, a_r, phi, u_v = work
+    for i in range(2):
+        e[i] = q_m[i] - ref[REF_Q + i]
+        de[i] = dq_m_s[i] - ref[REF_DQ + i]
+    error_gains(ref[REF_ALPHA], ref[REF_DALPHA], ref[REF_DDALPHA], lam, t, big_l, big_l_dot)
+    sliding_variable(e, de, big_l, s_c)
+    for i in range(2):
+        ldot_e = big_l_dot[i, 0] * e[0] + big_l_dot[i, 1] * e[1]
+        l_de = big_l[i, 0] * de[0] + big_l[i, 1] * de[1]
+        a_r[i] = ref[REF_DDQ + i] - ldot_e - l_de
+    regressor(a_r, dq_m_s, friction_slope_s_m, phi)
+    # Task-frame robust feedback: s = T s_c, then back with T (T = T^-1).
+    s_n = ks[0] * (t[0, 0] * s_c[0] + t[0, 1] * s_c[1])
+    s_t = ks[1] * (t[1, 0] * s_c[0] + t[1, 1] * s_c[1])
+    for i in range(2):
+        model = 0.0
+        for j in range(8):
+            model += phi[i, j] * theta[j]
+        u = model - (t[i, 0] * s_n + t[i, 1] * s_t) - dc_v[i]
+        u_v[i] = clip(u, -u_max_v[i], u_max_v[i])

@@ -13,10 +13,36 @@ ship, and what the ARC laws are measured against.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
+from gantry_twin import _jit
+from gantry_twin._jit import kernel
 from gantry_twin.controllers.base import Measurement, ReferenceSample, RunContext
+from gantry_twin.controllers.law import REF_DDQ, REF_DQ, REF_Q
+from gantry_twin.estimation import clip
+
+
+class PDParams(NamedTuple):
+    """The gains (X, Y) as arrays, and the actuator limits u_max_v (2,) volts."""
+
+    kp_v_m: np.ndarray
+    kd_v_s_m: np.ndarray
+    kv_v_s_m: np.ndarray
+    ka_v_s2_m: np.ndarray
+    u_max_v: np.ndarray
+
+
+@kernel
+def pd_step(params, q_m, dq_m_s, ref, u_v):
+    """u = clip(-kp e - kd e' + kv x_d' + ka x_d'') per axis, into u_v (2,) volts."""
+    kp, kd, kv, ka, u_max = params
+    for i in range(2):
+        e = q_m[i] - ref[REF_Q + i]
+        de = dq_m_s[i] - ref[REF_DQ + i]
+        u = -kp[i] * e - kd[i] * de + kv[i] * ref[REF_DQ + i] + ka[i] * ref[REF_DDQ + i]
+        u_v[i] = clip(u, -u_max[i], u_max[i])
 
 
 @dataclass
@@ -31,19 +57,25 @@ class PD:
     def __post_init__(self) -> None:
         self._u_max_v = np.full(2, 10.0)
 
+    def kernel_arguments(self) -> PDParams:
+        """The parameters :func:`pd_step` needs (after ``reset``)."""
+
+        def arr(x: tuple[float, float]) -> np.ndarray:
+            return np.asarray(x, dtype=float).copy()
+
+        return PDParams(arr(self.kp_v_m), arr(self.kd_v_s_m), arr(self.kv_v_s_m), arr(self.ka_v_s2_m),
+                        self._u_max_v.copy())  # fmt: skip
+
     def reset(self, context: RunContext) -> None:
         self._u_max_v = np.asarray(context.u_max_v, dtype=float)
 
     def update(self, measurement: Measurement, reference: ReferenceSample) -> np.ndarray:
-        e = measurement.q_m - reference.q_d
-        de = measurement.dq_m_s - reference.dq_d
-        u = (
-            -np.asarray(self.kp_v_m) * e
-            - np.asarray(self.kd_v_s_m) * de
-            + np.asarray(self.kv_v_s_m) * reference.dq_d
-            + np.asarray(self.ka_v_s2_m) * reference.ddq_d
-        )
-        return np.clip(u, -self._u_max_v, self._u_max_v)
+        r = reference
+        row = np.concatenate([r.q_d, r.dq_d, r.ddq_d, [r.alpha, r.dalpha, r.ddalpha]]).astype(float)
+        u = np.zeros(2)
+        _jit.reference(pd_step)(self.kernel_arguments(), np.asarray(measurement.q_m, dtype=float),
+                           np.asarray(measurement.dq_m_s, dtype=float), row, u)  # fmt: skip
+        return u
 
     def state_for_logging(self) -> dict[str, np.ndarray]:
         return {}
