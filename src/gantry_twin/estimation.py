@@ -94,8 +94,8 @@ def filter_acceleration(z: np.ndarray, disc: FilterDiscretisation, w_now: float)
 
 @kernel
 def friction_shape(v_m_s, slope_s_per_m=9000.0):
-    """Sf(v) = (2/pi) atan(9000 v): the controller's smooth Coulomb model (one velocity, m/s)."""
-    return (2.0 / math.pi) * math.atan(slope_s_per_m * v_m_s)
+    """Sf(v) = (2/pi) atan(9000 v): the controller's smooth Coulomb model (m/s; a number or an array)."""
+    return (2.0 / np.pi) * np.arctan(slope_s_per_m * v_m_s)
 
 
 @kernel

@@ -72,7 +72,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numba import njit
 
-from gantry_twin.estimation import discretise_filter, filter_acceleration, friction_shape
+from gantry_twin.estimation import discretise_filter, filtered_acceleration, friction_shape
 from gantry_twin.plant import THETA_NAMES
 
 #: Status codes of :attr:`HealthHistory.status` and their names.
@@ -309,7 +309,7 @@ class FilteredRegressors:
                              (q[:, axis] - prev[:, axis]) / self.ts)
             zs = _filter_run(disc.phi, disc.hold, disc.ramp, self.z[axis, 1], sf[:, axis], zero)
             zc = _filter_run(disc.phi, disc.hold, disc.ramp, self.z[axis, 2], one, zero)
-            g[:, axis, 0] = filter_acceleration(zq.T, disc, q[:, axis])
+            g[:, axis, 0] = filtered_acceleration(zq[:, 0], zq[:, 1], disc.wn_rad_s, disc.zeta, q[:, axis])
             g[:, axis, 1] = zq[:, 1]
             g[:, axis, 2] = zs[:, 0]
             g[:, axis, 3] = -zc[:, 0]
