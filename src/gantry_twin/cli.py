@@ -96,7 +96,9 @@ def _progress(args: argparse.Namespace) -> ProgressBar:
 
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog=PROG, description="MuJoCo digital twin of a biaxial linear-motor gantry.")
-    sub = parser.add_subparsers(dest="command", required=True, metavar="{run,monitor,validate,report}", parser_class=_Parser)
+    sub = parser.add_subparsers(
+        dest="command", required=True, metavar="{run,monitor,validate,report}", parser_class=_Parser
+    )
 
     run = sub.add_parser("run", help="run a scenario and write its results")
     run.add_argument(

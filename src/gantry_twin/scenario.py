@@ -37,6 +37,7 @@ from pydantic import (
 )
 from pydantic_core import PydanticCustomError
 
+from gantry_twin import changes as ch
 from gantry_twin.controllers import (
     DARC,
     DIARC,
@@ -49,7 +50,6 @@ from gantry_twin.controllers import (
     available,
     create,
 )
-from gantry_twin import changes as ch
 from gantry_twin.controllers.base import factory_for
 from gantry_twin.estimation import LeastSquaresSettings
 from gantry_twin.paths import Ellipse, TimingLaw
@@ -393,8 +393,10 @@ class ChangesSpec(_Model):
 
         noise = None
         if self.velocity_noise is not None:
-            noise = ch.VelocityNoise(**{**self.velocity_noise.model_dump(), "std_m_s": tuple(self.velocity_noise.std_m_s)})
-        return ch.PlantChanges(items(self.friction_drift, ch.FrictionDrift), items(self.payload_change, ch.PayloadChange),
+            given = self.velocity_noise.model_dump()
+            noise = ch.VelocityNoise(**{**given, "std_m_s": tuple(given["std_m_s"])})
+        return ch.PlantChanges(items(self.friction_drift, ch.FrictionDrift),
+                               items(self.payload_change, ch.PayloadChange),
                                items(self.cogging, ch.CoggingRipple), items(self.encoder_glitch, ch.EncoderGlitch),
                                noise)  # fmt: skip
 
@@ -909,7 +911,7 @@ def build(scenario: Scenario, source: str = "<scenario>") -> BuiltRun:
 
 def make_monitor(scenario: Scenario, controller: Controller, source: str = "<scenario>") -> Any:
     """The MachineMonitor of a scenario: filters default to the controller's estimator's (DIARC)."""
-    from gantry_twin.monitor import Baseline, ExcitationSettings, HealthSettings, MachineMonitor
+    from gantry_twin.monitor import ExcitationSettings, HealthSettings, MachineMonitor
 
     m = scenario.monitor
     filter_hz = m.filter_hz
@@ -943,8 +945,8 @@ def _baseline_from_summary(given: str, source: str) -> Any:
     except OSError as exc:
         raise ScenarioError(source, field, f"cannot read {path} ({exc.strerror}); give a run's summary.json") from None
     except (ValueError, KeyError, TypeError, AttributeError) as exc:
-        raise ScenarioError(source, field, f"{path} is not a DIARC run's summary.json with estimates "
-                                           f"({str(exc).splitlines()[0] if str(exc) else type(exc).__name__})") from None
+        why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise ScenarioError(source, field, f"{path} is not a DIARC run's summary.json with estimates ({why})") from None
 
 
 def _check_samples(scenario: Scenario, sample_period_s: float, source: str) -> None:
