@@ -223,3 +223,40 @@ def test_logged_lambda_max_matches_final_gamma():
     logged = trace.controller_state["gamma_lambda_max"][-1]
     assert abs(logged - exact) <= 2 * EIGENVALUE_TOLERANCE * exact
     np.testing.assert_array_equal(trace.controller_state["gamma_diag"][-1], np.diag(controller.estimator.gamma))
+
+
+def test_plant_changes_compiled_equals_reference_and_restore_the_model():
+    """Every kind of change at once (drift, pick-up, cogging, spike, hold, velocity noise): same bits."""
+    from gantry_twin.changes import (
+        CoggingRipple,
+        EncoderGlitch,
+        FrictionDrift,
+        PayloadChange,
+        PlantChanges,
+        VelocityNoise,
+    )
+
+    changes = PlantChanges(
+        friction_drift=(FrictionDrift("y", 0.1, 0.3, viscous_to_v_s_m=0.91, coulomb_to_v=0.2),),
+        payload_change=(PayloadChange(0.2, 5.0),),
+        cogging=(CoggingRipple("x", 0.05, 0.016), CoggingRipple("y", 0.05, 0.016, 0.3)),
+        encoder_glitch=(EncoderGlitch("spike", 0.15, "x"), EncoderGlitch("hold", 0.25, samples=3)),
+        velocity_noise=VelocityNoise((1e-3, 2e-3), seed=1),
+    )
+    out = {}
+    for backend in ("compiled", "reference"):
+        plant = Plant(payload_body=True)
+        before = (plant.model.dof_damping.copy(), plant.model.body_mass.copy())
+        out[backend] = simulate(plant, circle(), TimingLaw(2.0), DIARC(estimator=RECOMMENDED_ESTIMATOR), 0.4,
+                                backend=backend, changes=changes)  # fmt: skip
+        np.testing.assert_array_equal(plant.model.dof_damping, before[0])
+        np.testing.assert_array_equal(plant.model.body_mass, before[1])
+    a, b = out["compiled"], out["reference"]
+    assert_same_trace(a, b)
+    np.testing.assert_array_equal(a.true_theta_t, b.true_theta_t)
+    # The changes acted: the spike and the hold are in the measurement the controller saw.
+    k = int(round(0.15 / a.sample_period_s))
+    assert abs((a.q_meas_m[k, 0] - a.q_m[k, 0]) - 50e-6) < 1e-6
+    h = int(round(0.25 / a.sample_period_s))
+    np.testing.assert_array_equal(a.q_meas_m[h : h + 3], np.repeat(a.q_meas_m[h - 1 : h], 3, axis=0))
+    assert a.true_theta_t[-1, 3] == pytest.approx(0.91) and a.true_theta_t[-1, 0] == pytest.approx(0.12 + 5 / 69)

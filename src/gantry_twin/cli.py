@@ -1,7 +1,8 @@
-"""The command line: ``gantry-twin run | validate | report`` (docs/cli.md).
+"""The command line: ``gantry-twin run | monitor | validate | report`` (docs/cli.md).
 
 Exit codes: 0 success; 2 bad input (one line on stderr naming the file, the
-field and what is allowed; nothing written); 1 the run itself failed.
+field and what is allowed; nothing written); 1 the run itself failed;
+3 ``monitor --fail-on-alarm`` and the health monitor raised an alarm.
 """
 
 from __future__ import annotations
@@ -35,6 +36,7 @@ DEFAULT_SCENARIO = "no_load_circle"
 EXIT_OK = 0
 EXIT_RUN_FAILED = 1
 EXIT_BAD_INPUT = 2
+EXIT_ALARM = 3
 
 
 class BadInput(Exception):
@@ -94,7 +96,9 @@ def _progress(args: argparse.Namespace) -> ProgressBar:
 
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog=PROG, description="MuJoCo digital twin of a biaxial linear-motor gantry.")
-    sub = parser.add_subparsers(dest="command", required=True, metavar="{run,validate,report}", parser_class=_Parser)
+    sub = parser.add_subparsers(
+        dest="command", required=True, metavar="{run,monitor,validate,report}", parser_class=_Parser
+    )
 
     run = sub.add_parser("run", help="run a scenario and write its results")
     run.add_argument(
@@ -110,6 +114,17 @@ def build_parser() -> argparse.ArgumentParser:
         help="progress bar on stderr (default: when stderr is a terminal)",
     )
     add_telemetry_arguments(run)
+
+    monitor = sub.add_parser("monitor", help="run a scenario with the health monitor and report its alarms")
+    monitor.add_argument("scenario", help="scenario YAML file or shipped scenario name")
+    monitor.add_argument("--controller", metavar="NAME", help="controller to use instead of the scenario's")
+    _add_set(monitor)
+    monitor.add_argument("--out", metavar="DIR", type=Path, help="output directory (default: runs/<scenario name>/)")
+    monitor.add_argument("--fail-on-alarm", action="store_true",
+                         help=f"exit with status {EXIT_ALARM} if the monitor raised any alarm")
+    monitor.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
+                         help="progress bar on stderr (default: when stderr is a terminal)")
+    add_telemetry_arguments(monitor)
 
     validate = sub.add_parser("validate", help="check scenario files without running them")
     validate.add_argument("scenario", nargs="+", help="scenario YAML file(s)")
@@ -139,7 +154,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except SystemExit as exc:  # --help (0) or a usage error (2)
         return int(exc.code or 0)
     try:
-        if args.command == "run":
+        if args.command in ("run", "monitor"):
             return _run(args)
         if args.command == "validate":
             return _validate(args)
@@ -180,7 +195,10 @@ def _out_dir(args: argparse.Namespace, scenario: Scenario) -> Path:
 
 def _run(args: argparse.Namespace) -> int:
     path = _scenario_path(args.scenario)
-    scenario = load_scenario(path, args.overrides, args.controller)
+    overrides = list(args.overrides)
+    if args.command == "monitor":
+        overrides.insert(0, "monitor.enable=true")
+    scenario = load_scenario(path, overrides, args.controller)
     built = build(scenario, str(path))
     out = _out_dir(args, scenario)
     telemetry = telemetry_observers(args)  # checks every option before anything runs
@@ -197,12 +215,16 @@ def _run(args: argparse.Namespace) -> int:
             print(f"{PROG}: run failed: {type(exc).__name__}: {message}", file=sys.stderr)
             return EXIT_RUN_FAILED
         print(format_summary(summary, wall_time_s, out), flush=True)
+    if getattr(args, "fail_on_alarm", False) and summary.get("health", {}).get("alarms"):
+        return EXIT_ALARM
     return EXIT_OK
 
 
 def execute(built: BuiltRun, observers: Sequence[Observer] = ()) -> Trace:
     """Simulate a built scenario."""
     s = built.scenario
+    if built.monitor is not None:
+        observers = [*observers, built.monitor]
     return simulate(
         built.plant,
         built.path,
@@ -213,6 +235,7 @@ def execute(built: BuiltRun, observers: Sequence[Observer] = ()) -> Trace:
         disturbance=built.disturbance,
         observers=observers,
         controller_name=s.controller.name,
+        changes=built.changes,
     )
 
 
@@ -225,7 +248,8 @@ def write_run(out: Path, built: BuiltRun, trace: Trace, wall_time_s: float) -> d
     from gantry_twin.results import atomic_write_text, summary, summary_json, trace_table, write_parquet
 
     scenario = built.scenario
-    data = summary(scenario, trace, scenario.controller.name)
+    health = built.monitor.report() if built.monitor is not None else None
+    data = summary(scenario, trace, scenario.controller.name, health)
     out.mkdir(parents=True, exist_ok=True)
     (out / "summary.json").unlink(missing_ok=True)
     if scenario.outputs.trace:
@@ -271,9 +295,31 @@ def format_summary(data: dict[str, Any], wall_time_s: float, out: Path | None = 
         for name, e in data["estimates"].items():
             pct = "      -" if e["error_pct"] is None else f"{e['error_pct']:+7.2f} %"
             lines.append(f"  {name:<4} {e['estimate']:12.5f} {e['true']:8.4f}  {pct}")
+    if "health" in data:
+        lines.extend(format_health(data["health"]))
     if out is not None:
         lines.append(f"results in {out}/ (summary.json, scenario.yaml, trace.parquet, run_info.json)")
     return "\n".join(lines)
+
+
+def format_health(health: dict[str, Any]) -> list[str]:
+    """The health monitor's alarms and per-parameter status, for the printed summary."""
+    alarms = health["alarms"]
+    lines = [f"health: {len(alarms)} alarm{'' if len(alarms) == 1 else 's'}"
+             + (f" (baseline: {health['baseline']['source']})" if "baseline" in health else "")]  # fmt: skip
+    for a in alarms:
+        pct = "" if a["change_pct"] is None else f" ({a['change_pct']:+.1f} %)"
+        cleared = "" if a["cleared_s"] is None else f", cleared at {a['cleared_s']:.2f} s"
+        lines.append(f"  ALARM t = {a['time_s']:.2f} s: {a['parameter']} {a['direction']} {a['change']:+.4g} "
+                     f"{a['unit']}{pct}: estimate {a['estimate']:.4g}, baseline {a['baseline']:.4g}{cleared}")
+    status = health["status"]
+    if status:
+        lines.append("  status at the end: " + ", ".join(f"{n} {s}" for n, s in status.items()))
+    ex = ", ".join(f"{axis} {e['level_v_final']:.3g} V" for axis, e in health["excitation"].items()
+                   if e["level_v_final"] is not None)
+    if ex:
+        lines.append(f"  excitation level at the end (sqrt lambda_min, eq. 29): {ex}")
+    return lines
 
 
 def _report(args: argparse.Namespace) -> int:

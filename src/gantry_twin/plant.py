@@ -74,10 +74,17 @@ def _is_real(value: object) -> bool:
     return isinstance(value, numbers.Real) and not isinstance(value, bool | np.bool_)
 
 
-def build_spec(payload: Payload | None = None, model_path: Path | None = None) -> mujoco.MjSpec:
-    """The gantry as an editable MjSpec, with a payload body if one is given."""
+def build_spec(payload: Payload | None = None, model_path: Path | None = None,
+               payload_body: bool = False) -> mujoco.MjSpec:
+    """The gantry as an editable MjSpec, with a payload body if one is given.
+
+    payload_body: add the body even for a 0 kg payload (MuJoCo accepts a
+    massless welded body), so that a run can change its mass (a pick-up).
+    """
     spec = mujoco.MjSpec.from_file(str(model_path or default_model_path()))
-    if payload is not None and payload.mass_kg > 0.0:
+    if payload is None and payload_body:
+        payload = Payload()
+    if payload is not None and (payload.mass_kg > 0.0 or payload_body):
         mount = spec.site("payload_mount")
         carriage = spec.body("x_carriage")
         body = carriage.add_body(name="payload", pos=np.asarray(mount.pos) + np.asarray(payload.offset_m))
@@ -102,9 +109,11 @@ def build_spec(payload: Payload | None = None, model_path: Path | None = None) -
 class Plant:
     """The compiled gantry: model, data and the named indices the twin needs."""
 
-    def __init__(self, payload: Payload | None = None, model_path: Path | None = None) -> None:
+    def __init__(self, payload: Payload | None = None, model_path: Path | None = None,
+                 payload_body: bool = False) -> None:
+        """payload_body: always build the payload body (even at 0 kg) so its mass can change during a run."""
         self.payload = payload or Payload()
-        self.spec = build_spec(self.payload, model_path)
+        self.spec = build_spec(self.payload, model_path, payload_body)
         self.model: mujoco.MjModel = self.spec.compile()
         self.data = mujoco.MjData(self.model)
         m = self.model
@@ -114,6 +123,8 @@ class Plant:
         self.motor_index = np.array([m.actuator(f"{a}_motor").id for a in AXES])
         self.disturbance_index = np.array([m.actuator(f"{a}_disturbance").id for a in AXES])
         self.timestep_s = float(m.opt.timestep)
+        #: Body id of the payload, or None if the model has no payload body.
+        self.payload_body_id: int | None = m.body("payload").id if self.payload.mass_kg > 0.0 or payload_body else None
 
     @property
     def gear_n_per_v(self) -> np.ndarray:

@@ -78,8 +78,13 @@ def _fsync_dir(directory: Path) -> None:
         os.close(fd)
 
 
-def summary(scenario: Scenario, trace: Trace, controller_name: str) -> dict[str, Any]:
-    """The summary.json contract (see docs/cli.md); deterministic for a given scenario."""
+def summary(scenario: Scenario, trace: Trace, controller_name: str, health: Any = None) -> dict[str, Any]:
+    """The summary.json contract (see docs/cli.md); deterministic for a given scenario.
+
+    health: the run's :class:`gantry_twin.monitor.MonitorReport` (a ``health``
+    section is added only when given). Estimates are judged against the true
+    theta at the end of the run (it moves when the scenario has changes).
+    """
     metrics = contour_metrics(trace, scenario.metric_window_s)
     out: dict[str, Any] = {
         "schema_version": SUMMARY_SCHEMA_VERSION,
@@ -92,12 +97,44 @@ def summary(scenario: Scenario, trace: Trace, controller_name: str) -> dict[str,
     }
     estimate = steady_estimates(trace, scenario.estimate_window_s)
     if estimate is not None and estimate.shape == (len(THETA_NAMES),):  # a plug-in may log another theta_hat
-        errors = estimate_errors_pct(estimate, trace.true_theta)
+        true = trace.true_theta if trace.true_theta_t is None else trace.true_theta_t[trace.filled - 1]
+        errors = estimate_errors_pct(estimate, true)
         out["estimates_window_s"] = list(scenario.estimate_window_s)
         out["estimates"] = {
             name: {"estimate": float(est), "true": float(tru), "error_pct": errors[name]}
-            for name, est, tru in zip(THETA_NAMES, estimate, trace.true_theta, strict=True)
+            for name, est, tru in zip(THETA_NAMES, estimate, true, strict=True)
         }
+    if health is not None:
+        out["health"] = health_summary(health)
+    return out
+
+
+def health_summary(report: Any) -> dict[str, Any]:
+    """The ``health`` section: alarms, status per parameter, excitation per axis (docs/health.md)."""
+    period = float(report.t_s[1] - report.t_s[0]) if report.t_s.size > 1 else 0.0
+    alarms = [
+        {"parameter": a.parameter, "time_s": a.time_s, "direction": a.direction, "change_pct": a.change_pct,
+         "change": a.change, "unit": a.unit, "estimate": a.estimate, "baseline": a.baseline,
+         "cleared_s": a.cleared_s}
+        for a in report.alarms
+    ]  # fmt: skip
+    excitation = {}
+    for i, axis in enumerate(AXES):
+        level = report.level_v[:, i] if report.level_v.size else np.zeros(0)
+        excitation[axis] = {
+            "level_v_final": float(level[-1]) if level.size else None,
+            "level_v_min": float(level.min()) if level.size else None,
+            "excited_fraction": float(report.excited[:, [j for j in range(8) if j % 2 == i]].all(axis=1).mean())
+            if level.size else 0.0,
+        }
+    out: dict[str, Any] = {
+        "alarms": alarms,
+        "status": report.final_status(),
+        "time_in_status_s": report.time_in_status_s(period),
+        "excitation": excitation,
+    }
+    if report.baseline is not None:
+        out["baseline"] = {"source": report.baseline.source, **report.baseline.as_dict()}
     return out
 
 

@@ -37,6 +37,7 @@ from pydantic import (
 )
 from pydantic_core import PydanticCustomError
 
+from gantry_twin import changes as ch
 from gantry_twin.controllers import (
     DARC,
     DIARC,
@@ -315,6 +316,116 @@ class OutputsSpec(_Model):
 
 
 Window = tuple[Seconds, Seconds]  # type: ignore[valid-type]
+Axis = Literal["x", "y"]
+TimeS = _range(0.0, ch.TIME_MAX_S, "s")
+Viscous = _range(*ch.VISCOUS_RANGE_V_S_M, "V/(m/s)")
+Coulomb = _range(*ch.COULOMB_RANGE_V, "V")
+
+
+class FrictionDriftSpec(_Model):
+    """B and/or Af of one axis linear from the *_from value (default: the model's) at start_s to *_to at end_s."""
+
+    axis: Axis
+    start_s: TimeS  # type: ignore[valid-type]
+    end_s: TimeS  # type: ignore[valid-type]
+    viscous_to_v_s_m: Viscous | None = None  # type: ignore[valid-type]
+    viscous_from_v_s_m: Viscous | None = None  # type: ignore[valid-type]
+    coulomb_to_v: Coulomb | None = None  # type: ignore[valid-type]
+    coulomb_from_v: Coulomb | None = None  # type: ignore[valid-type]
+
+
+class PayloadChangeSpec(_Model):
+    """From time_s on the payload on the X carriage weighs mass_kg (0: dropped)."""
+
+    time_s: TimeS  # type: ignore[valid-type]
+    mass_kg: _range(0.0, PAYLOAD_MAX_KG, "kg")  # type: ignore[valid-type]
+
+
+class CoggingSpec(_Model):
+    """amplitude_v sin(2 pi q / pitch_m + phase_rad) volts on one axis, q the true position."""
+
+    axis: Axis
+    amplitude_v: _range(*ch.COGGING_AMPLITUDE_RANGE_V, "V")  # type: ignore[valid-type]
+    pitch_m: _range(*ch.COGGING_PITCH_RANGE_M, "m")  # type: ignore[valid-type]
+    phase_rad: _range(-2.0 * math.pi, 2.0 * math.pi, "rad") = 0.0  # type: ignore[valid-type]
+
+
+class EncoderGlitchSpec(_Model):
+    """spike: one reading of axis off by offset_m; hold: both readings repeated for samples samples."""
+
+    kind: Literal["spike", "hold"]
+    time_s: TimeS  # type: ignore[valid-type]
+    axis: Axis = "x"
+    offset_m: _range(-ch.SPIKE_OFFSET_MAX_M, ch.SPIKE_OFFSET_MAX_M, "m") = 50.0e-6  # type: ignore[valid-type]
+    samples: Annotated[int, Field(ge=ch.HOLD_SAMPLES_RANGE[0], le=ch.HOLD_SAMPLES_RANGE[1])] = 1
+
+
+class VelocityNoiseSpec(_Model):
+    """Extra Gaussian noise (std per axis X, Y, m/s) on the measured velocity over [start_s, end_s)."""
+
+    std_m_s: tuple[_range(*ch.VELOCITY_NOISE_STD_RANGE_M_S, "m/s"),  # type: ignore[valid-type]
+                   _range(*ch.VELOCITY_NOISE_STD_RANGE_M_S, "m/s")]  # type: ignore[valid-type]
+    seed: Annotated[int, Field(ge=0, lt=2**63)] = 0
+    start_s: TimeS = 0.0  # type: ignore[valid-type]
+    end_s: TimeS = ch.TIME_MAX_S  # type: ignore[valid-type]
+
+
+class ChangesSpec(_Model):
+    """Faults applied to the plant and the sensor during the run (gantry_twin.changes), unseen by the controller."""
+
+    friction_drift: list[FrictionDriftSpec] = []
+    payload_change: list[PayloadChangeSpec] = []
+    cogging: list[CoggingSpec] = []
+    encoder_glitch: list[EncoderGlitchSpec] = []
+    velocity_noise: VelocityNoiseSpec | None = None
+
+    def plant_changes(self) -> ch.PlantChanges:
+        """The validated PlantChanges (ValueError "field: message" on a cross-field problem)."""
+        def items(specs: Sequence[_Model], kind: type) -> tuple:
+            out = []
+            for i, spec in enumerate(specs):
+                try:
+                    out.append(kind(**spec.model_dump()))
+                except ValueError as exc:
+                    field, _, message = str(exc).partition(": ")
+                    raise ValueError(f"{field.split('.')[0]}[{i}].{field.partition('.')[2]}: {message}") from None
+            return tuple(out)
+
+        noise = None
+        if self.velocity_noise is not None:
+            given = self.velocity_noise.model_dump()
+            noise = ch.VelocityNoise(**{**given, "std_m_s": tuple(given["std_m_s"])})
+        return ch.PlantChanges(items(self.friction_drift, ch.FrictionDrift),
+                               items(self.payload_change, ch.PayloadChange),
+                               items(self.cogging, ch.CoggingRipple), items(self.encoder_glitch, ch.EncoderGlitch),
+                               noise)  # fmt: skip
+
+    @property
+    def empty(self) -> bool:
+        return not (self.friction_drift or self.payload_change or self.cogging or self.encoder_glitch
+                    or self.velocity_noise)
+
+
+class MonitorSpec(_Model):
+    """The excitation and health monitor (gantry_twin.monitor, docs/health.md)."""
+
+    enable: bool = False
+    baseline_window_s: Window = (20.0, 30.0)
+    baseline_summary: str | None = None
+    judge_from_s: Seconds | None = None  # type: ignore[valid-type]
+    tolerance_pct: _range(0.0, 100.0, "%", lo_open=True) = 10.0  # type: ignore[valid-type]
+    tolerance_dn_v: _range(0.0, DISTURBANCE_MAX_V, "V", lo_open=True) = 0.1  # type: ignore[valid-type]
+    decision_interval_s: _range(0.0, 100.0, "s", lo_open=True) = 0.1  # type: ignore[valid-type]
+    excitation_window_s: _range(0.01, 600.0, "s") = 2.0  # type: ignore[valid-type]
+    min_parameter_v: _range(0.0, 10.0, "V") = 0.01  # type: ignore[valid-type]
+    filter_hz: tuple[_range(0.0, 2000.0, "Hz", lo_open=True), _range(0.0, 2000.0, "Hz", lo_open=True)] | None = None  # type: ignore
+
+    @model_validator(mode="after")
+    def _ordered(self) -> MonitorSpec:
+        a, b = self.baseline_window_s
+        if b <= a:
+            raise PydanticCustomError("order", "end must be after start, got [{a}, {b}] s", {"a": a, "b": b})
+        return self
 
 
 class Scenario(_Model):
@@ -331,6 +442,8 @@ class Scenario(_Model):
     window_s: Window | None = None
     estimates_window_s: Window | None = None
     seed: int | None = None
+    changes: ChangesSpec = ChangesSpec()
+    monitor: MonitorSpec = MonitorSpec()
 
     outputs: OutputsSpec = OutputsSpec()
 
@@ -682,7 +795,22 @@ def validate_data(data: dict[str, Any], source: str, default_name: str | None = 
         scenario = scenario.model_copy(update={"name": default_name})
     controller_options(scenario, source)
     _check_windows(scenario, source)
+    _check_changes_and_monitor(scenario, source)
     return scenario
+
+
+def _check_changes_and_monitor(scenario: Scenario, source: str) -> None:
+    try:
+        scenario.changes.plant_changes()
+    except ValueError as exc:
+        field, _, message = str(exc).partition(": ")
+        raise ScenarioError(source, f"changes.{field}", message) from None
+    m, d = scenario.monitor, scenario.duration_s
+    if m.enable and m.baseline_summary is None and m.baseline_window_s[1] > d + 1e-9:
+        a, b = m.baseline_window_s
+        raise ScenarioError(source, "monitor.baseline_window_s",
+                            f"must lie inside [0, duration_s = {_fmt(d)}] s, got [{_fmt(a)}, {_fmt(b)}] s "
+                            "(or give monitor.baseline_summary)")  # fmt: skip
 
 
 def _check_windows(scenario: Scenario, source: str) -> None:
@@ -755,12 +883,16 @@ class BuiltRun:
     controller: Controller
     sensing: SensingConfig
     disturbance: Disturbance | None
+    changes: ch.PlantChanges | None = None
+    monitor: Any = None  # a fresh gantry_twin.monitor.MachineMonitor when monitor.enable
 
 
 def build(scenario: Scenario, source: str = "<scenario>") -> BuiltRun:
     """Compile the plant, make the controller and check the contour fits the travel."""
     spec = scenario.payload
-    plant = Plant(Payload(spec.mass_kg, tuple(spec.offset_m)))
+    changes = None if scenario.changes.empty else scenario.changes.plant_changes()
+    payload_body = changes is not None and bool(changes.payload_change)
+    plant = Plant(Payload(spec.mass_kg, tuple(spec.offset_m)), payload_body=payload_body)
     path = scenario.contour.path()
     _check_travel(plant, path, source)
     _check_samples(scenario, plant.timestep_s, source)
@@ -772,7 +904,49 @@ def build(scenario: Scenario, source: str = "<scenario>") -> BuiltRun:
         name = scenario.controller.name
         raise ScenarioError(source, "controller.options", f"rejected by {name!r}: {first}") from None
     disturbance = None if scenario.disturbance.empty else scenario.disturbance.function()
-    return BuiltRun(scenario, plant, path, scenario.timing_law(), controller, scenario.sensing.config(), disturbance)
+    monitor = make_monitor(scenario, controller, source) if scenario.monitor.enable else None
+    return BuiltRun(scenario, plant, path, scenario.timing_law(), controller, scenario.sensing.config(), disturbance,
+                    changes, monitor)  # fmt: skip
+
+
+def make_monitor(scenario: Scenario, controller: Controller, source: str = "<scenario>") -> Any:
+    """The MachineMonitor of a scenario: filters default to the controller's estimator's (DIARC)."""
+    from gantry_twin.monitor import ExcitationSettings, HealthSettings, MachineMonitor
+
+    m = scenario.monitor
+    filter_hz = m.filter_hz
+    if filter_hz is None:
+        settings = getattr(controller, "estimator_settings", None) or EstimatorSettings()
+        filter_hz = settings.filter_hz
+    excitation = ExcitationSettings(window_s=m.excitation_window_s, filter_hz=tuple(filter_hz),
+                                    min_parameter_v=m.min_parameter_v)  # fmt: skip
+    tolerance = tuple([m.tolerance_pct / 100.0] * 6 + [m.tolerance_dn_v] * 2)
+    health = HealthSettings(tolerance, m.decision_interval_s, tuple(m.baseline_window_s), m.judge_from_s)
+    baseline = None
+    if m.baseline_summary is not None:
+        baseline = _baseline_from_summary(m.baseline_summary, source)
+    return MachineMonitor(excitation, health, baseline)
+
+
+def _baseline_from_summary(given: str, source: str) -> Any:
+    """A commissioning run's estimates (its summary.json) as the monitor's baseline; path relative to the scenario."""
+    import json
+
+    from gantry_twin.monitor import Baseline
+
+    path = Path(given)
+    if not path.is_absolute() and Path(source).is_file():
+        path = Path(source).parent / path
+    field = "monitor.baseline_summary"
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+        estimates = {name: float(e["estimate"]) for name, e in data["estimates"].items()}
+        return Baseline.from_mapping(estimates, f"commissioning run {path}")
+    except OSError as exc:
+        raise ScenarioError(source, field, f"cannot read {path} ({exc.strerror}); give a run's summary.json") from None
+    except (ValueError, KeyError, TypeError, AttributeError) as exc:
+        why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise ScenarioError(source, field, f"{path} is not a DIARC run's summary.json with estimates ({why})") from None
 
 
 def _check_samples(scenario: Scenario, sample_period_s: float, source: str) -> None:

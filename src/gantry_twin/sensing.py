@@ -57,12 +57,25 @@ class Encoder:
         """Start as if the machine had been moving at dq before t = 0."""
         self._previous_m = self._read(np.asarray(q_m) - np.asarray(dq_m_s) * self.sample_period_s)
 
-    def measure(self, q_m: np.ndarray, dq_m_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Measured (position m, velocity m/s) from the true joint state."""
+    def measure(self, q_m: np.ndarray, dq_m_s: np.ndarray, offset_m: np.ndarray | None = None, hold: bool = False,
+                velocity_noise_m_s: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Measured (position m, velocity m/s) from the true joint state.
+
+        Glitches (gantry_twin.changes): ``offset_m`` (2,) is added to the
+        reading (a spike); ``hold`` repeats the previous reading of both axes;
+        ``velocity_noise_m_s`` (2,) is added to the velocity. A bad reading is
+        remembered like a good one (the next difference uses it).
+        """
         position = self._read(q_m)
+        if offset_m is not None:
+            position = position + offset_m
+        if hold:
+            position = self._previous_m.copy()
         if self.config.velocity_by_difference:
             velocity = (position - self._previous_m) / self.sample_period_s
         else:
             velocity = np.array(dq_m_s, dtype=float)
+        if velocity_noise_m_s is not None:
+            velocity = velocity + velocity_noise_m_s
         self._previous_m = position
         return position, velocity

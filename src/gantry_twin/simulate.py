@@ -25,6 +25,7 @@ Two backends run the same equations (docs/performance.md):
 from __future__ import annotations
 
 import glob
+import math
 import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -35,6 +36,8 @@ import numpy as np
 from numba import types
 
 from gantry_twin._jit import kernel
+from gantry_twin._jit import reference as uncompiled
+from gantry_twin.changes import PlantChanges
 from gantry_twin.controllers.arc import CLOCK_LAMBDA_MAX, DARC, DIARC, DRC, arc_step
 from gantry_twin.controllers.base import Controller, Measurement, ReferenceSample, RunContext
 from gantry_twin.controllers.pd import PD, pd_step
@@ -60,7 +63,10 @@ class Trace:
     u_v command, disturbance_v input disturbance (N, 2) volts;
     controller_state: what ``state_for_logging`` returned, stacked over time
     (DIARC: theta_hat (N, 8), dc_hat (N, 2), gamma_diag (N, 8),
-    gamma_lambda_max (N,)); true_theta (8,) volt units from the model.
+    gamma_lambda_max (N,)); true_theta (8,) volt units from the model at t = 0.
+    true_theta_t (N, 8): the true theta at each sample when the run's
+    :class:`~gantry_twin.changes.PlantChanges` move it (None otherwise: it is
+    ``true_theta`` throughout; :meth:`true_parameters_t` gives it either way).
     ``filled``: how many samples hold data (all of them after the run).
     """
 
@@ -76,6 +82,13 @@ class Trace:
     true_theta: np.ndarray
     controller_state: dict[str, np.ndarray] = field(default_factory=dict)
     filled: int = 0
+    true_theta_t: np.ndarray | None = None
+
+    def true_parameters_t(self) -> np.ndarray:
+        """The true theta at each sample (N, 8), volt units (a read-only broadcast if nothing changes)."""
+        if self.true_theta_t is not None:
+            return self.true_theta_t
+        return np.broadcast_to(self.true_theta, (self.t_s.size, 8))
 
     @classmethod
     def allocate(cls, ref: Reference, disturbance_v: np.ndarray, true_theta: np.ndarray) -> Trace:
@@ -197,6 +210,82 @@ class SensorState(NamedTuple):
     previous_m: np.ndarray
 
 
+class ChangeSchedule(NamedTuple):
+    """Per-sample plant and sensor changes (gantry_twin.changes) for both loops.
+
+    The first three are views of mjModel memory the loop writes into. Each
+    schedule is (N, ...) when the run has that kind of change, else empty
+    (0, ...), which the loop reads as "unchanged". cogging (2, 3): amplitude V,
+    pitch m, phase rad per axis (amplitude 0: no ripple).
+    """
+
+    dof_damping: np.ndarray
+    dof_frictionloss: np.ndarray
+    body_mass: np.ndarray
+    payload_body: int
+    damping_n_s_m: np.ndarray
+    frictionloss_n: np.ndarray
+    payload_kg: np.ndarray
+    cogging: np.ndarray
+    offset_m: np.ndarray
+    hold: np.ndarray
+    velocity_noise_m_s: np.ndarray
+
+    @property
+    def empty(self) -> bool:
+        return not (self.damping_n_s_m.shape[0] or self.payload_kg.shape[0] or np.any(self.cogging[:, 0] != 0.0)
+                    or self.offset_m.shape[0] or self.hold.shape[0] or self.velocity_noise_m_s.shape[0])
+
+
+def change_schedule(plant: Plant, changes: PlantChanges | None, t: np.ndarray) -> ChangeSchedule:
+    """The loop's per-sample arrays for ``changes`` over the sample times t (N,) s."""
+    model = plant.model
+    none2, none1 = np.empty((0, 2)), np.empty(0)
+    changes = changes or PlantChanges()
+    cogging = np.zeros((2, 3))
+    cogging[:, 1] = 1.0
+    for ripple in changes.cogging:
+        cogging[ripple.axis_index] = (ripple.amplitude_v, ripple.pitch_m, ripple.phase_rad)
+    body = -1
+    if changes.payload_change:
+        if plant.payload_body_id is None:
+            raise ValueError("changes.payload_change: the plant has no payload body to change; build it with "
+                             "Plant(payload, payload_body=True)")
+        body = plant.payload_body_id
+    glitches = changes.encoder_glitch
+    return ChangeSchedule(
+        model.dof_damping, model.dof_frictionloss, model.body_mass, body,
+        np.ascontiguousarray(changes.damping_n_s_m(plant, t)) if changes.friction_drift else none2,
+        np.ascontiguousarray(changes.frictionloss_n(plant, t)) if changes.friction_drift else none2,
+        np.ascontiguousarray(changes.payload_mass_kg(plant, t)) if changes.payload_change else none1,
+        cogging,
+        np.ascontiguousarray(changes.position_offset_m(t)) if any(g.kind == "spike" for g in glitches) else none2,
+        np.ascontiguousarray(changes.hold_mask(t)) if any(g.kind == "hold" for g in glitches) else
+        np.empty(0, dtype=np.bool_),
+        np.ascontiguousarray(changes.velocity_noise_m_s(t)) if changes.velocity_noise is not None else none2,
+    )  # fmt: skip
+
+
+@kernel
+def _change_plant(dof_index, changes, k):
+    """Write sample k's scheduled joint damping, Coulomb level and payload mass into the model."""
+    if changes.damping_n_s_m.shape[0] > 0:
+        for i in range(2):
+            changes.dof_damping[dof_index[i]] = changes.damping_n_s_m[k, i]
+            changes.dof_frictionloss[dof_index[i]] = changes.frictionloss_n[k, i]
+    if changes.payload_kg.shape[0] > 0:
+        changes.body_mass[changes.payload_body] = changes.payload_kg[k]
+
+
+@kernel
+def _cogging_v(changes, axis, q_m):
+    """Cogging force of one axis at the true position q_m, volts (as PlantChanges.cogging_force_v)."""
+    c = changes.cogging
+    if c[axis, 0] == 0.0:
+        return 0.0
+    return c[axis, 0] * math.sin(2.0 * math.pi * q_m / c[axis, 1] + c[axis, 2])
+
+
 class Recording(NamedTuple):
     """Inputs (reference rows, disturbance) and the trace arrays the compiled loop writes."""
 
@@ -221,28 +310,36 @@ STATUS_OK, STATUS_BAD_MEASUREMENT, STATUS_BAD_COMMAND = 0, 1, 2
 
 
 @kernel
-def _measure(plant, sensor, sample):
-    """Encoder reading of this sample (same arithmetic as sensing.Encoder); False if not finite."""
+def _measure(plant, sensor, sample, changes, k):
+    """Encoder reading of sample k, glitches included (same arithmetic as sensing.Encoder); False if not finite."""
     qpos, qvel, qpos_index, dof_index = plant.qpos, plant.qvel, plant.qpos_index, plant.dof_index
     previous_m, resolution_m = sensor.previous_m, sensor.resolution_m
     q_true, position, velocity = sample.q_true, sample.position, sample.velocity
+    spikes, noise = changes.offset_m.shape[0] > 0, changes.velocity_noise_m_s.shape[0] > 0
+    held = changes.hold.shape[0] > 0 and changes.hold[k]
     finite = True
     for i in range(2):
         q = qpos[qpos_index[i]]
         q_true[i] = q
         position[i] = np.rint(q / resolution_m) * resolution_m if sensor.quantize else q
+        if spikes:
+            position[i] = position[i] + changes.offset_m[k, i]
+        if held:
+            position[i] = previous_m[i]
         if sensor.velocity_by_difference:
             velocity[i] = (position[i] - previous_m[i]) / sensor.sample_period_s
         else:
             velocity[i] = qvel[dof_index[i]]
+        if noise:
+            velocity[i] = velocity[i] + changes.velocity_noise_m_s[k, i]
         previous_m[i] = position[i]
         finite = finite and np.isfinite(position[i]) and np.isfinite(velocity[i])
     return finite
 
 
 @kernel
-def _record_and_step(plant, recording, k, sample, command):
-    """Check the command; record the sample; hold u and the disturbance; mj_step. False if u not finite."""
+def _record_and_step(plant, recording, k, sample, command, changes):
+    """Check the command; record the sample; hold u and the disturbance (+ cogging); mj_step. False if u not finite."""
     kept = sample.command
     for i in range(2):
         kept[i] = command[i]
@@ -257,23 +354,27 @@ def _record_and_step(plant, recording, k, sample, command):
         q_meas_m[k, i] = position[i]
         u_v[k, i] = u
         ctrl[motors[i]] = u
-        ctrl[disturbances[i]] = disturbance_v[k, i]
+        if changes.cogging[i, 0] != 0.0:
+            ctrl[disturbances[i]] = disturbance_v[k, i] + _cogging_v(changes, i, q_true[i])
+        else:
+            ctrl[disturbances[i]] = disturbance_v[k, i]
     mj_step(plant.model_address, plant.data_address)
     return True
 
 
 @kernel
-def _run_arc_chunk(start, stop, plant, sensor, recording, sample, params, state, theta_log, dc_log, gamma_log,
-                   lambda_log):  # fmt: skip
+def _run_arc_chunk(start, stop, plant, sensor, recording, sample, changes, params, state, theta_log, dc_log,
+                   gamma_log, lambda_log):  # fmt: skip
     """Samples [start, stop) with DRC/DARC/DIARC; returns (status, sample index)."""
     rows, position, velocity = recording.rows, sample.position, sample.velocity
     theta, dc, u_v = state.theta, state.dc, state.law.u_v
     gamma, clock = state.estimator.gamma, state.estimator.clock
     for k in range(start, stop):
-        if not _measure(plant, sensor, sample):
+        _change_plant(plant.dof_index, changes, k)
+        if not _measure(plant, sensor, sample, changes, k):
             return STATUS_BAD_MEASUREMENT, k
         arc_step(params, state, position, velocity, rows[k])
-        if not _record_and_step(plant, recording, k, sample, u_v):
+        if not _record_and_step(plant, recording, k, sample, u_v, changes):
             return STATUS_BAD_COMMAND, k
         if theta_log.shape[0] > 0:
             theta_log[k, :] = theta
@@ -288,14 +389,15 @@ def _run_arc_chunk(start, stop, plant, sensor, recording, sample, params, state,
 
 
 @kernel
-def _run_pd_chunk(start, stop, plant, sensor, recording, sample, params, u_v):
+def _run_pd_chunk(start, stop, plant, sensor, recording, sample, changes, params, u_v):
     """Samples [start, stop) with the PD baseline; returns (status, sample index)."""
     rows, position, velocity = recording.rows, sample.position, sample.velocity
     for k in range(start, stop):
-        if not _measure(plant, sensor, sample):
+        _change_plant(plant.dof_index, changes, k)
+        if not _measure(plant, sensor, sample, changes, k):
             return STATUS_BAD_MEASUREMENT, k
         pd_step(params, position, velocity, rows[k], u_v)
-        if not _record_and_step(plant, recording, k, sample, u_v):
+        if not _record_and_step(plant, recording, k, sample, u_v, changes):
             return STATUS_BAD_COMMAND, k
     return STATUS_OK, stop
 
@@ -321,6 +423,7 @@ def simulate(
     chunk_s: float = 0.1,
     controller_name: str | None = None,
     backend: Backend = "auto",
+    changes: PlantChanges | None = None,
 ) -> Trace:
     """Run the closed loop for ``duration_s`` seconds and return the trace.
 
@@ -329,6 +432,11 @@ def simulate(
     backend: ``auto`` (compiled for the built-in controllers drc, darc, diarc,
     pd when MuJoCo's library is found, else reference), ``compiled`` or
     ``reference``; both give the same trace (tests/test_backends.py).
+    changes: faults applied to the plant and the sensor during the run
+    (:mod:`gantry_twin.changes`), never shown to the controller; the trace
+    then records the true theta over time (``true_theta_t``). A payload
+    change needs a plant built with ``payload_body=True``. The model's
+    damping, friction and masses are restored after the run.
     """
     if backend not in ("auto", "compiled", "reference"):
         raise ValueError(f"backend must be 'auto', 'compiled' or 'reference', got {backend!r}")
@@ -353,21 +461,30 @@ def simulate(
         raise ValueError(f"disturbance must give shape ({n}, 2) volts, got {dist.shape}")
     dist = np.ascontiguousarray(dist)
 
-    plant.reset(ref.q_d[0], ref.dq_d[0])
-    encoder = Encoder(sensing, ts)
-    encoder.reset(plant.q_m, plant.dq_m_s)
-    trace = Trace.allocate(ref, dist, plant.true_parameters())
-    info = RunInfo(plant, path, timing, ref, duration_s, controller_name or type(controller).__name__)
-    for observer in observers:
-        observer.on_start(info, trace)
-    chunk = max(1, int(round(chunk_s / ts)))
-    run = _run_compiled if compiled else _run_reference
-    for start, stop in run(plant, encoder, controller, trace, rows, chunk):
-        _finish_chunk(trace, ref, path, start, stop)
+    schedule = change_schedule(plant, changes, t)
+    model = plant.model
+    saved = (model.dof_damping.copy(), model.dof_frictionloss.copy(), model.body_mass.copy())
+    try:
+        plant.reset(ref.q_d[0], ref.dq_d[0])
+        encoder = Encoder(sensing, ts)
+        encoder.reset(plant.q_m, plant.dq_m_s)
+        trace = Trace.allocate(ref, dist, plant.true_parameters())
+        if changes is not None and not changes.empty:
+            trace.true_theta_t = changes.true_parameters_over_time(plant, t)
+            trace.true_theta = trace.true_theta_t[0].copy()
+        info = RunInfo(plant, path, timing, ref, duration_s, controller_name or type(controller).__name__)
         for observer in observers:
-            observer.on_chunk(trace, start, stop)
-    for observer in observers:
-        observer.on_end(trace)
+            observer.on_start(info, trace)
+        chunk = max(1, int(round(chunk_s / ts)))
+        run = _run_compiled if compiled else _run_reference
+        for start, stop in run(plant, encoder, controller, trace, rows, chunk, schedule):
+            _finish_chunk(trace, ref, path, start, stop)
+            for observer in observers:
+                observer.on_chunk(trace, start, stop)
+        for observer in observers:
+            observer.on_end(trace)
+    finally:
+        model.dof_damping[:], model.dof_frictionloss[:], model.body_mass[:] = saved
     return trace
 
 
@@ -379,17 +496,25 @@ def _bad_command(t_s: float, command: np.ndarray) -> SimulationError:
     return SimulationError(f"controller returned {command!r} at t = {t_s:.4f} s; expected 2 finite volts")
 
 
-def _run_reference(plant: Plant, encoder: Encoder, controller: Controller, trace: Trace, rows: np.ndarray, chunk: int):
+def _run_reference(plant: Plant, encoder: Encoder, controller: Controller, trace: Trace, rows: np.ndarray, chunk: int,
+                   changes: ChangeSchedule):  # fmt: skip
     """The Python loop, chunk by chunk: yields (start, stop) after filling samples [start, stop)."""
     model, data = plant.model, plant.data
     u_max = plant.ctrl_range_v[:, 1]
     motors, dist_act = plant.motor_index, plant.disturbance_index
     t, dist, n = trace.t_s, trace.disturbance_v, trace.t_s.size
+    change_plant, cogging_v = uncompiled(_change_plant), uncompiled(_cogging_v)
+    dof_index = np.ascontiguousarray(plant.dof_index, dtype=np.int64)
+    spikes, holds, noise = changes.offset_m, changes.hold, changes.velocity_noise_m_s
+    cogging = changes.cogging[:, 0] != 0.0
     for start in range(0, n, chunk):
         stop = min(n, start + chunk)
         for k in range(start, stop):
+            change_plant(dof_index, changes, k)
             q_true = plant.q_m.copy()
-            position, velocity = encoder.measure(q_true, plant.dq_m_s)
+            position, velocity = encoder.measure(q_true, plant.dq_m_s, spikes[k] if spikes.shape[0] else None,
+                                                 bool(holds[k]) if holds.shape[0] else False,
+                                                 noise[k] if noise.shape[0] else None)  # fmt: skip
             if not (np.isfinite(position).all() and np.isfinite(velocity).all()):
                 raise _bad_measurement(t[k], position, velocity)
             measurement = Measurement(float(t[k]), position, velocity)
@@ -405,11 +530,14 @@ def _run_reference(plant: Plant, encoder: Encoder, controller: Controller, trace
             trace.record_state(k, controller.state_for_logging())
             data.ctrl[motors] = u
             data.ctrl[dist_act] = dist[k]
+            for i in np.flatnonzero(cogging):
+                data.ctrl[dist_act[i]] = dist[k, i] + cogging_v(changes, int(i), float(q_true[i]))
             mujoco.mj_step(model, data)
         yield start, stop
 
 
-def _run_compiled(plant: Plant, encoder: Encoder, controller: Controller, trace: Trace, rows: np.ndarray, chunk: int):
+def _run_compiled(plant: Plant, encoder: Encoder, controller: Controller, trace: Trace, rows: np.ndarray, chunk: int,
+                  changes: ChangeSchedule):  # fmt: skip
     """The compiled loop: one kernel call per chunk; yields (start, stop) like :func:`_run_reference`."""
     t, n = trace.t_s, trace.t_s.size
     u_max = np.ascontiguousarray(plant.ctrl_range_v[:, 1])
@@ -417,7 +545,10 @@ def _run_compiled(plant: Plant, encoder: Encoder, controller: Controller, trace:
     sensor = SensorState(bool(config.quantize), float(config.resolution_m), bool(config.velocity_by_difference),
                          float(plant.timestep_s), encoder._previous_m.copy())  # fmt: skip
     # The first measurement, for the controller's RunContext (the kernel measures it again).
-    position, velocity = encoder.measure(plant.q_m.copy(), plant.dq_m_s)
+    spikes, holds, noise = changes.offset_m, changes.hold, changes.velocity_noise_m_s
+    position, velocity = encoder.measure(plant.q_m.copy(), plant.dq_m_s, spikes[0] if spikes.shape[0] else None,
+                                         bool(holds[0]) if holds.shape[0] else False,
+                                         noise[0] if noise.shape[0] else None)  # fmt: skip
     if not (np.isfinite(position).all() and np.isfinite(velocity).all()):
         raise _bad_measurement(t[0], position, velocity)
     controller.reset(RunContext(plant.timestep_s, u_max.copy(), Measurement(float(t[0]), position, velocity)))
@@ -434,7 +565,7 @@ def _run_compiled(plant: Plant, encoder: Encoder, controller: Controller, trace:
         params, u_v = controller.kernel_arguments(), np.zeros(2)
 
         def run_chunk(start: int, stop: int) -> tuple[int, int]:
-            return _run_pd_chunk(start, stop, io, sensor, recording, sample, params, u_v)
+            return _run_pd_chunk(start, stop, io, sensor, recording, sample, changes, params, u_v)
     else:
         arc_params, state = controller.kernel_arguments()
         logs = trace.controller_state
@@ -444,8 +575,8 @@ def _run_compiled(plant: Plant, encoder: Encoder, controller: Controller, trace:
         lambda_log = logs.get("gamma_lambda_max", np.empty(0))
 
         def run_chunk(start: int, stop: int) -> tuple[int, int]:
-            return _run_arc_chunk(start, stop, io, sensor, recording, sample, arc_params, state, theta_log, dc_log,
-                                  gamma_log, lambda_log)  # fmt: skip
+            return _run_arc_chunk(start, stop, io, sensor, recording, sample, changes, arc_params, state, theta_log,
+                                  dc_log, gamma_log, lambda_log)  # fmt: skip
 
     for start in range(0, n, chunk):
         stop = min(n, start + chunk)
