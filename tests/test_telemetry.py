@@ -338,3 +338,25 @@ def test_serve_web_prints_a_url_serves_the_viewer_and_stops_on_ctrl_c():
         if process.poll() is None:
             process.kill()
             process.wait()
+
+
+def test_health_alarms_are_events_on_the_timeline(tmp_path):
+    """A monitored run records each alarm as a text event at its time, and the excitation per axis."""
+    import json
+
+    from gantry_twin import cli
+
+    rrd = tmp_path / "pickup.rrd"
+    out = tmp_path / "out"
+    code = cli.main(["monitor", "payload_pickup_circle", "--set", "duration_s=24", "--out", str(out), "--save",
+                     str(rrd), "--no-progress"])
+    assert code == 0
+    alarms = json.loads((out / "summary.json").read_text())["health"]["alarms"]
+    assert alarms, "the pick-up must raise an alarm"
+    data = read_rrd(rrd)
+    texts = data["health/alarms"]["TextLog:text"]
+    assert len(texts) == len(alarms)
+    for alarm, text, time_ns in zip(alarms, texts, data["health/alarms"]["time_ns"], strict=True):
+        assert alarm["parameter"] in str(text)
+        assert time_ns == round(alarm["time_s"] * 1e9)
+    assert scalars(data, "health/excitation_V").shape[1] == 2

@@ -224,7 +224,11 @@ def execute(built: BuiltRun, observers: Sequence[Observer] = ()) -> Trace:
     """Simulate a built scenario."""
     s = built.scenario
     if built.monitor is not None:
-        observers = [*observers, built.monitor]
+        # First, so that observers after it (telemetry) see this chunk's alarms.
+        observers = [built.monitor, *observers]
+        for observer in observers:
+            if hasattr(observer, "watch"):
+                observer.watch(built.monitor)
     return simulate(
         built.plant,
         built.path,

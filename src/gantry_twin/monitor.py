@@ -451,6 +451,19 @@ class MachineMonitor:
     def on_end(self, trace) -> None:
         """Nothing to flush: a last, incomplete period is not reported."""
 
+    # -- live views (for telemetry), cheap to call after every chunk --
+    @property
+    def alarms(self) -> list[Alarm]:
+        """Alarms raised so far, in the order raised."""
+        return list(self._alarms) if self._ready else []
+
+    def excitation_since(self, row: int) -> tuple[np.ndarray, np.ndarray]:
+        """Monitor periods from ``row`` on: (end times s (M,), excitation level per axis V (M, 2))."""
+        if not self._ready:
+            return np.zeros(0), np.zeros((0, 2))
+        t = np.asarray(self._hist["t"][row:], dtype=float)
+        return t, np.asarray(self._hist["level"][row:], dtype=float).reshape(-1, 2)
+
     # -- results --
     def report(self) -> MonitorReport:
         h = self._hist

@@ -213,8 +213,11 @@ def dashboard_blueprint(
     estimate_entities: Sequence[str] = (),
     magnification: float = ERROR_MAGNIFICATION,
     desired_mm: np.ndarray | None = None,
+    health: bool = False,
 ) -> rrb.Blueprint:
     """Default layout: contour and 3D | errors and inputs | one plot per estimate (if any).
+
+    ``health``: add the health monitor's excitation plot and alarm log to the middle column.
 
     The XY view shows every strip of the actual contour up to the time cursor
     (visible range from -infinity); ``desired_mm`` (N, 2) sets its bounds.
@@ -243,11 +246,17 @@ def dashboard_blueprint(
             eye_controls=rrb.EyeControls3D(position=[0.9, -1.3, 0.9], look_target=[0.0, 0.0, -0.08]),
         ),
     )
-    middle = rrb.Vertical(
+    middle_views = [
         rrb.TimeSeriesView(origin="errors/contour", name="Contour error, um"),
         rrb.TimeSeriesView(origin="errors/axial", name="Axial errors, um"),
         rrb.TimeSeriesView(origin="inputs", name="Inputs, V"),
-    )
+    ]
+    if health:
+        middle_views += [
+            rrb.TimeSeriesView(origin="health/excitation_V", name="Excitation per axis, V"),
+            rrb.TextLogView(origin="health/alarms", name="Health alarms"),
+        ]
+    middle = rrb.Vertical(*middle_views)
     columns: list = [left, middle]
     if estimate_entities:
         views = [rrb.TimeSeriesView(origin=e, name=e.removeprefix("estimates/")) for e in estimate_entities]
@@ -285,11 +294,20 @@ class RerunObserver:
         contour_rate_hz: float = CONTOUR_RATE_HZ,
     ) -> None:
         self.recording = recording
+        self._monitor = None
         self.error_magnification = float(error_magnification)
         self.flush_interval_s = float(flush_interval_s)
         self.marker_rate_hz = float(marker_rate_hz)
         self.contour_rate_hz = float(contour_rate_hz)
         self._run: RunInfo | None = None
+
+    def watch(self, monitor) -> None:  # noqa: ANN001 (a gantry_twin.monitor.MachineMonitor)
+        """Also log a health monitor's alarms (text events on the timeline, entity
+        ``health/alarms``) and its excitation level per axis (``health/excitation_V``).
+        The monitor must come before this observer in simulate's list."""
+        self._monitor = monitor
+        self._alarms_sent = 0
+        self._excitation_sent = 0
 
     # -- constructors for the usual sinks ---------------------------------------------------
 
@@ -438,7 +456,12 @@ class RerunObserver:
             lines("estimates/gamma_lambda_max", ["lambda_max(Gamma)"], [(60, 160, 60)])
             extra.append("estimates/gamma_lambda_max")
         rec.send_blueprint(
-            dashboard_blueprint([e for e, _ in self._estimates] + extra, self.error_magnification, self._desired_mm),
+            dashboard_blueprint(
+                [e for e, _ in self._estimates] + extra,
+                self.error_magnification,
+                self._desired_mm,
+                health=self._monitor is not None,
+            ),
             make_active=True,
             make_default=True,
         )
@@ -474,7 +497,27 @@ class RerunObserver:
         if "gamma_lambda_max" in state:
             scalars("estimates/gamma_lambda_max", state["gamma_lambda_max"][start:stop])
         self._send_geometry(trace, start, stop)
+        self._send_health()
         self._sent = stop
+
+    def _send_health(self) -> None:
+        monitor = self._monitor
+        if monitor is None:
+            return
+        rec = self.recording
+        t, level = monitor.excitation_since(self._excitation_sent)
+        if t.size:
+            if self._excitation_sent == 0:
+                rec.log("health/excitation_V", rr.SeriesLines(names=["x", "y"], colors=[_X_RGB, _Y_RGB]), static=True)
+            rec.send_columns("health/excitation_V", indexes=[_TimeIndex(t)], columns=[_scalar_column(level)])
+            self._excitation_sent += t.size
+        alarms = monitor.alarms
+        for alarm in alarms[self._alarms_sent :]:
+            rec.set_time(TIMELINE, duration=alarm.time_s)
+            rec.log("health/alarms", rr.TextLog(f"ALARM {alarm.describe()}", level=rr.TextLogLevel.WARN))
+        if len(alarms) > self._alarms_sent:
+            rec.reset_time()
+        self._alarms_sent = len(alarms)
 
     def _send_geometry(self, trace: Trace, start: int, stop: int) -> None:
         rec, run = self.recording, self._run
