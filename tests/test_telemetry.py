@@ -360,3 +360,21 @@ def test_health_alarms_are_events_on_the_timeline(tmp_path):
         assert alarm["parameter"] in str(text)
         assert time_ns == round(alarm["time_s"] * 1e9)
     assert scalars(data, "health/excitation_V").shape[1] == 2
+
+
+def test_true_value_line_follows_plant_changes(tmp_path):
+    """After a 5 kg pick-up the 'true' line of M1 shows the new mass, not the initial one."""
+    from gantry_twin.changes import PayloadChange, PlantChanges
+
+    path = tmp_path / "pickup.rrd"
+    changes = PlantChanges(payload_change=(PayloadChange(time_s=0.5, mass_kg=5.0),))
+    with RerunObserver.to_file(path) as observer:
+        trace = simulate(Plant(payload_body=True), circle(), TimingLaw(2.0), create("diarc"), 1.0,
+                         observers=[observer], changes=changes)
+    data = read_rrd(path)
+    entity = next(e for e in data if e.startswith("estimates/M1") and e.endswith("/true"))
+    true = scalars(data, entity)[:, 0]
+    times = data[entity]["time_ns"] * 1e-9
+    expected = trace.true_parameters_t()[np.rint(times / trace.sample_period_s).astype(int), 0]
+    np.testing.assert_allclose(true, expected)
+    assert true[0] == pytest.approx(8.28 / 69) and true[-1] == pytest.approx(13.28 / 69)

@@ -486,12 +486,18 @@ class RerunObserver:
         state = trace.controller_state
         if self._estimates:
             theta = state["theta_hat"][start:stop]
-            true = trace.true_theta
-            ends = [_TimeIndex(trace.t_s[[start, stop - 1]])]  # the true value is constant: a line needs two points
+            if trace.true_theta_t is None:  # constant: a line needs two points per send
+                rows = np.array([start, stop - 1])
+                true = np.broadcast_to(trace.true_theta, (2, trace.true_theta.size))
+            else:  # plant changes move it: at the 3D marker rate, and the last sample
+                rows = np.unique(np.append(np.arange(-(-start // self._marker_stride) * self._marker_stride, stop,
+                                                     self._marker_stride), stop - 1))
+                true = trace.true_theta_t[rows]
+            true_times = [_TimeIndex(trace.t_s[rows])]
             for entity, i in self._estimates:
                 scalars(f"{entity}/estimate", theta[:, i])
-                if i < true.size:
-                    scalars(f"{entity}/true", np.full(2, true[i]), ends)
+                if i < true.shape[1]:
+                    scalars(f"{entity}/true", true[:, i], true_times)
         if "dc_hat" in state:
             scalars("estimates/dc_hat_V", state["dc_hat"][start:stop])
         if "gamma_lambda_max" in state:
