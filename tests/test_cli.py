@@ -448,3 +448,35 @@ def test_run_viewer_without_display_is_a_one_line_error(tmp_path, monkeypatch, c
     assert code == 2
     assert len(err.strip().splitlines()) == 1 and "--serve-web" in err and "Traceback" not in err
     assert not (tmp_path / "out").exists()
+
+
+def test_estimates_are_judged_against_the_truth_of_their_window(tmp_path, capsys):
+    """A payload picked up at 0.3 s: a window before it compares with the unloaded M1, one across it with the mean."""
+    scenario = tmp_path / "pickup.yaml"
+    scenario.write_text(
+        "contour: {type: circle, radius_m: 0.2, timing: {rate_rad_s: 2.0, start: on_path}}\n"
+        "controller: {name: diarc}\n"
+        "changes: {payload_change: [{time_s: 0.3, mass_kg: 5.0}]}\n"
+        "duration_s: 0.5\n"
+        "window_s: [0.1, 0.5]\n"
+    )
+    m1_free, m1_loaded = 8.28 / 69, 13.28 / 69
+    for window, fraction_loaded in (([0.1, 0.3], 0.0), ([0.2, 0.4], 0.5), ([0.3, 0.5], 1.0)):
+        out = tmp_path / f"out_{window[0]}"
+        args = ["run", str(scenario), "--set", f"estimates_window_s={window}", "--out", str(out)]
+        code, _, err = run_main(args, capsys)
+        assert code == 0, err
+        m1 = json.loads((out / "summary.json").read_text())["estimates"]["M1"]
+        assert m1["true"] == pytest.approx(m1_free + fraction_loaded * (m1_loaded - m1_free), rel=1e-3)
+        assert m1["error_pct"] == pytest.approx(100 * (m1["estimate"] - m1["true"]) / m1["true"])
+    table = pq.read_table(out / "trace.parquet")
+    t = table.column("t_s").to_numpy()
+    true_m1 = table.column("true_theta_M1").to_numpy()
+    assert np.allclose(true_m1[t < 0.3 - 1e-9], m1_free) and np.allclose(true_m1[t > 0.3 + 1e-9], m1_loaded)
+
+
+def test_trace_has_no_true_theta_columns_when_the_plant_does_not_change(tmp_path, capsys):
+    out = tmp_path / "o"
+    assert run_main(["run", str(shipped("no_load_circle")), *SHORT, "--out", str(out)], capsys)[0] == 0
+    names = pq.read_table(out / "trace.parquet").column_names
+    assert "theta_hat_M1" in names and not any(n.startswith("true_theta") for n in names)

@@ -41,6 +41,15 @@ def steady_estimates(trace: Trace, window_s: tuple[float, float]) -> np.ndarray 
     return theta[window_mask(trace.t_s, window_s)].mean(axis=0)
 
 
+def steady_true_parameters(trace: Trace, window_s: tuple[float, float]) -> np.ndarray:
+    """Mean true theta over the same window (volt units), the value :func:`steady_estimates` is judged against.
+
+    It moves when the run has plant changes (a payload picked up, drifting
+    friction); a window before the change is judged against the old value.
+    """
+    return trace.true_parameters_t()[window_mask(trace.t_s, window_s)].mean(axis=0)
+
+
 def estimate_errors_pct(estimate: np.ndarray, true_theta: np.ndarray) -> dict[str, float | None]:
     """100 (estimate - true) / true per parameter; None where the true value is 0."""
     out: dict[str, float | None] = {}

@@ -26,7 +26,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from gantry_twin.metrics import contour_metrics, estimate_errors_pct, steady_estimates
+from gantry_twin.metrics import contour_metrics, estimate_errors_pct, steady_estimates, steady_true_parameters
 from gantry_twin.plant import AXES, THETA_NAMES
 from gantry_twin.scenario import Scenario
 from gantry_twin.simulate import Trace
@@ -82,8 +82,8 @@ def summary(scenario: Scenario, trace: Trace, controller_name: str, health: Any 
     """The summary.json contract (see docs/cli.md); deterministic for a given scenario.
 
     health: the run's :class:`gantry_twin.monitor.MonitorReport` (a ``health``
-    section is added only when given). Estimates are judged against the true
-    theta at the end of the run (it moves when the scenario has changes).
+    section is added only when given). Estimates are judged against the mean
+    true theta over the same window (it moves when the scenario has changes).
     """
     metrics = contour_metrics(trace, scenario.metric_window_s)
     out: dict[str, Any] = {
@@ -97,7 +97,7 @@ def summary(scenario: Scenario, trace: Trace, controller_name: str, health: Any 
     }
     estimate = steady_estimates(trace, scenario.estimate_window_s)
     if estimate is not None and estimate.shape == (len(THETA_NAMES),):  # a plug-in may log another theta_hat
-        true = trace.true_theta if trace.true_theta_t is None else trace.true_theta_t[trace.filled - 1]
+        true = steady_true_parameters(trace, scenario.estimate_window_s)
         errors = estimate_errors_pct(estimate, true)
         out["estimates_window_s"] = list(scenario.estimate_window_s)
         out["estimates"] = {
@@ -165,7 +165,9 @@ def trace_table(trace: Trace, stride: int = 1) -> pa.Table:
     x_d_m, y_d_m (desired); e_x_m, e_y_m; eps_n_m, eps_c_m; u_x_v, u_y_v
     (command); d_x_v, d_y_v (input disturbance); then the controller's logged
     state, e.g. theta_hat_M1 ... theta_hat_dN2, dc_hat_x, dc_hat_y.
-    The true parameters are in the schema metadata (``true_theta``, JSON).
+    The true parameters at t = 0 are in the schema metadata (``true_theta``,
+    JSON); when the scenario changes the plant they are also columns,
+    true_theta_M1 ... true_theta_dN2, volt units.
     """
     n = trace.filled
     rows = slice(0, n, stride)
@@ -179,6 +181,8 @@ def trace_table(trace: Trace, stride: int = 1) -> pa.Table:
     cols.update({"d_x_v": trace.disturbance_v[rows, 0], "d_y_v": trace.disturbance_v[rows, 1]})
     for key in sorted(trace.controller_state):
         cols.update(_columns(key, trace.controller_state[key][rows]))
+    if trace.true_theta_t is not None:  # the plant changed during the run
+        cols.update(_columns("true_theta", trace.true_theta_t[rows]))
     meta = {"true_theta": json.dumps(dict(zip(THETA_NAMES, map(float, trace.true_theta), strict=True)))}
     table = pa.table({k: pa.array(np.ascontiguousarray(v, dtype=float)) for k, v in cols.items()})
     return table.replace_schema_metadata({**(table.schema.metadata or {}), **meta})
