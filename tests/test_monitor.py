@@ -14,6 +14,7 @@ from gantry_twin.monitor import (
     NOT_EXCITED,
     Baseline,
     ExcitationSettings,
+    FilteredRegressors,
     HealthSettings,
     MachineMonitor,
     monitor_trace,
@@ -226,3 +227,16 @@ def test_baseline_from_the_settling_window_of_the_run():
     periods = np.arange(1.0, 2.0 - TS / 2, PERIOD) + PERIOD - TS  # period ends inside the window
     assert report.baseline.theta[0] == pytest.approx(np.mean(0.12 + 0.01 * np.sin(periods)), rel=1e-12)
     assert np.all(report.status[report.t_s < 2.0 - TS] == 0)  # "baseline" until the window closes
+
+
+def test_monitor_filters_the_measurements_exactly_as_diarc_estimator():
+    """FilteredRegressors over the recorded encoder positions ends in DIARC's own filter state and regressor."""
+    controller = create("diarc")  # paper filters, 250 / 150 Hz, the ExcitationSettings default
+    trace = simulate(Plant(), circle(), TimingLaw(2.0), controller, 0.3)
+    regressors = FilteredRegressors(ExcitationSettings(), trace.sample_period_s)
+    g, _ = regressors.advance(trace.q_meas_m[:100])
+    g, _ = regressors.advance(trace.q_meas_m[100:])  # in two chunks, as the live observer feeds it
+    estimator = controller.estimator.state
+    np.testing.assert_array_equal(regressors.z, estimator.z[:, :, :3])
+    for axis in range(2):
+        np.testing.assert_array_equal(g[-1, axis], estimator.regression[[axis, 2 + axis, 4 + axis, 6 + axis], axis])

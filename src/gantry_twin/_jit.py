@@ -36,6 +36,7 @@ KERNEL_MODULES = (
     "controllers/arc.py",
     "controllers/pd.py",
     "simulate.py",
+    "monitor.py",
 )
 
 

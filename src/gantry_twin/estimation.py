@@ -16,7 +16,8 @@ Control-spec section 7:
 The per-sample functions are numba kernels (:mod:`gantry_twin._jit`) on
 float64 arrays that work in place or into preallocated workspaces; the
 functions taking settings objects (:func:`least_squares_step`,
-:func:`project_metric`, :func:`filter_step`) are the convenient public forms.
+:func:`project_metric`) are the convenient public forms; :func:`filter_run`
+runs a filter over a whole signal (the health monitor's use).
 """
 
 from __future__ import annotations
@@ -74,11 +75,17 @@ def filter_advance(z, column, phi, hold, ramp, w_start, slope):
     z[1, column] = phi[1, 0] * w0 + phi[1, 1] * w1 + hold[1] * w_start + ramp[1] * slope
 
 
-def filter_step(z: np.ndarray, disc: FilterDiscretisation, w_start: float, slope: float) -> None:
-    """Advance one filter state z = [w_f, w_f'] (2,) in place over one sample."""
-    column = z.reshape(2, 1)
-    filter_advance(column, 0, disc.phi, disc.hold, disc.ramp, float(w_start), float(slope))
-    z[:] = column[:, 0]
+@kernel
+def filter_run(z, column, phi, hold, ramp, w_start, slope, out):
+    """Advance z[:, column] through len(w_start) samples; out[k] (n, 2) is [w_f, w_f'] after sample k.
+
+    w_start[k], slope[k]: the input at the start of sample k and its slope
+    through it (see :func:`filter_advance`, which does each sample).
+    """
+    for k in range(w_start.shape[0]):
+        filter_advance(z, column, phi, hold, ramp, w_start[k], slope[k])
+        out[k, 0] = z[0, column]
+        out[k, 1] = z[1, column]
 
 
 @kernel

@@ -70,9 +70,9 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from numba import njit
 
-from gantry_twin.estimation import discretise_filter, filtered_acceleration, friction_shape
+from gantry_twin._jit import kernel
+from gantry_twin.estimation import discretise_filter, filter_run, filtered_acceleration, friction_shape
 from gantry_twin.plant import THETA_NAMES
 
 #: Status codes of :attr:`HealthHistory.status` and their names.
@@ -214,23 +214,7 @@ class Baseline:
 # ---------------------------------------------------------------------------------------------
 
 
-@njit(cache=True)
-def _filter_run(phi, hold, ramp, z, w_start, slope):  # pragma: no cover - compiled
-    """Advance z (2,) through len(w_start) samples; returns the states after each (n, 2)."""
-    n = w_start.shape[0]
-    out = np.empty((n, 2))
-    z0, z1 = z[0], z[1]
-    for k in range(n):
-        a = phi[0, 0] * z0 + phi[0, 1] * z1 + hold[0] * w_start[k] + ramp[0] * slope[k]
-        b = phi[1, 0] * z0 + phi[1, 1] * z1 + hold[1] * w_start[k] + ramp[1] * slope[k]
-        z0, z1 = a, b
-        out[k, 0] = z0
-        out[k, 1] = z1
-    z[0], z[1] = z0, z1
-    return out
-
-
-@njit(cache=True)
+@kernel
 def _accumulate(g, weight, first_index, period, acc, moving, blocks, block_moving):  # pragma: no cover
     """Add weight_k g_k g_k^T (g (n, 2, 4)) into per-period sums, sample by sample.
 
@@ -261,6 +245,9 @@ class FilteredRegressors:
     Sample k >= 2 gives g_k (2, 4) = [x_f'', x_f', Sf_f(x'), -1_f] per axis;
     the filters start in steady state at sample 1 (the first with a
     backward-difference velocity), as the estimator starts at its first sample.
+    The velocity is always the backward difference of the positions given:
+    a controller fed another velocity (ideal sensing without difference,
+    velocity noise) filtered a slightly different Sf(x').
     """
 
     def __init__(self, settings: ExcitationSettings, sample_period_s: float) -> None:
@@ -268,7 +255,7 @@ class FilteredRegressors:
         self.slope = settings.friction_slope_s_m
         self.discs = [discretise_filter(2.0 * np.pi * hz, settings.filter_zeta, sample_period_s)
                       for hz in settings.filter_hz]
-        self.z = np.zeros((2, 3, 2))  # axis, signal (q, Sf, 1), state [w_f, w_f']
+        self.z = np.zeros((2, 2, 3))  # axis, state [w_f, w_f'], signal (q, Sf, 1)
         self.previous_q = np.zeros(2)
         self.seen = 0
 
@@ -296,7 +283,7 @@ class FilteredRegressors:
         sf = friction_shape(v, self.slope)
         for axis, disc in enumerate(self.discs):
             lag = 2.0 * disc.zeta / disc.wn_rad_s
-            self.z[axis] = [[q[axis] - lag * v[axis], v[axis]], [sf[axis], 0.0], [1.0, 0.0]]
+            self.z[axis] = [[q[axis] - lag * v[axis], sf[axis], 1.0], [v[axis], 0.0, 0.0]]
 
     def _regressors(self, q, prev, velocity) -> tuple[np.ndarray, np.ndarray]:
         """The one place the estimator's filter functions are used (control-spec section 7)."""
@@ -304,11 +291,13 @@ class FilteredRegressors:
         g = np.empty((n, 2, 4))
         sf = friction_shape(velocity, self.slope)
         zero, one = np.zeros(n), np.ones(n)
+        zq, zs, zc = (np.empty((n, 2)) for _ in range(3))
         for axis, disc in enumerate(self.discs):
-            zq = _filter_run(disc.phi, disc.hold, disc.ramp, self.z[axis, 0], prev[:, axis],
-                             (q[:, axis] - prev[:, axis]) / self.ts)
-            zs = _filter_run(disc.phi, disc.hold, disc.ramp, self.z[axis, 1], sf[:, axis], zero)
-            zc = _filter_run(disc.phi, disc.hold, disc.ramp, self.z[axis, 2], one, zero)
+            z = self.z[axis]  # (2, 3): columns q, Sf, 1, as the estimator keeps them
+            ramp_q = (q[:, axis] - prev[:, axis]) / self.ts
+            filter_run(z, 0, disc.phi, disc.hold, disc.ramp, np.ascontiguousarray(prev[:, axis]), ramp_q, zq)
+            filter_run(z, 1, disc.phi, disc.hold, disc.ramp, np.ascontiguousarray(sf[:, axis]), zero, zs)
+            filter_run(z, 2, disc.phi, disc.hold, disc.ramp, one, zero, zc)
             g[:, axis, 0] = filtered_acceleration(zq[:, 0], zq[:, 1], disc.wn_rad_s, disc.zeta, q[:, axis])
             g[:, axis, 1] = zq[:, 1]
             g[:, axis, 2] = zs[:, 0]
