@@ -340,10 +340,7 @@ class PlantChanges:
         ])
 
 
-NO_CHANGES = PlantChanges()
-
 __all__ = [
-    "NO_CHANGES",
     "CoggingRipple",
     "EncoderGlitch",
     "FrictionDrift",

@@ -441,7 +441,6 @@ class Scenario(_Model):
     duration_s: _range(0.0, DURATION_MAX_S, "s", lo_open=True) = 30.0  # type: ignore[valid-type]
     window_s: Window | None = None
     estimates_window_s: Window | None = None
-    seed: int | None = None
     changes: ChangesSpec = ChangesSpec()
     monitor: MonitorSpec = MonitorSpec()
 

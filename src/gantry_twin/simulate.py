@@ -231,11 +231,6 @@ class ChangeSchedule(NamedTuple):
     hold: np.ndarray
     velocity_noise_m_s: np.ndarray
 
-    @property
-    def empty(self) -> bool:
-        return not (self.damping_n_s_m.shape[0] or self.payload_kg.shape[0] or np.any(self.cogging[:, 0] != 0.0)
-                    or self.offset_m.shape[0] or self.hold.shape[0] or self.velocity_noise_m_s.shape[0])
-
 
 def change_schedule(plant: Plant, changes: PlantChanges | None, t: np.ndarray) -> ChangeSchedule:
     """The loop's per-sample arrays for ``changes`` over the sample times t (N,) s."""
