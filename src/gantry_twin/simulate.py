@@ -263,7 +263,14 @@ def change_schedule(plant: Plant, changes: PlantChanges | None, t: np.ndarray) -
 
 @kernel
 def _change_plant(dof_index, changes, k):
-    """Write sample k's scheduled joint damping, Coulomb level and payload mass into the model."""
+    """Write sample k's scheduled joint damping, Coulomb level and payload mass into the model.
+
+    Only body_mass changes; MuJoCo derives the mass matrix from it at every
+    step. dof_invweight0 (set at compile time, used to scale constraint
+    regularisation) keeps its unloaded value: with this model's stiff friction
+    that changes nothing measurable (tests/test_changes_loop.py compares with a
+    plant compiled with the payload).
+    """
     if changes.damping_n_s_m.shape[0] > 0:
         for i in range(2):
             changes.dof_damping[dof_index[i]] = changes.damping_n_s_m[k, i]
