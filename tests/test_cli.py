@@ -480,3 +480,13 @@ def test_trace_has_no_true_theta_columns_when_the_plant_does_not_change(tmp_path
     assert run_main(["run", str(shipped("no_load_circle")), *SHORT, "--out", str(out)], capsys)[0] == 0
     names = pq.read_table(out / "trace.parquet").column_names
     assert "theta_hat_M1" in names and not any(n.startswith("true_theta") for n in names)
+
+
+@pytest.mark.parametrize("command", [["run"], ["monitor", "no_load_circle"], ["report"]])
+def test_every_long_command_takes_progress_flags(command, monkeypatch):
+    parser = cli.build_parser()
+    assert parser.parse_args([*command, "--no-progress"]).progress is False
+    assert parser.parse_args([*command, "--progress"]).progress is True
+    args = parser.parse_args(command)
+    monkeypatch.setattr(cli.sys.stderr, "isatty", lambda: False)
+    assert args.progress is None and cli._progress_wanted(args) is False

@@ -89,9 +89,14 @@ class ProgressBar:
             self._bar = None
 
 
+def _progress_wanted(args: argparse.Namespace) -> bool:
+    """--progress / --no-progress, else on when stderr is a terminal."""
+    return sys.stderr.isatty() if args.progress is None else args.progress
+
+
 def _progress(args: argparse.Namespace) -> ProgressBar:
-    """The progress bar of a ``run`` (on when stderr is a terminal, unless told)."""
-    return ProgressBar(sys.stderr.isatty() if args.progress is None else args.progress)
+    """The progress bar of a ``run``."""
+    return ProgressBar(_progress_wanted(args))
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -107,12 +112,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--controller", metavar="NAME", help="controller to use instead of the scenario's")
     _add_set(run)
     run.add_argument("--out", metavar="DIR", type=Path, help="output directory (default: runs/<scenario name>/)")
-    run.add_argument(
-        "--progress",
-        action=argparse.BooleanOptionalAction,
-        default=None,
-        help="progress bar on stderr (default: when stderr is a terminal)",
-    )
+    _add_progress(run)
     add_telemetry_arguments(run)
 
     monitor = sub.add_parser("monitor", help="run a scenario with the health monitor and report its alarms")
@@ -122,8 +122,7 @@ def build_parser() -> argparse.ArgumentParser:
     monitor.add_argument("--out", metavar="DIR", type=Path, help="output directory (default: runs/<scenario name>/)")
     monitor.add_argument("--fail-on-alarm", action="store_true",
                          help=f"exit with status {EXIT_ALARM} if the monitor raised any alarm")
-    monitor.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
-                         help="progress bar on stderr (default: when stderr is a terminal)")
+    _add_progress(monitor)
     add_telemetry_arguments(monitor)
 
     validate = sub.add_parser("validate", help="check scenario files without running them")
@@ -139,7 +138,17 @@ def build_parser() -> argparse.ArgumentParser:
         "--jobs", metavar="N", type=int, default=None, help="parallel processes (default: os.cpu_count())"
     )
     _add_set(report, "override a field in every scenario of the matrix, e.g. duration_s=10")
+    _add_progress(report)
     return parser
+
+
+def _add_progress(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--progress",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="progress bar on stderr (default: when stderr is a terminal)",
+    )
 
 
 def _add_set(parser: argparse.ArgumentParser, text: str = "override one scenario field (value parsed as YAML)") -> None:
@@ -335,7 +344,7 @@ def _report(args: argparse.Namespace) -> int:
         raise BadInput(f"--out {args.out}: exists and is not a directory")
     cases = paper_matrix(args.overrides)  # validates every scenario before anything runs
     try:
-        results = run_matrix(cases, jobs=args.jobs or os.cpu_count() or 1, progress=sys.stderr.isatty())
+        results = run_matrix(cases, jobs=args.jobs or os.cpu_count() or 1, progress=_progress_wanted(args))
         path = write_report(results, args.out, args.overrides)
     except Exception as exc:
         if os.environ.get("GANTRY_TWIN_DEBUG"):
