@@ -340,6 +340,42 @@ def test_serve_web_prints_a_url_serves_the_viewer_and_stops_on_ctrl_c():
             process.wait()
 
 
+@pytest.mark.filterwarnings("ignore:RRD file has no footer")  # Ctrl-C ends `rerun --save` before it writes one
+def test_connect_streams_every_sample_to_a_running_rerun_server(tmp_path):
+    """--connect end to end: `rerun --save` listens on a port; what it receives equals the run's trace."""
+    import pyarrow.parquet as pq
+
+    from gantry_twin import cli
+    from gantry_twin.telemetry import _free_port, _wait_for_port, rerun_binary
+
+    port, received = _free_port(), tmp_path / "received.rrd"
+    server = subprocess.Popen(
+        [rerun_binary(), "--port", str(port), "--save", str(received)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert _wait_for_port(port, server, timeout_s=20.0), server.stderr.read()
+        url = f"rerun+http://127.0.0.1:{port}/proxy"
+        short = ["--set", "duration_s=0.3", "--set", "window_s=[0.1,0.3]", "--set", "estimates_window_s=[0.2,0.3]"]
+        out = tmp_path / "out"
+        assert cli.main(["run", "no_load_circle", *short, "--connect", url, "--out", str(out), "--no-progress"]) == 0
+        server.send_signal(signal.SIGINT)  # rerun --save writes as it receives; Ctrl-C ends it
+        assert server.wait(timeout=20) in (0, -signal.SIGINT)
+    finally:
+        if server.poll() is None:
+            server.kill()
+            server.wait()
+    table = pq.read_table(out / "trace.parquet")
+    data = read_rrd(received)
+    eps_c = data["errors/contour/eps_c_um"]
+    np.testing.assert_array_equal(eps_c["time_ns"], np.round(table.column("t_s").to_numpy() * 1e9).astype(np.int64))
+    np.testing.assert_allclose(scalars(data, "errors/contour/eps_c_um")[:, 0], table.column("eps_c_m").to_numpy() * 1e6)
+    m1 = scalars(data, theta_entity("M1") + "/estimate")[:, 0]
+    np.testing.assert_allclose(m1, table.column("theta_hat_M1").to_numpy())
+
+
 def test_health_alarms_are_events_on_the_timeline(tmp_path):
     """A monitored run records each alarm as a text event at its time, and the excitation per axis."""
     import json
