@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import math
-
 import mujoco
 import numpy as np
 import pytest
@@ -55,18 +53,17 @@ def test_friction_drift_equals_an_edited_model_after_the_drift():
 
 @pytest.mark.parametrize("backend", ["compiled", "reference"])
 def test_cogging_is_a_position_periodic_input_force(backend):
-    """Zero-gain PD: the plant driven by cogging alone, against a plain mj_step loop."""
-    ripples = (CoggingRipple("x", 0.5, 0.016), CoggingRipple("y", 0.3, 0.01, 1.0))
-    trace = simulate(Plant(), circle(), TimingLaw(2.0), PD(**ZERO_PD), 0.2, backend=backend,
-                     changes=PlantChanges(cogging=ripples))  # fmt: skip
+    """Zero-gain PD: the plant driven by cogging alone, against a plain mj_step loop fed the public
+    PlantChanges.cogging_force_v (itself checked by hand in test_changes.py)."""
+    changes = PlantChanges(cogging=(CoggingRipple("x", 0.5, 0.016), CoggingRipple("y", 0.3, 0.01, 1.0)))
+    trace = simulate(Plant(), circle(), TimingLaw(2.0), PD(**ZERO_PD), 0.2, backend=backend, changes=changes)
     plant = Plant()
     plant.reset(trace.q_d_m[0], circle().derivatives(np.zeros(1))[1][0] * 2.0)
     q = np.empty_like(trace.q_m)
     for k in range(q.shape[0]):
         q[k] = plant.q_m
         plant.data.ctrl[plant.motor_index] = 0.0
-        plant.data.ctrl[plant.disturbance_index] = [r.amplitude_v * math.sin(2 * math.pi * q[k, r.axis_index]
-                                                    / r.pitch_m + r.phase_rad) for r in ripples]  # fmt: skip
+        plant.data.ctrl[plant.disturbance_index] = changes.cogging_force_v(q[k])
         mujoco.mj_step(plant.model, plant.data)
     np.testing.assert_allclose(trace.q_m, q, rtol=0, atol=1e-15)
     free = simulate(Plant(), circle(), TimingLaw(2.0), PD(**ZERO_PD), 0.2, backend=backend)
