@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from gantry_twin.metrics import contour_metrics, steady_estimates
+from gantry_twin.metrics import contour_metrics, steady_estimates, steady_true_parameters
 from gantry_twin.plant import THETA_NAMES
 from gantry_twin.results import atomic_write, atomic_write_text
 from gantry_twin.scenario import build, load_scenario, shipped
@@ -108,7 +108,7 @@ class CaseResult:
     window_s: tuple[float, float]
     steps: int
     wall_time_s: float
-    true_theta: list[float]
+    true_theta: list[float]  # mean over estimates_window_s (volt units), what the estimates are judged against
     estimates: list[float] | None
     estimates_window_s: tuple[float, float]
     t_eps_s: np.ndarray = field(repr=False)
@@ -172,7 +172,7 @@ def run_case(case: Case) -> CaseResult:
         window_s=metrics.window_s,
         steps=trace.filled,
         wall_time_s=wall,
-        true_theta=[float(v) for v in trace.true_theta],
+        true_theta=[float(v) for v in steady_true_parameters(trace, scenario.estimate_window_s)],
         estimates=None if est is None else [float(v) for v in est],
         estimates_window_s=scenario.estimate_window_s,
         t_eps_s=t_eps,
