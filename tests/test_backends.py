@@ -260,3 +260,24 @@ def test_plant_changes_compiled_equals_reference_and_restore_the_model():
     h = int(round(0.25 / a.sample_period_s))
     np.testing.assert_array_equal(a.q_meas_m[h : h + 3], np.repeat(a.q_meas_m[h - 1 : h], 3, axis=0))
     assert a.true_theta_t[-1, 3] == pytest.approx(0.91) and a.true_theta_t[-1, 0] == pytest.approx(0.12 + 5 / 69)
+
+
+def test_loop_needs_compiling_reads_the_kernel_cache(tmp_path, monkeypatch):
+    """An empty cache means a compile before the first step; numba's index file of the chunk kernel means none."""
+    from gantry_twin import _jit
+    from gantry_twin.simulate import _run_arc_chunk, compiled_available, loop_needs_compiling
+
+    if not compiled_available():
+        pytest.skip("no compiled backend on this machine")
+    monkeypatch.setattr(_jit, "_CACHE_DIR", str(tmp_path))
+    assert loop_needs_compiling(DIARC()) and loop_needs_compiling(PD())
+    index = tmp_path / "gantry_twin_0123" / f"simulate.{_run_arc_chunk.py_func.__qualname__}-400.py311.nbi"
+    index.parent.mkdir()
+    index.write_bytes(b"")
+    assert not loop_needs_compiling(DIARC()) and not loop_needs_compiling(DRC())
+    assert loop_needs_compiling(PD())  # its own kernel is not cached yet
+
+    class MyDIARC(DIARC):  # a subclass runs in the reference loop: nothing to compile
+        pass
+
+    assert not loop_needs_compiling(MyDIARC())

@@ -71,6 +71,13 @@ def kernel(function: F) -> F:
         numba.config.CACHE_DIR = saved
 
 
+def is_cached(function: Callable[..., Any]) -> bool:
+    """True if a compiled version of kernel ``function`` is in the cache (its first call loads, not compiles)."""
+    py = getattr(function, "py_func", function)
+    pattern = f"{py.__module__.rsplit('.', 1)[-1]}.{py.__qualname__}-*.nbi"  # numba's index file of the function
+    return any(Path(_CACHE_DIR).rglob(pattern))
+
+
 _reference_functions: dict[int, types.FunctionType] = {}
 _reference_globals: dict[str, dict[str, Any]] = {}
 

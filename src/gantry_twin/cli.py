@@ -26,7 +26,7 @@ from gantry_twin.scenario import (
     load_scenario,
     shipped,
 )
-from gantry_twin.simulate import Observer, RunInfo, Trace, simulate
+from gantry_twin.simulate import Observer, RunInfo, Trace, loop_needs_compiling, simulate
 from gantry_twin.telemetry import TelemetryError, add_telemetry_arguments, telemetry_observers
 
 PROG = "gantry-twin"
@@ -211,6 +211,8 @@ def _run(args: argparse.Namespace) -> int:
     built = build(scenario, str(path))
     out = _out_dir(args, scenario)
     telemetry = telemetry_observers(args)  # checks every option before anything runs
+    if loop_needs_compiling(built.controller):
+        print(f"{PROG}: compiling the 0.2 ms loop for this machine, once (about 25 s)", file=sys.stderr, flush=True)
     with telemetry:
         try:
             started = time.perf_counter()

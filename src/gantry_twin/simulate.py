@@ -35,7 +35,7 @@ import mujoco
 import numpy as np
 from numba import types
 
-from gantry_twin._jit import kernel
+from gantry_twin._jit import is_cached, kernel
 from gantry_twin._jit import reference as uncompiled
 from gantry_twin.changes import PlantChanges
 from gantry_twin.controllers.arc import CLOCK_LAMBDA_MAX, DARC, DIARC, DRC, arc_step
@@ -406,6 +406,13 @@ def _run_pd_chunk(start, stop, plant, sensor, recording, sample, changes, params
 
 #: The controllers the compiled backend runs (exact types: a subclass may override update()).
 COMPILED_CONTROLLERS = (DRC, DARC, DIARC, PD)
+
+
+def loop_needs_compiling(controller: Controller) -> bool:
+    """True if simulate() with this controller will first compile the loop (about 25 s, once per machine)."""
+    if type(controller) not in COMPILED_CONTROLLERS or not compiled_available():
+        return False
+    return not is_cached(_run_pd_chunk if isinstance(controller, PD) else _run_arc_chunk)
 
 
 def compiled_available() -> bool:
