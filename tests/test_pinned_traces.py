@@ -1,0 +1,74 @@
+"""Behaviour pinned across refactors: every shipped scenario x every built-in controller, 2 s, both backends.
+
+The digests in ``tests/data/trace_digests.json`` were recorded from main
+before the loop was restructured (issue 11); a run that changes any bit of
+any trace array changes its digest. Regenerate them only for an intended
+change of behaviour, and say so in the commit:
+
+    python tests/test_pinned_traces.py --record
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from gantry_twin import simulate
+from gantry_twin.scenario import build, load_scenario, shipped_scenarios
+
+DIGESTS = Path(__file__).parent / "data" / "trace_digests.json"
+CONTROLLERS = ("diarc", "darc", "drc", "pd")
+DURATION_S = 2.0
+#: Windows inside the 2 s run; neither changes the trace.
+OVERRIDES = [f"duration_s={DURATION_S}", "window_s=[0.5, 2.0]", "estimates_window_s=[1.0, 2.0]",
+             "monitor.enable=false"]  # fmt: skip
+FIELDS = ("q_m", "q_meas_m", "q_d_m", "e_m", "eps_n_m", "eps_c_m", "u_v", "disturbance_v", "true_theta")
+
+
+def _digest(values: np.ndarray) -> str:
+    return hashlib.sha256(np.ascontiguousarray(values, dtype=np.float64).tobytes()).hexdigest()[:24]
+
+
+def trace_digests(scenario: str, controller: str, backend: str) -> dict[str, str]:
+    """Per-array sha256 prefixes of a 2 s run's trace."""
+    path = next(p for p in shipped_scenarios() if p.stem == scenario)
+    built = build(load_scenario(path, OVERRIDES, controller), str(path))
+    trace = simulate(built.plant, built.path, built.timing, built.controller, DURATION_S, sensing=built.sensing,
+                     disturbance=built.disturbance, changes=built.changes, backend=backend)  # fmt: skip
+    out = {name: _digest(getattr(trace, name)) for name in FIELDS}
+    out.update({f"state.{key}": _digest(value) for key, value in sorted(trace.controller_state.items())})
+    return out
+
+
+CASES = [(p.stem, c) for p in shipped_scenarios() for c in CONTROLLERS]
+
+
+def _recorded() -> dict[str, dict[str, str]]:
+    return json.loads(DIGESTS.read_text(encoding="utf-8"))
+
+
+@pytest.mark.parametrize(("scenario", "controller"), CASES)
+def test_compiled_trace_is_pinned(scenario, controller):
+    assert trace_digests(scenario, controller, "compiled") == _recorded()[f"{scenario}/{controller}"]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("scenario", "controller"), CASES)
+def test_reference_trace_is_pinned(scenario, controller):
+    assert trace_digests(scenario, controller, "reference") == _recorded()[f"{scenario}/{controller}"]
+
+
+def test_every_shipped_case_is_pinned():
+    assert sorted(_recorded()) == sorted(f"{s}/{c}" for s, c in CASES)
+
+
+if __name__ == "__main__" and "--record" in sys.argv:
+    DIGESTS.parent.mkdir(exist_ok=True)
+    table = {f"{s}/{c}": trace_digests(s, c, "compiled") for s, c in CASES}
+    DIGESTS.write_text(json.dumps(table, indent=1, sort_keys=True) + "\n", encoding="utf-8")
+    print(f"wrote {len(table)} cases to {DIGESTS}")
