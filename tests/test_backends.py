@@ -24,7 +24,7 @@ from gantry_twin.estimation import (
     largest_eigenvalue_exact,
     least_squares_step,
 )
-from gantry_twin.simulate import SimulationError
+from gantry_twin.trace import SimulationError
 
 U_TOLERANCE_V = 1e-9
 TRACE_FIELDS = ("q_m", "q_meas_m", "e_m", "eps_n_m", "eps_c_m", "u_v")

@@ -343,12 +343,13 @@ def test_failure_mid_write_leaves_no_complete_looking_run(tmp_path, capsys, monk
 
 
 def test_run_failure_exit_1(tmp_path, capsys, monkeypatch):
-    from gantry_twin.simulate import SimulationError
+    from gantry_twin import run as run_module
+    from gantry_twin.trace import SimulationError
 
     def fail(*args, **kwargs):
         raise SimulationError("non-finite measurement at t = 0.1 s")
 
-    monkeypatch.setattr(cli, "simulate", fail)
+    monkeypatch.setattr(run_module, "simulate", fail)
     out = tmp_path / "o"
     code, _, err = run_main(["run", str(shipped("no_load_circle")), *SHORT, "--out", str(out)], capsys)
     assert code == 1

@@ -19,7 +19,7 @@ from gantry_twin.monitor import (
     MachineMonitor,
     monitor_trace,
 )
-from gantry_twin.simulate import Trace
+from gantry_twin.trace import Trace
 
 TS = 2.0e-4
 BASE = (0.12, 0.50, 0.50, 0.70, 0.10, 0.15, 0.0, 0.0)

@@ -4,7 +4,8 @@ from gantry_twin.controllers import available, create, register
 from gantry_twin.paths import TimingLaw, circle, paper_ellipse
 from gantry_twin.plant import Payload, Plant, true_parameters
 from gantry_twin.sensing import SensingConfig
-from gantry_twin.simulate import Trace, simulate
+from gantry_twin.simulate import simulate
+from gantry_twin.trace import Trace
 
 __all__ = [
     "Payload",

@@ -8,26 +8,24 @@ field and what is allowed; nothing written); 1 the run itself failed;
 from __future__ import annotations
 
 import argparse
-import json
 import os
-import platform
 import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, NoReturn
 
+from gantry_twin.run import execute, write_run
 from gantry_twin.scenario import (
-    BuiltRun,
     Scenario,
     ScenarioError,
     build,
-    dump_yaml,
     load_scenario,
     shipped,
 )
-from gantry_twin.simulate import Observer, RunInfo, Trace, loop_needs_compiling, simulate
+from gantry_twin.simulate import loop_needs_compiling
 from gantry_twin.telemetry import TelemetryError, add_telemetry_arguments, telemetry_observers
+from gantry_twin.trace import RunInfo, Trace
 
 PROG = "gantry-twin"
 #: The scenario ``run`` uses when none is given.
@@ -229,70 +227,6 @@ def _run(args: argparse.Namespace) -> int:
     if getattr(args, "fail_on_alarm", False) and summary.get("health", {}).get("alarms"):
         return EXIT_ALARM
     return EXIT_OK
-
-
-def execute(built: BuiltRun, observers: Sequence[Observer] = ()) -> Trace:
-    """Simulate a built scenario."""
-    s = built.scenario
-    if built.monitor is not None:
-        # First, so that observers after it (telemetry) see this chunk's alarms.
-        observers = [built.monitor, *observers]
-        for observer in observers:
-            if hasattr(observer, "watch"):
-                observer.watch(built.monitor)
-    return simulate(
-        built.plant,
-        built.path,
-        built.timing,
-        built.controller,
-        duration_s=s.duration_s,
-        sensing=built.sensing,
-        disturbance=built.disturbance,
-        observers=observers,
-        controller_name=s.controller.name,
-        changes=built.changes,
-    )
-
-
-def write_run(out: Path, built: BuiltRun, trace: Trace, wall_time_s: float) -> dict[str, Any]:
-    """Write scenario.yaml, trace.parquet, run_info.json and (last) summary.json into ``out``.
-
-    A stale summary.json is removed first: summary.json present means the
-    other files of that run are complete.
-    """
-    from gantry_twin.results import atomic_write_text, summary, summary_json, trace_table, write_parquet
-
-    scenario = built.scenario
-    health = built.monitor.report() if built.monitor is not None else None
-    data = summary(scenario, trace, scenario.controller.name, health)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "summary.json").unlink(missing_ok=True)
-    if scenario.outputs.trace:
-        write_parquet(out / "trace.parquet", trace_table(trace, scenario.outputs.trace_stride))
-    atomic_write_text(out / "scenario.yaml", dump_yaml(scenario.resolved()))
-    atomic_write_text(out / "run_info.json", json.dumps(_run_info(wall_time_s), indent=2) + "\n")
-    atomic_write_text(out / "summary.json", summary_json(data))
-    return data
-
-
-def _run_info(wall_time_s: float) -> dict[str, Any]:
-    """What differs between two runs of the same scenario (kept out of summary.json)."""
-    from importlib.metadata import PackageNotFoundError, version
-
-    import mujoco
-
-    try:
-        own = version("gantry-twin")
-    except PackageNotFoundError:
-        own = "unknown"
-    return {
-        "wall_time_s": wall_time_s,
-        "finished_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-        "gantry_twin": own,
-        "mujoco": mujoco.__version__,
-        "python": platform.python_version(),
-        "machine": platform.machine(),
-    }
 
 
 def format_summary(data: dict[str, Any], wall_time_s: float, out: Path | None = None) -> str:

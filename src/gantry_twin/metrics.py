@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from gantry_twin.plant import THETA_NAMES
-from gantry_twin.simulate import Trace
+from gantry_twin.trace import Trace
 
 
 @dataclass(frozen=True)

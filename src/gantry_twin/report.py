@@ -29,6 +29,7 @@ import numpy as np
 from gantry_twin.metrics import contour_metrics, steady_estimates, steady_true_parameters
 from gantry_twin.plant import THETA_NAMES
 from gantry_twin.results import atomic_write, atomic_write_text
+from gantry_twin.run import execute
 from gantry_twin.scenario import build, load_scenario, shipped
 
 SET_SCENARIOS = {1: "no_load", 2: "load_5kg", 3: "step_disturbance"}
@@ -154,8 +155,6 @@ def _envelope(t: np.ndarray, x: np.ndarray, bin_size: int) -> tuple[np.ndarray, 
 
 def run_case(case: Case) -> CaseResult:
     """Run one case (in a worker process) and keep what the report needs."""
-    from gantry_twin.cli import execute
-
     scenario = _load(case)
     built = build(scenario, case.scenario_path)
     started = time.perf_counter()

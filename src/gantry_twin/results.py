@@ -29,7 +29,7 @@ import pyarrow.parquet as pq
 from gantry_twin.metrics import contour_metrics, estimate_errors_pct, steady_estimates, steady_true_parameters
 from gantry_twin.plant import AXES, THETA_NAMES
 from gantry_twin.scenario import Scenario
-from gantry_twin.simulate import Trace
+from gantry_twin.trace import Trace
 
 #: Version of the summary.json layout; bumped on any incompatible change.
 SUMMARY_SCHEMA_VERSION = 1

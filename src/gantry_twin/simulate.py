@@ -28,8 +28,7 @@ import glob
 import math
 import os
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
-from typing import Literal, NamedTuple, Protocol
+from typing import Literal, NamedTuple
 
 import mujoco
 import numpy as np
@@ -45,108 +44,10 @@ from gantry_twin.paths import Path, Reference, TimingLaw, contour_error, referen
 from gantry_twin.plant import Plant
 from gantry_twin.sensing import Encoder, SensingConfig
 from gantry_twin.taskframe import task_errors
+from gantry_twin.trace import Observer, RunInfo, SimulationError, Trace
 
 #: A disturbance timeline: times (N,) s -> input disturbance (N, 2) volts.
 Disturbance = Callable[[np.ndarray], np.ndarray]
-
-
-class SimulationError(RuntimeError):
-    """The run cannot go on (a non-finite measurement or command)."""
-
-
-@dataclass
-class Trace:
-    """Everything a run produced, one row per 0.2 ms sample (SI units).
-
-    t_s (N,); q_m true position, q_meas_m measured, q_d_m desired, e_m = q - q_d
-    (N, 2); eps_n_m, eps_c_m (N,) approximate and true contouring error;
-    u_v command, disturbance_v input disturbance (N, 2) volts;
-    controller_state: what ``state_for_logging`` returned, stacked over time
-    (DIARC: theta_hat (N, 8), dc_hat (N, 2), gamma_diag (N, 8),
-    gamma_lambda_max (N,)); true_theta (8,) volt units from the model at t = 0.
-    true_theta_t (N, 8): the true theta at each sample when the run's
-    :class:`~gantry_twin.changes.PlantChanges` move it (None otherwise: it is
-    ``true_theta`` throughout; :meth:`true_parameters_t` gives it either way).
-    ``filled``: how many samples hold data (all of them after the run).
-    """
-
-    t_s: np.ndarray
-    q_m: np.ndarray
-    q_meas_m: np.ndarray
-    q_d_m: np.ndarray
-    e_m: np.ndarray
-    eps_n_m: np.ndarray
-    eps_c_m: np.ndarray
-    u_v: np.ndarray
-    disturbance_v: np.ndarray
-    true_theta: np.ndarray
-    controller_state: dict[str, np.ndarray] = field(default_factory=dict)
-    filled: int = 0
-    true_theta_t: np.ndarray | None = None
-
-    def true_parameters_t(self) -> np.ndarray:
-        """The true theta at each sample (N, 8), volt units (a read-only broadcast if nothing changes)."""
-        if self.true_theta_t is not None:
-            return self.true_theta_t
-        return np.broadcast_to(self.true_theta, (self.t_s.size, 8))
-
-    @classmethod
-    def allocate(cls, ref: Reference, disturbance_v: np.ndarray, true_theta: np.ndarray) -> Trace:
-        n = ref.t_s.size
-        nan2 = np.full((n, 2), np.nan)
-        return cls(
-            t_s=ref.t_s,
-            q_m=nan2.copy(),
-            q_meas_m=nan2.copy(),
-            q_d_m=ref.q_d,
-            e_m=nan2.copy(),
-            eps_n_m=np.full(n, np.nan),
-            eps_c_m=np.full(n, np.nan),
-            u_v=nan2.copy(),
-            disturbance_v=disturbance_v,
-            true_theta=true_theta,
-        )
-
-    @property
-    def sample_period_s(self) -> float:
-        return float(self.t_s[1] - self.t_s[0]) if self.t_s.size > 1 else 0.0
-
-    def allocate_state(self, state: dict[str, np.ndarray]) -> None:
-        """NaN buffers for each logged key not yet allocated, shaped like one sample of ``state``."""
-        n = self.t_s.size
-        for key, value in state.items():
-            if key not in self.controller_state:
-                value = np.asarray(value, dtype=float)
-                self.controller_state[key] = np.full((n,) if value.size == 1 else (n, *value.shape), np.nan)
-
-    def record_state(self, k: int, state: dict[str, np.ndarray]) -> None:
-        """Store one sample of the controller's logged state."""
-        self.allocate_state(state)
-        buffers = self.controller_state
-        for key, value in state.items():
-            buffers[key][k] = np.asarray(value, dtype=float).reshape(buffers[key][k].shape)
-
-
-@dataclass(frozen=True)
-class RunInfo:
-    """What observers learn before the first sample."""
-
-    plant: Plant
-    path: Path
-    timing: TimingLaw
-    reference: Reference
-    duration_s: float
-    controller_name: str
-
-
-class Observer(Protocol):
-    """Watches a run chunk by chunk; must not change the trace."""
-
-    def on_start(self, run: RunInfo, trace: Trace) -> None: ...
-
-    def on_chunk(self, trace: Trace, start: int, stop: int) -> None: ...
-
-    def on_end(self, trace: Trace) -> None: ...
 
 
 def _finish_chunk(trace: Trace, ref: Reference, path: Path, start: int, stop: int) -> None:

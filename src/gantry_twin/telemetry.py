@@ -64,7 +64,7 @@ import rerun.blueprint as rrb
 
 from gantry_twin.paths import contour_error
 from gantry_twin.plant import THETA_NAMES, Plant
-from gantry_twin.simulate import Observer, RunInfo, Trace
+from gantry_twin.trace import Observer, RunInfo, Trace
 
 #: Default magnification of the contour error in the XY view (1 um drawn as 1 mm).
 ERROR_MAGNIFICATION = 10_000.0
