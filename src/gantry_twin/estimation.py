@@ -31,6 +31,9 @@ from scipy.linalg import expm
 
 from gantry_twin._jit import kernel
 
+#: The slope of the paper's smooth Coulomb shape Sf(v) = (2/pi) atan(9000 v), s/m (section 5).
+FRICTION_SLOPE_S_M = 9000.0
+
 
 @dataclass(frozen=True)
 class FilterDiscretisation:
@@ -100,7 +103,7 @@ def filter_acceleration(z: np.ndarray, disc: FilterDiscretisation, w_now: float)
 
 
 @kernel
-def friction_shape(v_m_s, slope_s_per_m=9000.0):
+def friction_shape(v_m_s, slope_s_per_m=FRICTION_SLOPE_S_M):
     """Sf(v) = (2/pi) atan(9000 v): the controller's smooth Coulomb model (m/s; a number or an array)."""
     return (2.0 / np.pi) * np.arctan(slope_s_per_m * v_m_s)
 

@@ -72,7 +72,13 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from gantry_twin._jit import kernel
-from gantry_twin.estimation import discretise_filter, filter_run, filtered_acceleration, friction_shape
+from gantry_twin.estimation import (
+    FRICTION_SLOPE_S_M,
+    discretise_filter,
+    filter_run,
+    filtered_acceleration,
+    friction_shape,
+)
 from gantry_twin.plant import THETA_NAMES
 
 #: Status codes of :attr:`HealthHistory.status` and their names.
@@ -114,7 +120,7 @@ class ExcitationSettings:
     period_s: float = 0.01
     filter_hz: tuple[float, float] = (250.0, 150.0)
     filter_zeta: float = 0.7
-    friction_slope_s_m: float = 9000.0
+    friction_slope_s_m: float = FRICTION_SLOPE_S_M
     sliding_speed_m_s: float = 1.0e-3
     scale: tuple[float, ...] = (0.12, 0.50, 0.50, 0.70, 0.10, 0.15, 0.10, 0.10)
     min_parameter_v: float = 0.01

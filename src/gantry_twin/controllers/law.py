@@ -19,7 +19,7 @@ from typing import NamedTuple
 import numpy as np
 
 from gantry_twin._jit import kernel
-from gantry_twin.estimation import clip, friction_shape
+from gantry_twin.estimation import FRICTION_SLOPE_S_M, clip, friction_shape
 from gantry_twin.taskframe import error_gains, sliding_variable
 
 #: The paper's initial estimates theta0 (section 5), volt units.
@@ -44,7 +44,7 @@ class ArcGains:
 
     lambda_1_s: tuple[float, float] = (100.0, 30.0)
     ks_v_s_m: tuple[float, float] = (100.0, 60.0)
-    friction_slope_s_m: float = 9000.0
+    friction_slope_s_m: float = FRICTION_SLOPE_S_M
     theta0: tuple[float, ...] = THETA0
     theta_min: tuple[float, ...] = THETA_MIN
     theta_max: tuple[float, ...] = THETA_MAX
