@@ -79,7 +79,7 @@ from gantry_twin.estimation import (
     filtered_acceleration,
     friction_shape,
 )
-from gantry_twin.plant import THETA_NAMES
+from gantry_twin.plant import THETA_NAMES, THETA_UNITS
 
 #: Status codes of :attr:`HealthHistory.status` and their names.
 STATUS_NAMES: tuple[str, ...] = ("baseline", "not excited", "ok", "drifting", "alarm")
@@ -92,7 +92,6 @@ COLUMN_OF = np.array([0, 0, 1, 1, 2, 2, 3, 3])
 #: The CUSUM statistics are capped at CUSUM_CAP * h, so that an alarm clears within about
 #: CUSUM_CAP * h / (1 - |y|) seconds once the estimate is back inside the tolerance.
 CUSUM_CAP = 2.0
-UNITS = ("V/(m/s^2)", "V/(m/s^2)", "V/(m/s)", "V/(m/s)", "V", "V", "V", "V")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -584,7 +583,7 @@ class MachineMonitor:
         pct = None if j in ABSOLUTE_PARAMETERS else 100.0 * change / base
         self._open_alarm[j] = len(self._alarms)
         self._alarms.append(Alarm(THETA_NAMES[j], t, "up" if side == 0 else "down", float(estimate), base,
-                                  change, pct, UNITS[j]))
+                                  change, pct, THETA_UNITS[j]))
 
 
 def monitor_trace(trace, excitation: ExcitationSettings | None = None, health: HealthSettings | None = None,
