@@ -15,6 +15,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, NoReturn
 
+from gantry_twin.monitor import Alarm
 from gantry_twin.run import execute, write_run
 from gantry_twin.scenario import (
     Scenario,
@@ -256,11 +257,9 @@ def format_health(health: dict[str, Any]) -> list[str]:
     alarms = health["alarms"]
     lines = [f"health: {len(alarms)} alarm{'' if len(alarms) == 1 else 's'}"
              + (f" (baseline: {health['baseline']['source']})" if "baseline" in health else "")]  # fmt: skip
-    for a in alarms:
-        pct = "" if a["change_pct"] is None else f" ({a['change_pct']:+.1f} %)"
+    for a in alarms:  # summary.json's alarms hold exactly an Alarm's fields
         cleared = "" if a["cleared_s"] is None else f", cleared at {a['cleared_s']:.2f} s"
-        lines.append(f"  ALARM t = {a['time_s']:.2f} s: {a['parameter']} {a['direction']} {a['change']:+.4g} "
-                     f"{a['unit']}{pct}: estimate {a['estimate']:.4g}, baseline {a['baseline']:.4g}{cleared}")
+        lines.append(f"  ALARM {Alarm(**a).describe()}{cleared}")
     status = health["status"]
     if status:
         lines.append("  status at the end: " + ", ".join(f"{n} {s}" for n, s in status.items()))

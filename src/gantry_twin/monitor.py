@@ -66,7 +66,7 @@ the tolerance long enough to use up the accumulated evidence).
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -198,17 +198,6 @@ class Baseline:
         if missing:
             raise ValueError(f"baseline: missing {', '.join(missing)} (need all of {', '.join(THETA_NAMES)})")
         return cls(tuple(float(values[n]) for n in THETA_NAMES), source)
-
-    @classmethod
-    def from_trace(cls, trace, window_s: tuple[float, float]) -> Baseline:
-        """Mean DIARC estimate over a window of a commissioning trace."""
-        theta = trace.controller_state.get("theta_hat")
-        if theta is None:
-            raise ValueError("baseline: the commissioning trace has no theta_hat (run it with DIARC)")
-        mask = (trace.t_s >= window_s[0]) & (trace.t_s < window_s[1])
-        if not mask.any():
-            raise ValueError(f"baseline.window_s: {window_s} holds no sample of the commissioning run")
-        return cls(tuple(float(x) for x in theta[mask].mean(axis=0)), f"commissioning run {window_s} s")
 
     def as_dict(self) -> dict[str, float]:
         return dict(zip(THETA_NAMES, self.theta, strict=True))
@@ -595,7 +584,3 @@ def monitor_trace(trace, excitation: ExcitationSettings | None = None, health: H
     monitor.on_end(trace)
     return monitor.report()
 
-
-def alarm_lines(alarms: Sequence[Alarm]) -> list[str]:
-    """One readable line per alarm, for a run summary."""
-    return [a.describe() + ("" if a.cleared_s is None else f"; cleared at {a.cleared_s:.2f} s") for a in alarms]
