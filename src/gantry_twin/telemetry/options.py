@@ -77,11 +77,6 @@ class TelemetryObservers(list):
         self.server = server
         self.out = out
 
-    @property
-    def url(self) -> str | None:
-        """The web viewer's URL with --serve-web, else None."""
-        return self.server.url if self.server else None
-
     def close(self, wait: bool = True) -> None:
         try:
             if self.rerun_observer is not None:
