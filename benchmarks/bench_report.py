@@ -2,12 +2,14 @@
 
     PYTHONPATH=src python benchmarks/bench_report.py [--processes 2] [--duration 30] [--cold]
 
-The runs of the paper's Tables 1-4: C1 DARC, C2 DIARC, C3 DRC on the circle
-(2 rad/s) and the ellipse (3 rad/s) for Set 1 (no load), Set 2 (5 kg
-payload) and Set 3 (+0.6 V on Y from 1.86 s to 4.86 s), C3 not on Set 3:
-16 runs, paper settings, default sensing, ``on_path`` start. They are spread
-over a ProcessPoolExecutor (spawned workers); the wall time covers starting
-the workers, imports, loading the compiled kernels and every run.
+The runs of the paper's Tables 1-4, as ``gantry-twin report`` runs them
+(:func:`gantry_twin.report.paper_matrix`: the shipped scenarios, C1 DARC,
+C2 DIARC, C3 DRC on the circle and the ellipse for Sets 1-3, C3 not on Set 3;
+16 runs, contour metrics over the scenarios' windows). ``--duration`` other
+than 30 must leave room for those windows (Set 3's end at 6.5 s). The runs
+are spread over a ProcessPoolExecutor (spawned workers); the wall time
+covers starting the workers, imports, loading the compiled kernels and
+every run.
 ``--cold`` first empties a private numba cache, so the figure includes
 compiling the kernels (in each worker) and shows that cost separately.
 """
@@ -15,68 +17,38 @@ compiling the kernels (in each worker) and shows that cost separately.
 from __future__ import annotations
 
 import argparse
-import math
 import multiprocessing
 import os
 import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass
+from dataclasses import astuple
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # the workers import the package inside run(), where it is timed
+    from gantry_twin.report import Case
+
+#: The paper's own columns (the report adds C2r, DIARC with the recommended estimator).
+PAPER_LABELS = ("C1", "C2", "C3")
 
 
-@dataclass(frozen=True)
-class RunSpec:
-    """One paper run: controller (darc, diarc, drc), contour, load set (1, 2, 3), duration s."""
-
-    controller: str
-    contour: str
-    load_set: int
-    duration_s: float
-
-
-def paper_runs(duration_s: float) -> list[RunSpec]:
-    """The 16 runs: 3 controllers x 2 contours x Sets 1-2, and DARC, DIARC on Set 3."""
-    runs = []
-    for load_set in (1, 2, 3):
-        for contour in ("circle", "ellipse"):
-            for controller in ("darc", "diarc", "drc"):
-                if not (load_set == 3 and controller == "drc"):
-                    runs.append(RunSpec(controller, contour, load_set, duration_s))
-    return runs
-
-
-def step_on_y(t):  # noqa: ANN001, ANN201
-    """Set 3: +0.6 V on the Y input from 1.86 s to 4.86 s."""
-    import numpy as np
-
-    d = np.zeros((t.size, 2))
-    d[(t >= 1.86) & (t < 4.86), 1] = 0.6
-    return d
-
-
-def run(spec: RunSpec) -> dict:
-    """Run one spec; return its contour metrics over the last period and its times."""
+def run(fields: tuple) -> dict:
+    """Run one case of the report's matrix (its fields: a Case would import the package when unpickled)."""
     t0 = time.perf_counter()
-    from gantry_twin import Payload, Plant, TimingLaw, circle, paper_ellipse, simulate
-    from gantry_twin.controllers import create
-    from gantry_twin.metrics import contour_metrics
+    from gantry_twin.report import Case, run_case
 
     t1 = time.perf_counter()
-    path, rate = (circle(), 2.0) if spec.contour == "circle" else (paper_ellipse(), 3.0)
-    plant = Plant(Payload(5.0) if spec.load_set == 2 else None)
-    disturbance = step_on_y if spec.load_set == 3 else None
-    trace = simulate(plant, path, TimingLaw(rate), create(spec.controller), spec.duration_s, disturbance=disturbance)
-    period = 2.0 * math.pi / rate
-    m = contour_metrics(trace, (spec.duration_s - period, spec.duration_s))
+    case = Case(*fields)
+    result = run_case(case)
     t2 = time.perf_counter()
-    return {"spec": spec, "rms_um": m.rms_um, "max_um": m.max_um, "import_s": t1 - t0, "run_s": t2 - t1}
+    return {"case": case, "rms_um": result.rms_um, "max_um": result.max_um, "import_s": t1 - t0, "run_s": t2 - t1}
 
 
-def run_all(specs: list[RunSpec], processes: int) -> tuple[float, list[dict]]:
-    """Wall time of all specs over ``processes`` spawned workers, and the results in order."""
+def run_all(cases: list[Case], processes: int) -> tuple[float, list[dict]]:
+    """Wall time of all cases over ``processes`` spawned workers, and the results in order."""
     t0 = time.perf_counter()
     with ProcessPoolExecutor(processes, mp_context=multiprocessing.get_context("spawn")) as pool:
-        results = list(pool.map(run, specs))
+        results = list(pool.map(run, [astuple(case) for case in cases]))
     return time.perf_counter() - t0, results
 
 
@@ -86,20 +58,22 @@ def main() -> None:
     parser.add_argument("--duration", type=float, default=30.0, help="simulated seconds per run")
     parser.add_argument("--cold", action="store_true", help="start from an empty numba cache (includes compiling)")
     args = parser.parse_args()
-    specs = paper_runs(args.duration)
+    from gantry_twin.report import paper_matrix
+
+    cases = paper_matrix([f"duration_s={args.duration:g}"], labels=PAPER_LABELS)
     with tempfile.TemporaryDirectory() as cache:
         if args.cold:
             os.environ["NUMBA_CACHE_DIR"] = cache  # inherited by the spawned workers
-        wall, results = run_all(specs, args.processes)
+        wall, results = run_all(cases, args.processes)
     print(f"{'run':<28}{'rms um':>8}{'max um':>8}{'import+load s':>15}{'run s':>8}")
     for r in results:
-        s = r["spec"]
-        label = f"{s.controller} {s.contour} set {s.load_set}"
+        c = r["case"]
+        label = f"{c.controller} {c.contour} set {c.set_id}"
         print(f"{label:<28}{r['rms_um']:8.2f}{r['max_um']:8.2f}{r['import_s']:15.2f}{r['run_s']:8.2f}")
     total_run = sum(r["run_s"] for r in results)
-    print(f"\n{len(specs)} runs of {args.duration:g} s on {args.processes} processes: wall {wall:.1f} s "
+    print(f"\n{len(cases)} runs of {args.duration:g} s on {args.processes} processes: wall {wall:.1f} s "
           f"({'empty numba cache: compiling included' if args.cold else 'compiled kernels loaded from the cache'}); "
-          f"sum of run times {total_run:.1f} s, {len(specs) * args.duration / wall:.0f}x real time overall")
+          f"sum of run times {total_run:.1f} s, {len(cases) * args.duration / wall:.0f}x real time overall")
 
 
 if __name__ == "__main__":

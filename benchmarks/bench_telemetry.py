@@ -11,8 +11,8 @@ The observer's cost per sample depends on the loop's speed: it sends at most
 every 0.2 s of wall time, so a fast loop gets large, cheap batches and a slow
 loop one send per chunk. ``--emulate-us 26`` also replays a recorded trace
 through the observer with a busy-wait of that many microseconds per sample in
-place of the physics (a loop ~10x faster than today's), with and without
-recording, and prints that ratio too.
+place of the physics (the observer's cost on a loop of another speed), with
+and without recording, and prints that ratio too.
 """
 
 from __future__ import annotations

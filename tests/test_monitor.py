@@ -9,12 +9,12 @@ import pytest
 
 from gantry_twin import Plant, SensingConfig, TimingLaw, circle, simulate
 from gantry_twin.controllers import create
+from gantry_twin.excitation import FilteredRegressors
 from gantry_twin.monitor import (
     ALARM,
     NOT_EXCITED,
     Baseline,
     ExcitationSettings,
-    FilteredRegressors,
     HealthSettings,
     MachineMonitor,
     monitor_trace,

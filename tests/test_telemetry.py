@@ -27,12 +27,13 @@ from gantry_twin.telemetry import (
     add_telemetry_arguments,
     gantry_bodies,
     magnified_contour_m,
-    main,
     telemetry_observers,
     theta_entity,
 )
 
 SRC = Path(__file__).resolve().parents[1] / "src"
+#: `gantry-twin run` options for a run of 0.1 s (the metric windows must lie inside it).
+SHORT_RUN = ["--set", "duration_s=0.1", "--set", "window_s=[0.05,0.1]", "--set", "estimates_window_s=[0.05,0.1]"]
 
 
 def run(controller: str = "diarc", duration_s: float = 0.5, payload_kg: float = 5.0, observers=()):
@@ -247,12 +248,12 @@ def test_gantry_boxes_follow_mujoco_kinematics():
 
 
 def test_realtime_pacer_sleeps_to_the_wall_clock(monkeypatch):
-    import gantry_twin.telemetry as telemetry
+    import gantry_twin.telemetry.sinks as sinks
 
     clock = {"now": 100.0}
     sleeps = []
-    monkeypatch.setattr(telemetry.time, "perf_counter", lambda: clock["now"])
-    monkeypatch.setattr(telemetry.time, "sleep", sleeps.append)
+    monkeypatch.setattr(sinks.time, "perf_counter", lambda: clock["now"])
+    monkeypatch.setattr(sinks.time, "sleep", sleeps.append)
 
     class FakeTrace:
         sample_period_s = 0.0002
@@ -298,22 +299,27 @@ def test_bad_sink_options_are_one_line_errors(tmp_path):
     assert not (tmp_path / "run.txt").exists()
 
 
-def test_viewer_without_display_says_so_in_one_line(monkeypatch, capsys):
+def test_viewer_without_display_says_so_in_one_line(monkeypatch, capsys, tmp_path):
     monkeypatch.delenv("DISPLAY", raising=False)
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
     monkeypatch.setattr(sys, "platform", "linux")
     with pytest.raises(TelemetryError) as error:
         telemetry_observers(namespace(viewer=True))
     assert "\n" not in str(error.value) and "--serve-web" in str(error.value) and "display" in str(error.value)
-    assert main(["--viewer", "--duration", "0.01"]) == 2
+    from gantry_twin import cli
+
+    out = tmp_path / "out"
+    assert cli.main(["run", "no_load_circle", *SHORT_RUN, "--viewer", "--out", str(out), "--no-progress"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "--serve-web" in err and "Traceback" not in err
+    assert not out.exists()  # checked before anything runs
 
 
-def test_serve_web_prints_a_url_serves_the_viewer_and_stops_on_ctrl_c():
+def test_serve_web_prints_a_url_serves_the_viewer_and_stops_on_ctrl_c(tmp_path):
     env = {**os.environ, "PYTHONPATH": f"{SRC}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"}
+    command = [sys.executable, "-m", "gantry_twin.cli", "run", "no_load_circle", *SHORT_RUN, "--controller", "drc"]
     process = subprocess.Popen(
-        [sys.executable, "-m", "gantry_twin.telemetry", "--serve-web", "--duration", "0.1", "--controller", "drc"],
+        [*command, "--serve-web", "--out", str(tmp_path / "out"), "--no-progress"],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -328,7 +334,10 @@ def test_serve_web_prints_a_url_serves_the_viewer_and_stops_on_ctrl_c():
             assert reply.status == 200
             page = reply.read().decode("utf-8", "replace")
         assert "<html" in page.lower() and "rerun" in page.lower()
-        assert "Still serving" in process.stdout.readline()  # the run finished and the server waits
+        after = [process.stdout.readline()]  # the run's summary, then: the run finished and the server waits
+        while after[-1] and "Still serving" not in after[-1] and len(after) < 10:
+            after.append(process.stdout.readline())
+        assert "Still serving" in after[-1] and "with drc" in after[0], after
         process.send_signal(signal.SIGINT)
         assert process.wait(timeout=20) == 0
         assert "Traceback" not in process.stderr.read()
@@ -346,9 +355,9 @@ def test_connect_streams_every_sample_to_a_running_rerun_server(tmp_path):
     import pyarrow.parquet as pq
 
     from gantry_twin import cli
-    from gantry_twin.telemetry import _free_port, _wait_for_port, rerun_binary
+    from gantry_twin.telemetry import free_port, local_grpc_url, rerun_binary, wait_for_port
 
-    port, received = _free_port(), tmp_path / "received.rrd"
+    port, received = free_port(), tmp_path / "received.rrd"
     server = subprocess.Popen(
         [rerun_binary(), "--port", str(port), "--save", str(received)],
         stdout=subprocess.DEVNULL,
@@ -356,8 +365,8 @@ def test_connect_streams_every_sample_to_a_running_rerun_server(tmp_path):
         text=True,
     )
     try:
-        assert _wait_for_port(port, server, timeout_s=20.0), server.stderr.read()
-        url = f"rerun+http://127.0.0.1:{port}/proxy"
+        assert wait_for_port(port, server, timeout_s=20.0), server.stderr.read()
+        url = local_grpc_url(port)
         short = ["--set", "duration_s=0.3", "--set", "window_s=[0.1,0.3]", "--set", "estimates_window_s=[0.2,0.3]"]
         out = tmp_path / "out"
         assert cli.main(["run", "no_load_circle", *short, "--connect", url, "--out", str(out), "--no-progress"]) == 0

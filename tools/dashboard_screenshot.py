@@ -23,7 +23,7 @@ import urllib.request
 
 import websockets
 
-from gantry_twin.telemetry import _free_port, _wait_for_port, rerun_binary
+from gantry_twin.telemetry import LOCALHOST, TelemetryError, WebViewerServer, free_port
 
 
 async def _capture(ws_url: str, page_url: str, wait_s: float, width: int, height: int) -> bytes:
@@ -53,29 +53,15 @@ def main() -> int:
     parser.add_argument("--size", default="1600x1000")
     args = parser.parse_args()
     width, height = (int(v) for v in args.size.split("x"))
-    grpc_port, web_port, debug_port = _free_port(), _free_port(), _free_port()
-    server = subprocess.Popen(
-        [
-            rerun_binary(),
-            "--serve-web",
-            "--bind",
-            "127.0.0.1",
-            "--port",
-            str(grpc_port),
-            "--web-viewer-port",
-            str(web_port),
-            args.recording,
-        ],
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
+    debug_port = free_port()
+    try:
+        server = WebViewerServer(timeout_s=30.0, recordings=[args.recording])
+    except TelemetryError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 1
+    page_url = server.url
     browser = None
     try:
-        if not _wait_for_port(web_port, server, 30.0):
-            print("error: the rerun web viewer did not start", file=sys.stderr)
-            return 1
-        query = urllib.parse.urlencode({"url": f"rerun+http://127.0.0.1:{grpc_port}/proxy"})
-        page_url = f"http://127.0.0.1:{web_port}/?{query}"
         browser = subprocess.Popen(
             [
                 "chromium",
@@ -91,7 +77,7 @@ def main() -> int:
                 "--enable-unsafe-swiftshader",
                 f"--user-data-dir={tempfile.mkdtemp()}",
                 f"--window-size={width},{height}",
-                "--remote-debugging-address=127.0.0.1",
+                f"--remote-debugging-address={LOCALHOST}",
                 f"--remote-debugging-port={debug_port}",
                 "about:blank",
             ],
@@ -101,7 +87,7 @@ def main() -> int:
         deadline = time.monotonic() + 30
         while True:
             try:
-                with urllib.request.urlopen(f"http://127.0.0.1:{debug_port}/json/list", timeout=2) as reply:
+                with urllib.request.urlopen(f"http://{LOCALHOST}:{debug_port}/json/list", timeout=2) as reply:
                     pages = [p for p in json.load(reply) if p.get("type") == "page"]
                 if pages:
                     break
@@ -117,10 +103,10 @@ def main() -> int:
         print(f"wrote {args.out} ({len(png)} bytes)")
         return 0
     finally:
-        for process in (browser, server):
-            if process is not None and process.poll() is None:
-                process.terminate()
-                process.wait(timeout=10)
+        if browser is not None and browser.poll() is None:
+            browser.terminate()
+            browser.wait(timeout=10)
+        server.stop()
 
 
 if __name__ == "__main__":

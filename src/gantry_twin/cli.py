@@ -2,7 +2,8 @@
 
 Exit codes: 0 success; 2 bad input (one line on stderr naming the file, the
 field and what is allowed; nothing written); 1 the run itself failed;
-3 ``monitor --fail-on-alarm`` and the health monitor raised an alarm.
+3 ``monitor --fail-on-alarm`` and the health monitor raised an alarm;
+130 interrupted (Ctrl-C).
 """
 
 from __future__ import annotations
@@ -15,7 +16,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, NoReturn
 
-from gantry_twin.run import execute, write_run
+from gantry_twin.monitor import Alarm
+from gantry_twin.run import RUN_FILES, execute, write_run
 from gantry_twin.scenario import (
     Scenario,
     ScenarioError,
@@ -30,11 +32,14 @@ from gantry_twin.trace import RunInfo, Trace
 PROG = "gantry-twin"
 #: The scenario ``run`` uses when none is given.
 DEFAULT_SCENARIO = "no_load_circle"
+#: Where outputs go by default: RUNS_DIR/<scenario name>/, RUNS_DIR/report/.
+RUNS_DIR = Path("runs")
 
 EXIT_OK = 0
 EXIT_RUN_FAILED = 1
 EXIT_BAD_INPUT = 2
 EXIT_ALARM = 3
+EXIT_INTERRUPTED = 130  # 128 + SIGINT, as shells report it
 
 
 class BadInput(Exception):
@@ -107,17 +112,17 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument(
         "scenario", nargs="?", help=f"scenario YAML file or shipped scenario name (default: {DEFAULT_SCENARIO})"
     )
-    run.add_argument("--controller", metavar="NAME", help="controller to use instead of the scenario's")
+    _add_controller(run)
     _add_set(run)
-    run.add_argument("--out", metavar="DIR", type=Path, help="output directory (default: runs/<scenario name>/)")
+    _add_out(run)
     _add_progress(run)
     add_telemetry_arguments(run)
 
     monitor = sub.add_parser("monitor", help="run a scenario with the health monitor and report its alarms")
     monitor.add_argument("scenario", help="scenario YAML file or shipped scenario name")
-    monitor.add_argument("--controller", metavar="NAME", help="controller to use instead of the scenario's")
+    _add_controller(monitor)
     _add_set(monitor)
-    monitor.add_argument("--out", metavar="DIR", type=Path, help="output directory (default: runs/<scenario name>/)")
+    _add_out(monitor)
     monitor.add_argument("--fail-on-alarm", action="store_true",
                          help=f"exit with status {EXIT_ALARM} if the monitor raised any alarm")
     _add_progress(monitor)
@@ -125,12 +130,13 @@ def build_parser() -> argparse.ArgumentParser:
 
     validate = sub.add_parser("validate", help="check scenario files without running them")
     validate.add_argument("scenario", nargs="+", help="scenario YAML file(s)")
-    validate.add_argument("--controller", metavar="NAME", help="controller to use instead of the scenario's")
+    _add_controller(validate)
     _add_set(validate)
 
     report = sub.add_parser("report", help="run the paper's matrix and write a Markdown report with figures")
+    default_report = RUNS_DIR / "report"
     report.add_argument(
-        "--out", metavar="DIR", type=Path, default=Path("runs/report"), help="output directory (default: runs/report/)"
+        "--out", metavar="DIR", type=Path, default=default_report, help=f"output directory (default: {default_report}/)"
     )
     report.add_argument(
         "--jobs", metavar="N", type=int, default=None, help="parallel processes (default: os.cpu_count())"
@@ -146,6 +152,16 @@ def _add_progress(parser: argparse.ArgumentParser) -> None:
         action=argparse.BooleanOptionalAction,
         default=None,
         help="progress bar on stderr (default: when stderr is a terminal)",
+    )
+
+
+def _add_controller(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--controller", metavar="NAME", help="controller to use instead of the scenario's")
+
+
+def _add_out(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--out", metavar="DIR", type=Path, help=f"output directory (default: {RUNS_DIR}/<scenario name>/)"
     )
 
 
@@ -171,7 +187,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:
         print(f"{PROG}: interrupted", file=sys.stderr)
-        return 130
+        return EXIT_INTERRUPTED
 
 
 def _scenario_path(arg: str | None) -> Path:
@@ -194,10 +210,24 @@ def _validate(args: argparse.Namespace) -> int:
 
 
 def _out_dir(args: argparse.Namespace, scenario: Scenario) -> Path:
-    out = args.out or (Path(scenario.outputs.dir) if scenario.outputs.dir else Path("runs") / str(scenario.name))
+    out = args.out or (Path(scenario.outputs.dir) if scenario.outputs.dir else RUNS_DIR / str(scenario.name))
+    return _checked_out(out)
+
+
+def _checked_out(out: Path) -> Path:
+    """An output directory that exists or can be made (BadInput if a file is in the way)."""
     if out.exists() and not out.is_dir():
         raise BadInput(f"--out {out}: exists and is not a directory")
     return out
+
+
+def _failed(what: str, exc: Exception) -> int:
+    """One line on stderr for a run or report that failed (not the user's input); GANTRY_TWIN_DEBUG re-raises."""
+    if os.environ.get("GANTRY_TWIN_DEBUG"):
+        raise exc
+    message = str(exc).splitlines()[0] if str(exc) else ""
+    print(f"{PROG}: {what} failed: {type(exc).__name__}: {message}", file=sys.stderr)
+    return EXIT_RUN_FAILED
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -218,11 +248,7 @@ def _run(args: argparse.Namespace) -> int:
             wall_time_s = time.perf_counter() - started
             summary = write_run(out, built, trace, wall_time_s)
         except Exception as exc:  # the run or the writing failed: not the user's input
-            if os.environ.get("GANTRY_TWIN_DEBUG"):
-                raise
-            message = str(exc).splitlines()[0] if str(exc) else ""
-            print(f"{PROG}: run failed: {type(exc).__name__}: {message}", file=sys.stderr)
-            return EXIT_RUN_FAILED
+            return _failed("run", exc)
         print(format_summary(summary, wall_time_s, out), flush=True)
     if getattr(args, "fail_on_alarm", False) and summary.get("health", {}).get("alarms"):
         return EXIT_ALARM
@@ -247,7 +273,7 @@ def format_summary(data: dict[str, Any], wall_time_s: float, out: Path | None = 
     if "health" in data:
         lines.extend(format_health(data["health"]))
     if out is not None:
-        lines.append(f"results in {out}/ (summary.json, scenario.yaml, trace.parquet, run_info.json)")
+        lines.append(f"results in {out}/ ({', '.join(RUN_FILES)})")
     return "\n".join(lines)
 
 
@@ -256,11 +282,9 @@ def format_health(health: dict[str, Any]) -> list[str]:
     alarms = health["alarms"]
     lines = [f"health: {len(alarms)} alarm{'' if len(alarms) == 1 else 's'}"
              + (f" (baseline: {health['baseline']['source']})" if "baseline" in health else "")]  # fmt: skip
-    for a in alarms:
-        pct = "" if a["change_pct"] is None else f" ({a['change_pct']:+.1f} %)"
+    for a in alarms:  # summary.json's alarms hold exactly an Alarm's fields
         cleared = "" if a["cleared_s"] is None else f", cleared at {a['cleared_s']:.2f} s"
-        lines.append(f"  ALARM t = {a['time_s']:.2f} s: {a['parameter']} {a['direction']} {a['change']:+.4g} "
-                     f"{a['unit']}{pct}: estimate {a['estimate']:.4g}, baseline {a['baseline']:.4g}{cleared}")
+        lines.append(f"  ALARM {Alarm(**a).describe()}{cleared}")
     status = health["status"]
     if status:
         lines.append("  status at the end: " + ", ".join(f"{n} {s}" for n, s in status.items()))
@@ -276,18 +300,13 @@ def _report(args: argparse.Namespace) -> int:
 
     if args.jobs is not None and args.jobs < 1:
         raise BadInput(f"--jobs: must be a positive integer, got {args.jobs}")
-    if args.out.exists() and not args.out.is_dir():
-        raise BadInput(f"--out {args.out}: exists and is not a directory")
+    _checked_out(args.out)
     cases = paper_matrix(args.overrides)  # validates every scenario before anything runs
     try:
         results = run_matrix(cases, jobs=args.jobs or os.cpu_count() or 1, progress=_progress_wanted(args))
         path = write_report(results, args.out, args.overrides)
     except Exception as exc:
-        if os.environ.get("GANTRY_TWIN_DEBUG"):
-            raise
-        message = str(exc).splitlines()[0] if str(exc) else ""
-        print(f"{PROG}: report failed: {type(exc).__name__}: {message}", file=sys.stderr)
-        return EXIT_RUN_FAILED
+        return _failed("report", exc)
     print(f"report written to {path}")
     return EXIT_OK
 

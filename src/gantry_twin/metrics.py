@@ -50,9 +50,11 @@ def steady_true_parameters(trace: Trace, window_s: tuple[float, float]) -> np.nd
     return trace.true_parameters_t()[window_mask(trace.t_s, window_s)].mean(axis=0)
 
 
+def error_pct(estimate: float, true: float) -> float | None:
+    """100 (estimate - true) / true; None where the true value is 0 (dN)."""
+    return None if true == 0.0 else float(100.0 * (estimate - true) / true)
+
+
 def estimate_errors_pct(estimate: np.ndarray, true_theta: np.ndarray) -> dict[str, float | None]:
-    """100 (estimate - true) / true per parameter; None where the true value is 0."""
-    out: dict[str, float | None] = {}
-    for name, est, tru in zip(THETA_NAMES, estimate, true_theta, strict=True):
-        out[name] = None if tru == 0.0 else float(100.0 * (est - tru) / tru)
-    return out
+    """:func:`error_pct` of each parameter, by name."""
+    return {name: error_pct(est, tru) for name, est, tru in zip(THETA_NAMES, estimate, true_theta, strict=True)}

@@ -6,30 +6,11 @@ offline on a finished trace by :func:`monitor_trace`; both give the same
 numbers, bit for bit, because every recursion runs sample by sample in the
 same order whatever the chunking.
 
-**Excitation (eq. 29).** Per axis i the regressor of eq. (25) is
-g_i = [x_f'', x_f', Sf_f(x'), -1_f] (the axis' columns M_i, B_i, Af_i, dN_i),
-computed from what the controller measured: the encoder positions
-``q_meas_m`` (first-order hold into Hf), the backward-difference velocity
-through Sf, and the constant, with the same exact discretised filters Hf as
-DIARC's estimator (:func:`filtered_regressors`). The information over the
-last ``window_s`` seconds, I_i = int g_i g_i^T dt (eq. 29), is normalised by
-the nominal parameter values D = diag(scale) and the window length:
-
-    N_i = D I_i D / W        (volts^2)
-
-so a relative parameter change delta (delta = 1 is +100 %) moves the filtered
-input by sqrt(delta^T N_i delta) volts rms over the window. Reported:
-
-* ``level_v`` (per axis): sqrt(lambda_min(N_i)), the rms signature of a
-  100 % change in the least excited direction (PE condition (29) in volts);
-* ``parameter_v`` (per parameter): sqrt(1 / (N_i^-1)_jj), the rms signature
-  of a 100 % change of parameter j that the axis' other three parameters
-  cannot mimic (its conditional information, the Cramer-Rao view).
-
-Model (25) holds only while the axis slides: in stick, Coulomb friction is
-any force up to Af, not Af Sf(v). Samples with |x_f'| below
-``sliding_speed_m_s`` therefore add nothing to I_i. At standstill every
-parameter, dN included, has zero information.
+**Excitation (eq. 29)**, in :mod:`gantry_twin.excitation`: per axis, the
+information I_i of the filtered regressor over the last ``window_s``,
+normalised by the nominal parameter values into volts: ``level_v`` (per
+axis, the least excited direction) and ``parameter_v`` (per parameter, what
+the axis' other parameters cannot mimic). Only sliding samples count.
 
 **Health (drift detection).** The test is a two-sided CUSUM (Page 1954) on
 the deviation of each estimate from its baseline, in tolerance units:
@@ -66,33 +47,23 @@ the tolerance long enough to use up the accumulated evidence).
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from gantry_twin._jit import kernel
-from gantry_twin.estimation import (
-    FRICTION_SLOPE_S_M,
-    discretise_filter,
-    filter_run,
-    filtered_acceleration,
-    friction_shape,
-)
-from gantry_twin.plant import THETA_NAMES
+from gantry_twin.estimation import FRICTION_SLOPE_S_M
+from gantry_twin.excitation import AXIS_OF, FilteredRegressors, accumulate_information, normalised_excitation
+from gantry_twin.plant import THETA_NAMES, THETA_UNITS
 
-#: Status codes of :attr:`HealthHistory.status` and their names.
+#: Status codes of :attr:`MonitorReport.status` and their names.
 STATUS_NAMES: tuple[str, ...] = ("baseline", "not excited", "ok", "drifting", "alarm")
 BASELINE, NOT_EXCITED, OK, DRIFTING, ALARM = range(5)
 #: The nominal disturbances dN1, dN2 (baseline ~0) are judged in volts, the rest relative.
 ABSOLUTE_PARAMETERS = (6, 7)
-#: Parameter j belongs to axis AXIS_OF[j] and is column COLUMN_OF[j] of that axis' 4x4 block.
-AXIS_OF = np.array([0, 1, 0, 1, 0, 1, 0, 1])
-COLUMN_OF = np.array([0, 0, 1, 1, 2, 2, 3, 3])
 #: The CUSUM statistics are capped at CUSUM_CAP * h, so that an alarm clears within about
 #: CUSUM_CAP * h / (1 - |y|) seconds once the estimate is back inside the tolerance.
 CUSUM_CAP = 2.0
-UNITS = ("V/(m/s^2)", "V/(m/s^2)", "V/(m/s)", "V/(m/s)", "V", "V", "V", "V")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -151,10 +122,9 @@ class HealthSettings:
     baseline_window_s: when no baseline is given, the mean estimate over this
     window of the run (sampled every monitor period) is the baseline. The
     default starts at 20 s because DIARC with the paper's estimator
-    (kappa = 0.1 1/s) needs about 25 s from theta0 to settle B and Af on the
-    circle; a baseline taken earlier (5-15 s) holds that transient, and the
-    rest of it then reads as a +11 % drift of B1, B2 (measured: false alarms
-    on B1, B2, Af1, Af2 at 25-35 s of a healthy 5 kg circle run).
+    (kappa = 0.1 1/s) settles B and Af slowly from theta0 on the circle; a
+    baseline taken during that transient makes the rest of it read as a
+    drift, and a healthy run alarms (measured: docs/health.md, "Tunings").
     judge_from_s: first time a parameter is judged (None: the end of
     ``baseline_window_s``).
     """
@@ -200,132 +170,9 @@ class Baseline:
             raise ValueError(f"baseline: missing {', '.join(missing)} (need all of {', '.join(THETA_NAMES)})")
         return cls(tuple(float(values[n]) for n in THETA_NAMES), source)
 
-    @classmethod
-    def from_trace(cls, trace, window_s: tuple[float, float]) -> Baseline:
-        """Mean DIARC estimate over a window of a commissioning trace."""
-        theta = trace.controller_state.get("theta_hat")
-        if theta is None:
-            raise ValueError("baseline: the commissioning trace has no theta_hat (run it with DIARC)")
-        mask = (trace.t_s >= window_s[0]) & (trace.t_s < window_s[1])
-        if not mask.any():
-            raise ValueError(f"baseline.window_s: {window_s} holds no sample of the commissioning run")
-        return cls(tuple(float(x) for x in theta[mask].mean(axis=0)), f"commissioning run {window_s} s")
-
     def as_dict(self) -> dict[str, float]:
         return dict(zip(THETA_NAMES, self.theta, strict=True))
 
-
-# ---------------------------------------------------------------------------------------------
-# Filtered regressors (the estimator's filters) and the windowed information
-# ---------------------------------------------------------------------------------------------
-
-
-@kernel
-def _accumulate(g, weight, first_index, period, acc, moving, blocks, block_moving):  # pragma: no cover
-    """Add weight_k g_k g_k^T (g (n, 2, 4)) into per-period sums, sample by sample.
-
-    acc (2, 4, 4), moving (2,) hold the open period; every closed period is
-    written to blocks[m], block_moving[m]. Returns the number of closed periods.
-    """
-    m = 0
-    for k in range(g.shape[0]):
-        for a in range(2):
-            w = weight[k, a]
-            if w != 0.0:
-                moving[a] += 1.0
-                for i in range(4):
-                    for j in range(4):
-                        acc[a, i, j] += w * g[k, a, i] * g[k, a, j]
-        if (first_index + k + 1) % period == 0:
-            blocks[m] = acc
-            block_moving[m] = moving / period
-            acc[:] = 0.0
-            moving[:] = 0.0
-            m += 1
-    return m
-
-
-class FilteredRegressors:
-    """gamma_f per axis from measured positions, exactly as DIARC's estimator filters them.
-
-    Sample k >= 2 gives g_k (2, 4) = [x_f'', x_f', Sf_f(x'), -1_f] per axis;
-    the filters start in steady state at sample 1 (the first with a
-    backward-difference velocity), as the estimator starts at its first sample.
-    The velocity is always the backward difference of the positions given:
-    a controller fed another velocity (ideal sensing without difference,
-    velocity noise) filtered a slightly different Sf(x').
-    """
-
-    def __init__(self, settings: ExcitationSettings, sample_period_s: float) -> None:
-        self.ts = sample_period_s
-        self.slope = settings.friction_slope_s_m
-        self.discs = [discretise_filter(2.0 * np.pi * hz, settings.filter_zeta, sample_period_s)
-                      for hz in settings.filter_hz]
-        self.z = np.zeros((2, 2, 3))  # axis, state [w_f, w_f'], signal (q, Sf, 1)
-        self.previous_q = np.zeros(2)
-        self.seen = 0
-
-    def advance(self, q_meas_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Feed the next samples (n, 2); return (g (n, 2, 4), |x_f'| (n, 2)), zero before sample 2."""
-        q = np.asarray(q_meas_m, dtype=float)
-        n = q.shape[0]
-        g = np.zeros((n, 2, 4))
-        speed = np.zeros((n, 2))
-        prev = np.vstack([self.previous_q[None, :], q[:-1]])
-        velocity = (q - prev) / self.ts
-        skip = 0
-        while self.seen + skip < 2 and skip < n:
-            if self.seen + skip == 1:  # steady state for sample 1's inputs
-                self._start(q[skip], velocity[skip])
-            skip += 1
-        if skip < n:
-            g[skip:], speed[skip:] = self._regressors(q[skip:], prev[skip:], velocity[skip:])
-        self.seen += n
-        if n:
-            self.previous_q = q[-1].copy()
-        return g, speed
-
-    def _start(self, q: np.ndarray, v: np.ndarray) -> None:
-        sf = friction_shape(v, self.slope)
-        for axis, disc in enumerate(self.discs):
-            lag = 2.0 * disc.zeta / disc.wn_rad_s
-            self.z[axis] = [[q[axis] - lag * v[axis], sf[axis], 1.0], [v[axis], 0.0, 0.0]]
-
-    def _regressors(self, q, prev, velocity) -> tuple[np.ndarray, np.ndarray]:
-        """The one place the estimator's filter functions are used (control-spec section 7)."""
-        n = q.shape[0]
-        g = np.empty((n, 2, 4))
-        sf = friction_shape(velocity, self.slope)
-        zero, one = np.zeros(n), np.ones(n)
-        zq, zs, zc = (np.empty((n, 2)) for _ in range(3))
-        for axis, disc in enumerate(self.discs):
-            z = self.z[axis]  # (2, 3): columns q, Sf, 1, as the estimator keeps them
-            ramp_q = (q[:, axis] - prev[:, axis]) / self.ts
-            filter_run(z, 0, disc.phi, disc.hold, disc.ramp, np.ascontiguousarray(prev[:, axis]), ramp_q, zq)
-            filter_run(z, 1, disc.phi, disc.hold, disc.ramp, np.ascontiguousarray(sf[:, axis]), zero, zs)
-            filter_run(z, 2, disc.phi, disc.hold, disc.ramp, one, zero, zc)
-            g[:, axis, 0] = filtered_acceleration(zq[:, 0], zq[:, 1], disc.wn_rad_s, disc.zeta, q[:, axis])
-            g[:, axis, 1] = zq[:, 1]
-            g[:, axis, 2] = zs[:, 0]
-            g[:, axis, 3] = -zc[:, 0]
-        return g, np.abs(g[:, :, 1])
-
-
-def normalised_excitation(info: np.ndarray, scale: np.ndarray, window_s: float) -> tuple[np.ndarray, np.ndarray]:
-    """(level_v (..., 2), parameter_v (..., 8)) from windowed information (..., 2, 4, 4).
-
-    N = D I D / W per axis; level = sqrt(lambda_min N); parameter j:
-    sqrt(1 / (N^-1)_jj) (its conditional information), computed on N + eps I
-    with eps = 1e-12 tr N so that a singular block gives ~0, not an error.
-    """
-    d = np.stack([scale[0::2], scale[1::2]], axis=0)  # (axis, column)
-    n = info * d[:, :, None] * d[:, None, :] / window_s
-    level = np.sqrt(np.clip(np.linalg.eigvalsh(n)[..., 0], 0.0, None))
-    eps = 1e-12 * np.trace(n, axis1=-2, axis2=-1)[..., None, None] + 1e-300
-    inverse = np.linalg.inv(n + eps * np.eye(4))
-    cond = 1.0 / np.diagonal(inverse, axis1=-2, axis2=-1)  # (..., 2 axes, 4 columns)
-    parameter = np.sqrt(np.clip(cond, 0.0, None))[..., AXIS_OF, COLUMN_OF]
-    return level, parameter
 
 
 # ---------------------------------------------------------------------------------------------
@@ -429,7 +276,7 @@ class MachineMonitor:
         most = (stop - start) // self._period + 1
         blocks = np.empty((most, 2, 4, 4))
         block_moving = np.empty((most, 2))
-        m = _accumulate(g, weight, start, self._period, self._acc, self._moving, blocks, block_moving)
+        m = accumulate_information(g, weight, start, self._period, self._acc, self._moving, blocks, block_moving)
         theta = trace.controller_state.get("theta_hat")
         ends, infos = [], np.empty((m, 2, 4, 4))
         for i in range(m):
@@ -584,7 +431,7 @@ class MachineMonitor:
         pct = None if j in ABSOLUTE_PARAMETERS else 100.0 * change / base
         self._open_alarm[j] = len(self._alarms)
         self._alarms.append(Alarm(THETA_NAMES[j], t, "up" if side == 0 else "down", float(estimate), base,
-                                  change, pct, UNITS[j]))
+                                  change, pct, THETA_UNITS[j]))
 
 
 def monitor_trace(trace, excitation: ExcitationSettings | None = None, health: HealthSettings | None = None,
@@ -596,7 +443,3 @@ def monitor_trace(trace, excitation: ExcitationSettings | None = None, health: H
     monitor.on_end(trace)
     return monitor.report()
 
-
-def alarm_lines(alarms: Sequence[Alarm]) -> list[str]:
-    """One readable line per alarm, for a run summary."""
-    return [a.describe() + ("" if a.cleared_s is None else f"; cleared at {a.cleared_s:.2f} s") for a in alarms]

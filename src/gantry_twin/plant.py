@@ -24,6 +24,9 @@ import numpy as np
 AXES: tuple[str, str] = ("x", "y")
 #: Names of the eight entries of theta (paper section 2, property P3).
 THETA_NAMES: tuple[str, ...] = ("M1", "M2", "B1", "B2", "Af1", "Af2", "dN1", "dN2")
+#: Units of the entries of theta, in THETA_NAMES' order (paper section 2: volts per unit of the
+#: axis' acceleration, velocity, friction shape and constant).
+THETA_UNITS: tuple[str, ...] = ("V/(m/s^2)", "V/(m/s^2)", "V/(m/s)", "V/(m/s)", "V", "V", "V", "V")
 #: Largest payload mass accepted, kg. The paper's estimator bounds (theta_max)
 #: cover payloads up to about 5.5 kg; heavier loads run but the estimates of
 #: M1, M2 then sit on their upper bounds.

@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from gantry_twin.metrics import contour_metrics, steady_estimates, steady_true_parameters
+from gantry_twin.metrics import contour_metrics, error_pct, steady_estimates, steady_true_parameters
 from gantry_twin.plant import THETA_NAMES
 from gantry_twin.results import atomic_write, atomic_write_text
 from gantry_twin.run import execute
@@ -78,6 +78,7 @@ PAPER_ESTIMATES: dict[int, dict[str, tuple[float, ...]]] = {
 }
 #: The physical parameters the paper's Tables 3-4 report (dN is left out, as there).
 TABLE_PARAMS = THETA_NAMES[:6]
+_TABLE_INDEX = range(len(TABLE_PARAMS))
 #: Figure sampling: eps_c keeps the largest |value| of each bin; estimates every n-th sample.
 EPS_BIN = 10
 THETA_EVERY = 25
@@ -129,7 +130,7 @@ def paper_matrix(
     for set_id in sets:
         for contour in contours:
             for label in labels:
-                if (label == "C3" and set_id == 3) or (label == "C2r" and set_id == 3):
+                if not _in_matrix(set_id, label):
                     continue
                 controller, extra, _ = CONTROLLERS[label]
                 path = shipped(f"{SET_SCENARIOS[set_id]}_{contour}")
@@ -137,6 +138,11 @@ def paper_matrix(
                 build(_load(case), case.scenario_path)
                 cases.append(case)
     return cases
+
+
+def _in_matrix(set_id: int, label: str) -> bool:
+    """Set 3 (the step disturbance) runs C1 and C2 only, as in the paper."""
+    return set_id != 3 or label in ("C1", "C2")
 
 
 def _load(case: Case) -> Any:
@@ -214,7 +220,7 @@ def _fmt(x: float | None, digits: int = 2) -> str:
 
 
 def _contour_table(by_key: dict[tuple[int, str, str], CaseResult], contour: str) -> list[str]:
-    columns = [(s, c) for s in (1, 2, 3) for c in ("C1", "C2", "C3") if not (s == 3 and c == "C3")]
+    columns = [(s, c) for s in (1, 2, 3) for c in ("C1", "C2", "C3") if _in_matrix(s, c)]
     head = "| | " + " | ".join(f"Set {s} {c}" for s, c in columns) + " |"
     lines = [head, "|---" * (len(columns) + 1) + "|"]
     for what, index in (("rms", 0), ("max", 1)):
@@ -224,10 +230,6 @@ def _contour_table(by_key: dict[tuple[int, str, str], CaseResult], contour: str)
         lines.append(f"| {what} paper (um) | " + " | ".join(_fmt(v) for v in paper) + " |")
         lines.append(f"| **{what} twin (um)** | " + " | ".join(f"**{_fmt(v)}**" for v in twin) + " |")
     return lines
-
-
-def _pct(est: float, true: float) -> float:
-    return 100.0 * (est - true) / true
 
 
 def _estimate_table(by_key: dict[tuple[int, str, str], CaseResult], set_id: int) -> list[str]:
@@ -245,13 +247,13 @@ def _estimate_table(by_key: dict[tuple[int, str, str], CaseResult], set_id: int)
             continue
         name = {"C2": "DIARC paper settings", "C2r": "DIARC recommended", "C1": "DARC"}[label]
         true = runs_ok[0].true_theta
-        lines.append(f"| **{name}:** true (model) | " + " | ".join(f"{true[i]:.4f}" for i in range(6)) + " |")
+        lines.append(f"| **{name}:** true (model) | " + " | ".join(f"{true[i]:.4f}" for i in _TABLE_INDEX) + " |")
         for contour, r in zip(CONTOURS, runs, strict=True):
             if r is None or r.estimates is None:
                 continue
-            cells = [f"{r.estimates[i]:.4f} ({_pct(r.estimates[i], true[i]):+.1f} %)" for i in range(6)]
+            cells = [f"{r.estimates[i]:.4f} ({error_pct(r.estimates[i], true[i]):+.1f} %)" for i in _TABLE_INDEX]
             lines.append(f"| {name}: {contour} | " + " | ".join(cells) + " |")
-        worst = [max(abs(_pct(r.estimates[i], true[i])) for r in runs_ok) for i in range(6)]
+        worst = [max(abs(error_pct(r.estimates[i], true[i])) for r in runs_ok) for i in _TABLE_INDEX]
         lines.append(f"| {name}: max deviation % | " + " | ".join(f"{w:.1f} %" for w in worst) + " |")
     return lines
 
@@ -296,7 +298,7 @@ def findings(by_key: dict[tuple[int, str, str], CaseResult]) -> list[tuple[bool,
         runs = [by_key.get((s, contour, "C2r")) for contour in CONTOURS]
         runs = [r for r in runs if r is not None and r.estimates is not None]
         if runs:
-            worst = max(abs(_pct(r.estimates[i], r.true_theta[i])) for r in runs for i in range(6))
+            worst = max(abs(error_pct(r.estimates[i], r.true_theta[i])) for r in runs for i in _TABLE_INDEX)
             out.append(
                 (
                     worst <= 5.0,

@@ -13,6 +13,13 @@ from gantry_twin.scenario import BuiltRun, dump_yaml
 from gantry_twin.simulate import simulate
 from gantry_twin.trace import Observer, Trace
 
+#: The files :func:`write_run` leaves in a run's directory (docs/cli.md); summary.json is written last.
+SUMMARY_FILE = "summary.json"
+SCENARIO_FILE = "scenario.yaml"
+TRACE_FILE = "trace.parquet"
+RUN_INFO_FILE = "run_info.json"
+RUN_FILES = (SUMMARY_FILE, SCENARIO_FILE, TRACE_FILE, RUN_INFO_FILE)
+
 
 def execute(built: BuiltRun, observers: Sequence[Observer] = ()) -> Trace:
     """Simulate a built scenario."""
@@ -49,12 +56,12 @@ def write_run(out: Path, built: BuiltRun, trace: Trace, wall_time_s: float) -> d
     health = built.monitor.report() if built.monitor is not None else None
     data = summary(scenario, trace, scenario.controller.name, health)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "summary.json").unlink(missing_ok=True)
+    (out / SUMMARY_FILE).unlink(missing_ok=True)
     if scenario.outputs.trace:
-        write_parquet(out / "trace.parquet", trace_table(trace, scenario.outputs.trace_stride))
-    atomic_write_text(out / "scenario.yaml", dump_yaml(scenario.resolved()))
-    atomic_write_text(out / "run_info.json", json.dumps(_run_info(wall_time_s), indent=2) + "\n")
-    atomic_write_text(out / "summary.json", summary_json(data))
+        write_parquet(out / TRACE_FILE, trace_table(trace, scenario.outputs.trace_stride))
+    atomic_write_text(out / SCENARIO_FILE, dump_yaml(scenario.resolved()))
+    atomic_write_text(out / RUN_INFO_FILE, json.dumps(_run_info(wall_time_s), indent=2) + "\n")
+    atomic_write_text(out / SUMMARY_FILE, summary_json(data))
     return data
 
 

@@ -1,0 +1,153 @@
+"""The telemetry options of a command line (--viewer, --save, --connect, --serve-web, --realtime) and the
+observers they ask for; ``gantry-twin run`` and ``monitor`` use them (docs/telemetry.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import TextIO
+
+import rerun as rr
+
+from gantry_twin.telemetry.observer import RerunObserver
+from gantry_twin.telemetry.sinks import (
+    RealtimePacer,
+    TelemetryError,
+    WebViewerServer,
+    check_grpc_url,
+    require_display,
+    spawn_native_viewer,
+)
+from gantry_twin.trace import Observer
+
+
+def _realtime_factor(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"FACTOR must be a number > 0 (1 = real time), got {text!r}")
+    return value
+
+
+def add_telemetry_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add --viewer, --save, --connect, --serve-web and --realtime (default: no telemetry, unpaced)."""
+    group = parser.add_argument_group("telemetry (rerun)")
+    group.add_argument("--viewer", action="store_true", help="spawn the rerun viewer and stream the run to it")
+    group.add_argument("--save", metavar="FILE.rrd", type=Path, help="record the run; open later with `rerun FILE.rrd`")
+    group.add_argument(
+        "--connect", metavar="URL", help="stream to a running viewer, e.g. rerun+http://127.0.0.1:9876/proxy"
+    )
+    group.add_argument(
+        "--serve-web", action="store_true", help="serve the web viewer on 127.0.0.1 (prints the URL; Ctrl-C stops)"
+    )
+    group.add_argument(
+        "--realtime",
+        metavar="FACTOR",
+        nargs="?",
+        const=1.0,
+        default=None,
+        type=_realtime_factor,
+        help="pace the run to the wall clock: sim time / wall time = FACTOR (default 1)",
+    )
+
+
+class TelemetryObservers(list):
+    """The observers for a run plus what they hold open; a list and a context manager.
+
+    ``close()`` flushes every recording; with --serve-web it then keeps serving
+    until Ctrl-C (``wait=True``) and stops the server.
+    """
+
+    def __init__(
+        self,
+        observers: Sequence[Observer],
+        rerun_observer: RerunObserver | None,
+        server: WebViewerServer | None,
+        out: TextIO,
+    ) -> None:
+        super().__init__(observers)
+        self.rerun_observer = rerun_observer
+        self.server = server
+        self.out = out
+
+    def close(self, wait: bool = True) -> None:
+        try:
+            if self.rerun_observer is not None:
+                self.rerun_observer.close()
+            if self.server is not None and wait:
+                try:  # from before the message: Ctrl-C may come as soon as it is printed
+                    print(f"Still serving the viewer at {self.server.url} ; press Ctrl-C to stop.", file=self.out)
+                    self.out.flush()
+                    while self.server.process.poll() is None:
+                        time.sleep(0.2)
+                except KeyboardInterrupt:
+                    pass
+        finally:
+            if self.server is not None:
+                self.server.stop()
+
+    def __enter__(self) -> TelemetryObservers:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        self.close(wait=exc_type is None)
+
+
+def telemetry_observers(
+    args: argparse.Namespace, *, application_id: str = "gantry_twin", out: TextIO | None = None
+) -> TelemetryObservers:
+    """Observers for the telemetry options in ``args`` (empty: no telemetry).
+
+    Checks every option before opening anything (TelemetryError, one line).
+    Use as ``with telemetry_observers(args) as observers: simulate(..., observers=observers)``.
+    """
+    out = out or sys.stdout
+    save: Path | None = getattr(args, "save", None)
+    connect: str | None = getattr(args, "connect", None)
+    viewer = bool(getattr(args, "viewer", False))
+    serve_web = bool(getattr(args, "serve_web", False))
+    realtime: float | None = getattr(args, "realtime", None)
+    if save is not None:
+        save = Path(save)
+        if save.suffix != ".rrd":
+            raise TelemetryError(f"--save: FILE must end in .rrd, got {str(save)!r}")
+        if not save.parent.is_dir():
+            raise TelemetryError(f"--save: directory {str(save.parent)!r} does not exist")
+    if connect is not None:
+        check_grpc_url(connect)
+    if viewer:
+        require_display()
+    observers: list[Observer] = []
+    rerun_observer = None
+    server = None
+    if save or connect or viewer or serve_web:
+        sinks: list = []
+        if serve_web:
+            server = WebViewerServer()
+            sinks.append(rr.GrpcSink(server.grpc_url))
+            print(f"Rerun web viewer: {server.url}", file=out, flush=True)
+        recording = rr.RecordingStream(application_id)
+        if viewer:
+            sinks.append(rr.GrpcSink(spawn_native_viewer(recording)))
+        if connect:
+            sinks.append(rr.GrpcSink(connect))
+        try:
+            if save:
+                sinks.append(rr.FileSink(save))
+            recording.set_sinks(*sinks)
+        except (RuntimeError, OSError) as error:
+            if server is not None:
+                server.stop()
+            raise TelemetryError(f"--save: cannot write {str(save)!r}: {error}") from None
+        rerun_observer = RerunObserver(recording)
+        observers.append(rerun_observer)
+    if realtime is not None:
+        observers.append(RealtimePacer(realtime))
+    return TelemetryObservers(observers, rerun_observer, server, out)
