@@ -38,6 +38,9 @@ FRICTION_SLOPE_S_M = 9000.0
 #: Natural frequencies of Hf per axis (X, Y), Hz, and its damping ratio.
 FilterHz = Vector(Frequency, AXES)
 FilterZeta = Range(0.0, 5.0, lo_open=True)
+#: The paper's Hf (section 5): 250 Hz on X, 150 Hz on Y, damping 0.7.
+PAPER_FILTER_HZ = (250.0, 150.0)
+PAPER_FILTER_ZETA = 0.7
 
 
 @dataclass(frozen=True)

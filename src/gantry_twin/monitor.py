@@ -74,6 +74,8 @@ import numpy as np
 from gantry_twin._jit import kernel
 from gantry_twin.estimation import (
     FRICTION_SLOPE_S_M,
+    PAPER_FILTER_HZ,
+    PAPER_FILTER_ZETA,
     FilterHz,
     FilterZeta,
     discretise_filter,
@@ -127,8 +129,8 @@ class ExcitationSettings:
 
     window_s: ExcitationWindowS = 2.0
     period_s: Range(0.0, 1.0, "s", lo_open=True) = 0.01
-    filter_hz: FilterHz = (250.0, 150.0)
-    filter_zeta: FilterZeta = 0.7
+    filter_hz: FilterHz = PAPER_FILTER_HZ
+    filter_zeta: FilterZeta = PAPER_FILTER_ZETA
     friction_slope_s_m: Positive = FRICTION_SLOPE_S_M
     sliding_speed_m_s: NonNegative = 1.0e-3
     scale: Vector(Positive, THETA_NAMES) = (0.12, 0.50, 0.50, 0.70, 0.10, 0.15, 0.10, 0.10)

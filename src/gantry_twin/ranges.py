@@ -138,12 +138,12 @@ def Vector(component: Any, names: Sequence[str]) -> Any:  # noqa: N802
 
 def OrNamed(kind: Any, choices: dict[str, Any]) -> Any:  # noqa: N802
     """``kind``, or in a scenario file the name of one of ``choices`` (e.g. ``estimator: recommended``)."""
-    allowed = " or ".join(repr(name) for name in choices)
+    allowed = " or ".join(repr(name) for name in choices) + ", or a mapping of its fields"
 
     def by_name(value: Any) -> Any:
-        if not isinstance(value, str):
+        if isinstance(value, dict | kind):
             return value
-        if value not in choices:
+        if not isinstance(value, str) or value not in choices:
             raise PydanticCustomError("literal_error", "Input should be {allowed}", {"allowed": allowed})
         return choices[value]
 

@@ -29,6 +29,8 @@ from gantry_twin._jit import kernel
 from gantry_twin.controllers.base import Measurement, ReferenceSample, RunContext
 from gantry_twin.controllers.law import ArcGains, LawWork, Theta, arc_law, law_work
 from gantry_twin.estimation import (
+    PAPER_FILTER_HZ,
+    PAPER_FILTER_ZETA,
     FilterDiscretisation,
     FilterHz,
     FilterZeta,
@@ -71,8 +73,8 @@ class EstimatorSettings:
     first sample's inputs, so this is only a precaution).
     """
 
-    filter_hz: FilterHz = (250.0, 150.0)
-    filter_zeta: FilterZeta = 0.7
+    filter_hz: FilterHz = PAPER_FILTER_HZ
+    filter_zeta: FilterZeta = PAPER_FILTER_ZETA
     least_squares: LeastSquaresSettings = field(default_factory=LeastSquaresSettings)
     gamma_d: Vector(NonNegative, AXES) = (1.0e4, 1.0e4)
     dc_max_v: Vector(NonNegative, AXES) = (0.5, 1.5)
