@@ -151,7 +151,7 @@ def _check_windows(scenario: Scenario, source: str) -> None:
         ("window_s", scenario.window_s, scenario.metric_window_s, "the second period [T, 2T]"),
         ("estimates_window_s", scenario.estimates_window_s, scenario.estimate_window_s, "the last period"),
     ):
-        lo, hi = window  # ordered: given windows are checked by their type, the defaults are
+        lo, hi = window  # end > start: a given window by its type (ranges.Window), a default by construction
         if lo < 0.0 or hi > d + 1e-9:
             if given is None:
                 raise ScenarioError(
