@@ -26,38 +26,28 @@ Validation errors are one line naming the field and its allowed range.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
 
-from gantry_twin.plant import AXES, PAYLOAD_MAX_KG, Plant, moving_masses_kg
+from gantry_twin.plant import AXES, Axis, PayloadMass, Plant, moving_masses_kg
+from gantry_twin.ranges import Count, Range, Vector, fmt, rule, settings
 
-#: Allowed ranges (inclusive) of the change parameters, in the units their names carry.
-VISCOUS_RANGE_V_S_M = (0.0, 10.0)
-COULOMB_RANGE_V = (0.0, 5.0)
-COGGING_AMPLITUDE_RANGE_V = (0.0, 2.0)
-#: Shorter pitches alias: at 0.4 m/s the carriage moves 80 um per 0.2 ms sample.
-COGGING_PITCH_RANGE_M = (1.0e-3, 1.0)
-SPIKE_OFFSET_MAX_M = 1.0e-3
-HOLD_SAMPLES_RANGE = (1, 10000)
-VELOCITY_NOISE_STD_RANGE_M_S = (0.0, 1.0)
+#: Latest time a change may name, s.
 TIME_MAX_S = 1.0e6
-
-
-def _number(where: str, value: object, lo: float, hi: float, unit: str) -> float:
-    """The value as a float, or ValueError naming the field and its range."""
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        raise ValueError(f"{where}: must be a number in [{lo}, {hi}] {unit}, got {value!r}")
-    if not lo <= value <= hi:
-        raise ValueError(f"{where}: must be in [{lo}, {hi}] {unit}, got {value}")
-    return float(value)
-
-
-def _axis(where: str, value: object) -> int:
-    if value not in AXES:
-        raise ValueError(f"{where}: must be one of {', '.join(AXES)}, got {value!r}")
-    return AXES.index(str(value))
+#: The allowed values of the change parameters, in the units their names carry.
+TimeS = Range(0.0, TIME_MAX_S, "s")
+Viscous = Range(0.0, 10.0, "V/(m/s)")
+Coulomb = Range(0.0, 5.0, "V")
+CoggingAmplitude = Range(0.0, 2.0, "V")
+#: Shorter pitches alias: at 0.4 m/s the carriage moves 80 um per 0.2 ms sample.
+CoggingPitch = Range(1.0e-3, 1.0, "m")
+Phase = Range(-2.0 * math.pi, 2.0 * math.pi, "rad")
+SPIKE_OFFSET_MAX_M = 1.0e-3
+SpikeOffset = Range(-SPIKE_OFFSET_MAX_M, SPIKE_OFFSET_MAX_M, "m")
+HoldSamples = Count(1, 10000)
+VelocityNoiseStd = Vector(Range(0.0, 1.0, "m/s"), AXES)
+Seed = Count(0, 2**63 - 1)
 
 
 def _ramp(t: np.ndarray, start_s: float, end_s: float, v0: float, v1: float) -> np.ndarray:
@@ -75,7 +65,12 @@ def _sample_at(t: np.ndarray, time_s: float) -> int | None:
     return int(np.argmin(np.abs(t - time_s)))
 
 
-@dataclass(frozen=True)
+def _after(start_s: float, end_s: float) -> None:
+    if not end_s > start_s:
+        raise rule("end_s", f"must be after start_s = {fmt(start_s)} s, got {fmt(end_s)}")
+
+
+@settings("friction_drift")
 class FrictionDrift:
     """Friction of one axis drifting linearly from ``start_s`` to ``end_s``.
 
@@ -85,76 +80,51 @@ class FrictionDrift:
     In SI the model gets B * gear (N s/m) and Af * gear (N).
     """
 
-    axis: Literal["x", "y"]
-    start_s: float
-    end_s: float
-    viscous_to_v_s_m: float | None = None
-    viscous_from_v_s_m: float | None = None
-    coulomb_to_v: float | None = None
-    coulomb_from_v: float | None = None
+    axis: Axis
+    start_s: TimeS
+    end_s: TimeS
+    viscous_to_v_s_m: Viscous | None = None
+    viscous_from_v_s_m: Viscous | None = None
+    coulomb_to_v: Coulomb | None = None
+    coulomb_from_v: Coulomb | None = None
 
     def __post_init__(self) -> None:
-        w = "friction_drift"
-        _axis(f"{w}.axis", self.axis)
-        start = _number(f"{w}.start_s", self.start_s, 0.0, TIME_MAX_S, "s")
-        _number(f"{w}.end_s", self.end_s, 0.0, TIME_MAX_S, "s")
-        if not self.end_s > start:
-            raise ValueError(f"{w}.end_s: must be greater than start_s ({start} s) and <= {TIME_MAX_S} s, "
-                             f"got {self.end_s}")
-        for name, (lo, hi), unit in (
-            ("viscous_to_v_s_m", VISCOUS_RANGE_V_S_M, "V/(m/s)"),
-            ("viscous_from_v_s_m", VISCOUS_RANGE_V_S_M, "V/(m/s)"),
-            ("coulomb_to_v", COULOMB_RANGE_V, "V"),
-            ("coulomb_from_v", COULOMB_RANGE_V, "V"),
-        ):
-            value = getattr(self, name)
-            if value is not None:
-                _number(f"{w}.{name}", value, lo, hi, unit)
+        _after(self.start_s, self.end_s)
         if self.viscous_to_v_s_m is None and self.coulomb_to_v is None:
-            raise ValueError(f"{w}.viscous_to_v_s_m: give it or coulomb_to_v (a drift must move B or Af)")
+            raise rule("viscous_to_v_s_m", "give it or coulomb_to_v (a drift must move B or Af)")
         if self.viscous_from_v_s_m is not None and self.viscous_to_v_s_m is None:
-            raise ValueError(f"{w}.viscous_to_v_s_m: required when viscous_from_v_s_m is given")
+            raise rule("viscous_to_v_s_m", "required when viscous_from_v_s_m is given")
         if self.coulomb_from_v is not None and self.coulomb_to_v is None:
-            raise ValueError(f"{w}.coulomb_to_v: required when coulomb_from_v is given")
+            raise rule("coulomb_to_v", "required when coulomb_from_v is given")
 
     @property
     def axis_index(self) -> int:
         return AXES.index(self.axis)
 
 
-@dataclass(frozen=True)
+@settings("payload_change")
 class PayloadChange:
     """From ``time_s`` on, the payload on the X carriage weighs ``mass_kg`` (0: dropped)."""
 
-    time_s: float
-    mass_kg: float
-
-    def __post_init__(self) -> None:
-        _number("payload_change.time_s", self.time_s, 0.0, TIME_MAX_S, "s")
-        _number("payload_change.mass_kg", self.mass_kg, 0.0, PAYLOAD_MAX_KG, "kg")
+    time_s: TimeS
+    mass_kg: PayloadMass
 
 
-@dataclass(frozen=True)
+@settings("cogging")
 class CoggingRipple:
     """Position-periodic force on one axis: amplitude_v sin(2 pi q / pitch_m + phase_rad), volts."""
 
-    axis: Literal["x", "y"]
-    amplitude_v: float
-    pitch_m: float
-    phase_rad: float = 0.0
-
-    def __post_init__(self) -> None:
-        _axis("cogging.axis", self.axis)
-        _number("cogging.amplitude_v", self.amplitude_v, *COGGING_AMPLITUDE_RANGE_V, "V")
-        _number("cogging.pitch_m", self.pitch_m, *COGGING_PITCH_RANGE_M, "m")
-        _number("cogging.phase_rad", self.phase_rad, -2.0 * math.pi, 2.0 * math.pi, "rad")
+    axis: Axis
+    amplitude_v: CoggingAmplitude
+    pitch_m: CoggingPitch
+    phase_rad: Phase = 0.0
 
     @property
     def axis_index(self) -> int:
         return AXES.index(self.axis)
 
 
-@dataclass(frozen=True)
+@settings("encoder_glitch")
 class EncoderGlitch:
     """A bad encoder reading at the sample nearest ``time_s``.
 
@@ -164,26 +134,18 @@ class EncoderGlitch:
     """
 
     kind: Literal["spike", "hold"]
-    time_s: float
-    axis: Literal["x", "y"] = "x"
-    offset_m: float = 50.0e-6
-    samples: int = 1
+    time_s: TimeS
+    axis: Axis = "x"
+    offset_m: SpikeOffset = 50.0e-6
+    samples: HoldSamples = 1
 
     def __post_init__(self) -> None:
-        if self.kind not in ("spike", "hold"):
-            raise ValueError(f"encoder_glitch.kind: must be one of spike, hold, got {self.kind!r}")
-        _number("encoder_glitch.time_s", self.time_s, 0.0, TIME_MAX_S, "s")
-        _axis("encoder_glitch.axis", self.axis)
-        off = _number("encoder_glitch.offset_m", self.offset_m, -SPIKE_OFFSET_MAX_M, SPIKE_OFFSET_MAX_M, "m")
-        if self.kind == "spike" and off == 0.0:
-            raise ValueError(f"encoder_glitch.offset_m: a spike must be nonzero, in [-{SPIKE_OFFSET_MAX_M}, "
-                             f"{SPIKE_OFFSET_MAX_M}] m, got 0")
-        lo, hi = HOLD_SAMPLES_RANGE
-        if isinstance(self.samples, bool) or not isinstance(self.samples, int) or not lo <= self.samples <= hi:
-            raise ValueError(f"encoder_glitch.samples: must be an integer in [{lo}, {hi}], got {self.samples!r}")
+        if self.kind == "spike" and self.offset_m == 0.0:
+            raise rule("offset_m", f"a spike must be nonzero, in [-{fmt(SPIKE_OFFSET_MAX_M)}, "
+                                   f"{fmt(SPIKE_OFFSET_MAX_M)}] m, got 0")  # fmt: skip
 
 
-@dataclass(frozen=True)
+@settings("velocity_noise")
 class VelocityNoise:
     """Extra Gaussian noise on the measured velocity from ``start_s`` to ``end_s``.
 
@@ -191,26 +153,16 @@ class VelocityNoise:
     Generator seed, so a run is reproducible.
     """
 
-    std_m_s: tuple[float, float]
-    seed: int = 0
-    start_s: float = 0.0
-    end_s: float = TIME_MAX_S
+    std_m_s: VelocityNoiseStd
+    seed: Seed = 0
+    start_s: TimeS = 0.0
+    end_s: TimeS = TIME_MAX_S
 
     def __post_init__(self) -> None:
-        if len(self.std_m_s) != 2:
-            raise ValueError(f"velocity_noise.std_m_s: must be two numbers (X, Y) in "
-                             f"{list(VELOCITY_NOISE_STD_RANGE_M_S)} m/s, got {self.std_m_s!r}")
-        for value, name in zip(self.std_m_s, AXES, strict=True):
-            _number(f"velocity_noise.std_m_s.{name}", value, *VELOCITY_NOISE_STD_RANGE_M_S, "m/s")
-        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or not 0 <= self.seed < 2**63:
-            raise ValueError(f"velocity_noise.seed: must be an integer in [0, 2**63), got {self.seed!r}")
-        start = _number("velocity_noise.start_s", self.start_s, 0.0, TIME_MAX_S, "s")
-        _number("velocity_noise.end_s", self.end_s, 0.0, TIME_MAX_S, "s")
-        if not self.end_s > start:
-            raise ValueError(f"velocity_noise.end_s: must be greater than start_s ({start} s), got {self.end_s}")
+        _after(self.start_s, self.end_s)
 
 
-@dataclass(frozen=True)
+@settings("")
 class PlantChanges:
     """Everything that changes in the plant or the sensor during one run.
 
@@ -231,15 +183,15 @@ class PlantChanges:
                 if moved is None:
                     continue
                 if (drift.axis, quantity) in seen:
-                    raise ValueError(f"friction_drift[{i}].axis: {quantity} friction of axis {drift.axis} "
-                                     "already drifts in an earlier entry (one drift per axis and quantity)")
+                    raise rule(f"friction_drift[{i}].axis", f"{quantity} friction of axis {drift.axis} already "
+                               "drifts in an earlier entry (one drift per axis and quantity)")  # fmt: skip
                 seen.add((drift.axis, quantity))
         times = [c.time_s for c in self.payload_change]
         if len(set(times)) != len(times):
-            raise ValueError(f"payload_change.time_s: must be distinct, got {times}")
+            raise rule("payload_change.time_s", f"must be distinct, got {times}")
         axes = [c.axis for c in self.cogging]
         if len(set(axes)) != len(axes):
-            raise ValueError(f"cogging.axis: at most one ripple per axis (x, y), got {axes}")
+            raise rule("cogging.axis", f"at most one ripple per axis (x, y), got {axes}")
 
     @property
     def empty(self) -> bool:

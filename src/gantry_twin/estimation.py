@@ -30,9 +30,17 @@ import numpy as np
 from scipy.linalg import expm
 
 from gantry_twin._jit import kernel
+from gantry_twin.plant import AXES, THETA_NAMES
+from gantry_twin.ranges import Frequency, NonNegative, Positive, Range, Vector, settings
 
 #: The slope of the paper's smooth Coulomb shape Sf(v) = (2/pi) atan(9000 v), s/m (section 5).
 FRICTION_SLOPE_S_M = 9000.0
+#: Natural frequencies of Hf per axis (X, Y), Hz, and its damping ratio.
+FilterHz = Vector(Frequency, AXES)
+FilterZeta = Range(0.0, 5.0, lo_open=True)
+#: The paper's Hf (section 5): 250 Hz on X, 150 Hz on Y, damping 0.7.
+PAPER_FILTER_HZ = (250.0, 150.0)
+PAPER_FILTER_ZETA = 0.7
 
 
 @dataclass(frozen=True)
@@ -482,14 +490,14 @@ def largest_eigenvalue(a, v, w, t, diag, off, upper_bound=math.inf, iterations=1
     return lam_max
 
 
-@dataclass(frozen=True)
+@settings("least_squares")
 class LeastSquaresSettings:
     """Least squares with covariance limiting (eq. 27-28), paper values."""
 
-    nu: float = 0.1
-    kappa: float = 0.1
-    rho_max: float = 500.0
-    gamma0_diag: tuple[float, ...] = (10.0, 10.0, 10.0, 10.0, 10.0, 10.0, 5000.0, 5000.0)
+    nu: NonNegative = 0.1
+    kappa: NonNegative = 0.1
+    rho_max: Positive = 500.0
+    gamma0_diag: Vector(Positive, THETA_NAMES) = (10.0, 10.0, 10.0, 10.0, 10.0, 10.0, 5000.0, 5000.0)
 
 
 class LeastSquaresWork(NamedTuple):

@@ -52,9 +52,16 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from gantry_twin.estimation import FRICTION_SLOPE_S_M
+from gantry_twin.estimation import (
+    FRICTION_SLOPE_S_M,
+    PAPER_FILTER_HZ,
+    PAPER_FILTER_ZETA,
+    FilterHz,
+    FilterZeta,
+)
 from gantry_twin.excitation import AXIS_OF, FilteredRegressors, accumulate_information, normalised_excitation
 from gantry_twin.plant import THETA_NAMES, THETA_UNITS
+from gantry_twin.ranges import VOLTS_MAX_V, NonNegative, Positive, Range, Seconds, Vector, Window, rule, settings
 
 #: Status codes of :attr:`MonitorReport.status` and their names.
 STATUS_NAMES: tuple[str, ...] = ("baseline", "not excited", "ok", "drifting", "alarm")
@@ -71,7 +78,13 @@ CUSUM_CAP = 2.0
 # ---------------------------------------------------------------------------------------------
 
 
-@dataclass(frozen=True)
+#: The monitor's settings that a scenario file also sets (its ``monitor`` mapping).
+ExcitationWindowS = Range(0.01, 600.0, "s")
+MinParameterV = Range(0.0, VOLTS_MAX_V, "V")
+DecisionIntervalS = Range(0.0, 100.0, "s", lo_open=True)
+
+
+@settings("excitation")
 class ExcitationSettings:
     """How the information of eq. (29) is measured.
 
@@ -87,32 +100,22 @@ class ExcitationSettings:
     min_moving_fraction: ... and its axis slid in this fraction of the latest period.
     """
 
-    window_s: float = 2.0
-    period_s: float = 0.01
-    filter_hz: tuple[float, float] = (250.0, 150.0)
-    filter_zeta: float = 0.7
-    friction_slope_s_m: float = FRICTION_SLOPE_S_M
-    sliding_speed_m_s: float = 1.0e-3
-    scale: tuple[float, ...] = (0.12, 0.50, 0.50, 0.70, 0.10, 0.15, 0.10, 0.10)
-    min_parameter_v: float = 0.01
-    min_moving_fraction: float = 0.5
+    window_s: ExcitationWindowS = 2.0
+    period_s: Range(0.0, 1.0, "s", lo_open=True) = 0.01
+    filter_hz: FilterHz = PAPER_FILTER_HZ
+    filter_zeta: FilterZeta = PAPER_FILTER_ZETA
+    friction_slope_s_m: Positive = FRICTION_SLOPE_S_M
+    sliding_speed_m_s: NonNegative = 1.0e-3
+    scale: Vector(Positive, THETA_NAMES) = (0.12, 0.50, 0.50, 0.70, 0.10, 0.15, 0.10, 0.10)
+    min_parameter_v: MinParameterV = 0.01
+    min_moving_fraction: Range(0.0, 1.0) = 0.5
 
     def __post_init__(self) -> None:
-        if not (math.isfinite(self.period_s) and 0.0 < self.period_s <= 1.0):
-            raise ValueError(f"excitation.period_s: must be in (0, 1] s, got {self.period_s}")
-        if not (math.isfinite(self.window_s) and self.period_s <= self.window_s <= 600.0):
-            raise ValueError(f"excitation.window_s: must be in [period_s, 600] s, got {self.window_s}")
-        if len(self.scale) != 8 or not all(math.isfinite(s) and s > 0.0 for s in self.scale):
-            raise ValueError(f"excitation.scale: must be eight positive numbers (volt units), got {self.scale!r}")
-        if len(self.filter_hz) != 2 or not all(0.0 < f <= 2000.0 for f in self.filter_hz):
-            raise ValueError(f"excitation.filter_hz: must be two numbers in (0, 2000] Hz, got {self.filter_hz!r}")
-        if not 0.0 <= self.min_moving_fraction <= 1.0:
-            raise ValueError(f"excitation.min_moving_fraction: must be in [0, 1], got {self.min_moving_fraction}")
-        if not (math.isfinite(self.min_parameter_v) and self.min_parameter_v >= 0.0):
-            raise ValueError(f"excitation.min_parameter_v: must be >= 0 V, got {self.min_parameter_v}")
+        if self.window_s < self.period_s:
+            raise rule("window_s", f"must be at least period_s = {self.period_s:g} s, got {self.window_s:g}")
 
 
-@dataclass(frozen=True)
+@settings("health")
 class HealthSettings:
     """The drift test.
 
@@ -121,27 +124,17 @@ class HealthSettings:
     decision_interval_s: h, in tolerance-seconds (see the module docstring).
     baseline_window_s: when no baseline is given, the mean estimate over this
     window of the run (sampled every monitor period) is the baseline. The
-    default starts at 20 s because DIARC with the paper's estimator
-    (kappa = 0.1 1/s) settles B and Af slowly from theta0 on the circle; a
-    baseline taken during that transient makes the rest of it read as a
-    drift, and a healthy run alarms (measured: docs/health.md, "Tunings").
+    default starts at 20 s, after DIARC with the paper's estimator (kappa =
+    0.1 1/s) has settled B and Af on the circle; an earlier baseline holds
+    that transient, which then reads as a drift (docs/health.md, "Tunings").
     judge_from_s: first time a parameter is judged (None: the end of
     ``baseline_window_s``).
     """
 
-    tolerance: tuple[float, ...] = (0.10, 0.10, 0.10, 0.10, 0.10, 0.10, 0.10, 0.10)
-    decision_interval_s: float = 0.1
-    baseline_window_s: tuple[float, float] = (20.0, 30.0)
-    judge_from_s: float | None = None
-
-    def __post_init__(self) -> None:
-        if len(self.tolerance) != 8 or not all(math.isfinite(x) and x > 0.0 for x in self.tolerance):
-            raise ValueError(f"health.tolerance: must be eight positive numbers, got {self.tolerance!r}")
-        if not (math.isfinite(self.decision_interval_s) and self.decision_interval_s > 0.0):
-            raise ValueError(f"health.decision_interval_s: must be > 0 s, got {self.decision_interval_s}")
-        a, b = self.baseline_window_s
-        if not (math.isfinite(a) and math.isfinite(b) and 0.0 <= a < b):
-            raise ValueError(f"health.baseline_window_s: must be [start, end] with 0 <= start < end, got {(a, b)}")
+    tolerance: Vector(Positive, THETA_NAMES) = (0.10, 0.10, 0.10, 0.10, 0.10, 0.10, 0.10, 0.10)
+    decision_interval_s: DecisionIntervalS = 0.1
+    baseline_window_s: Window = (20.0, 30.0)
+    judge_from_s: Seconds | None = None
 
     @property
     def judge_start_s(self) -> float:

@@ -11,17 +11,18 @@ Axis convention of the whole package: index 0 = X (axis 1, top), index 1 = Y
 
 from __future__ import annotations
 
-import math
-import numbers
-from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
+from typing import Literal, get_args
 
 import mujoco
 import numpy as np
 
-#: Axis names in the package's order (index 0 = X, 1 = Y).
-AXES: tuple[str, str] = ("x", "y")
+from gantry_twin.ranges import Range, Vector, settings
+
+#: An axis by name; AXES: the names in the package's order (index 0 = X, 1 = Y).
+Axis = Literal["x", "y"]
+AXES: tuple[str, str] = get_args(Axis)
 #: Names of the eight entries of theta (paper section 2, property P3).
 THETA_NAMES: tuple[str, ...] = ("M1", "M2", "B1", "B2", "Af1", "Af2", "dN1", "dN2")
 #: Units of the entries of theta, in THETA_NAMES' order (paper section 2: volts per unit of the
@@ -30,10 +31,14 @@ THETA_UNITS: tuple[str, ...] = ("V/(m/s^2)", "V/(m/s^2)", "V/(m/s)", "V/(m/s)", 
 #: Largest payload mass accepted, kg. The paper's estimator bounds (theta_max)
 #: cover payloads up to about 5.5 kg; heavier loads run but the estimates of
 #: M1, M2 then sit on their upper bounds.
-PAYLOAD_MAX_KG = 20.0
+PAYLOAD_MAX_KG = 20
 #: Payload offsets from the mount site are limited to the X slider's top plate
 #: (metres, per component); the offset does not change a slide joint's mass.
 PAYLOAD_OFFSET_MAX_M = (0.10, 0.10, 0.20)
+#: A payload mass, kg.
+PayloadMass = Range(0.0, PAYLOAD_MAX_KG, "kg")
+#: A payload's centre of mass from the mount site (x, y, z), m.
+PayloadOffset = Vector(tuple(Range(-limit, limit, "m") for limit in PAYLOAD_OFFSET_MAX_M), "xyz")
 
 
 def default_model_path() -> Path:
@@ -44,7 +49,7 @@ def default_model_path() -> Path:
     return Path(__file__).resolve().parents[2] / "models" / "gantry.xml"
 
 
-@dataclass(frozen=True)
+@settings("payload")
 class Payload:
     """A payload body on the X carriage.
 
@@ -53,28 +58,8 @@ class Payload:
     site (metres).
     """
 
-    mass_kg: float = 0.0
-    offset_m: tuple[float, float, float] = (0.0, 0.0, 0.05)
-
-    def __post_init__(self) -> None:
-        m = self.mass_kg
-        if not _is_real(m) or not math.isfinite(m):
-            raise ValueError(f"payload.mass_kg: must be a number in [0, {PAYLOAD_MAX_KG}] kg, got {m!r}")
-        if not 0.0 <= m <= PAYLOAD_MAX_KG:
-            raise ValueError(f"payload.mass_kg: must be in [0, {PAYLOAD_MAX_KG}] kg, got {m}")
-        offset = self.offset_m
-        if isinstance(offset, str | bytes) or not hasattr(offset, "__len__") or len(offset) != 3:
-            raise ValueError(f"payload.offset_m: must be three numbers (x, y, z) in metres, got {offset!r}")
-        for value, limit, name in zip(offset, PAYLOAD_OFFSET_MAX_M, "xyz", strict=True):
-            if not _is_real(value) or not math.isfinite(value):
-                raise ValueError(f"payload.offset_m.{name}: must be a number in [-{limit}, {limit}] m, got {value!r}")
-            if abs(value) > limit:
-                raise ValueError(f"payload.offset_m.{name}: must be in [-{limit}, {limit}] m, got {value}")
-
-
-def _is_real(value: object) -> bool:
-    """A real number (Python or NumPy), not a bool."""
-    return isinstance(value, numbers.Real) and not isinstance(value, bool | np.bool_)
+    mass_kg: PayloadMass = 0.0
+    offset_m: PayloadOffset = (0.0, 0.0, 0.05)
 
 
 def build_spec(payload: Payload | None = None, model_path: Path | None = None,

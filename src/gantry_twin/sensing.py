@@ -8,15 +8,15 @@ for ideal sensing in tests.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
+
+from gantry_twin.ranges import Range, settings
 
 #: The Anorad gantry's encoder resolution after quadrature, metres.
 ENCODER_RESOLUTION_M = 0.5e-6
 
 
-@dataclass(frozen=True)
+@settings("sensing")
 class SensingConfig:
     """How positions and velocities are measured.
 
@@ -26,7 +26,7 @@ class SensingConfig:
     """
 
     quantize: bool = True
-    resolution_m: float = ENCODER_RESOLUTION_M
+    resolution_m: Range(0.0, 1e-3, "m", lo_open=True) = ENCODER_RESOLUTION_M
     velocity_by_difference: bool = True
 
     @classmethod

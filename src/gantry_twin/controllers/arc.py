@@ -19,7 +19,7 @@ reference version (the plug-in protocol), and the compiled loop of
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import field
 from typing import NamedTuple
 
 import numpy as np
@@ -27,9 +27,13 @@ import numpy as np
 from gantry_twin import _jit
 from gantry_twin._jit import kernel
 from gantry_twin.controllers.base import Measurement, ReferenceSample, RunContext
-from gantry_twin.controllers.law import ArcGains, LawWork, arc_law, law_work
+from gantry_twin.controllers.law import ArcGains, LawWork, Theta, arc_law, law_work
 from gantry_twin.estimation import (
+    PAPER_FILTER_HZ,
+    PAPER_FILTER_ZETA,
     FilterDiscretisation,
+    FilterHz,
+    FilterZeta,
     LeastSquaresSettings,
     LeastSquaresWork,
     clip,
@@ -41,9 +45,13 @@ from gantry_twin.estimation import (
     least_squares_work,
     project_box,
 )
+from gantry_twin.plant import AXES, THETA_NAMES
+from gantry_twin.ranges import NonNegative, OrNamed, Seconds, Vector, settings
 
 #: DARC's adaptation rates (paper section 5).
 DARC_GAMMA = (10.0, 10.0, 10.0, 10.0, 1.0, 1.0, 10000.0, 10000.0)
+#: Adaptation rates of theta^, one per parameter, >= 0.
+Rates = Vector(NonNegative, THETA_NAMES)
 
 #: ArcParams.kind: where theta^ comes from.
 KIND_DRC, KIND_DARC, KIND_DIARC = 0, 1, 2
@@ -51,7 +59,7 @@ KIND_DRC, KIND_DARC, KIND_DIARC = 0, 1, 2
 CLOCK_TIME_S, CLOCK_STARTED, CLOCK_LAMBDA_MAX = 0, 1, 2
 
 
-@dataclass(frozen=True)
+@settings("estimator")
 class EstimatorSettings:
     """DIARC's indirect estimator and fast compensation (paper section 5).
 
@@ -65,28 +73,27 @@ class EstimatorSettings:
     first sample's inputs, so this is only a precaution).
     """
 
-    filter_hz: tuple[float, float] = (250.0, 150.0)
-    filter_zeta: float = 0.7
+    filter_hz: FilterHz = PAPER_FILTER_HZ
+    filter_zeta: FilterZeta = PAPER_FILTER_ZETA
     least_squares: LeastSquaresSettings = field(default_factory=LeastSquaresSettings)
-    gamma_d: tuple[float, float] = (1.0e4, 1.0e4)
-    dc_max_v: tuple[float, float] = (0.5, 1.5)
-    settle_s: float = 0.02
+    gamma_d: Vector(NonNegative, AXES) = (1.0e4, 1.0e4)
+    dc_max_v: Vector(NonNegative, AXES) = (0.5, 1.5)
+    settle_s: Seconds = 0.02
 
 
 #: The twin's recommended estimator: 50 Hz filters, which keep the encoder's
-#: 0.5 um quantisation noise out of x_f'' (control-spec section 7), and
-#: forgetting kappa = 0.7 1/s (paper: 0.1), a memory of about 1.4 s, so that the
-#: estimates follow a changing machine (issue 7, docs/health.md): a 5 kg
-#: pick-up on the circle is within 5 % in 2.9 s (kappa = 0.5: 4.4 s, too slow for
-#: the 4 s target; the paper's 0.1: over 10 s), and a B2 drift of 0.5 %/s is
-#: tracked within 2 %. The fast compensation rate gamma_d is 3e4 (paper: 1e4):
-#: dc^ then follows a 0.05 V cogging ripple at 16 mm pitch well enough that the
-#: contour error grows 1.4x instead of 2.3x, and without ripple the circle's
-#: second-period error drops from 0.85 / 3.7 um (rms / max) to 0.81 / 2.5 um with
-#: the same command noise (measured in the closing note of issue 7).
+#: 0.5 um quantisation noise out of x_f'' (control-spec section 7); forgetting
+#: kappa = 0.7 1/s (paper: 0.1), a memory of about 1.4 s, so that the estimates
+#: follow a changing machine (issue 7, docs/health.md); a fast compensation rate
+#: gamma_d = 3e4 (paper: 1e4), so that dc^ follows a cogging ripple. What each
+#: choice measured: docs/scenarios.md, "The recommended estimator".
 RECOMMENDED_ESTIMATOR = EstimatorSettings(
     filter_hz=(50.0, 50.0), least_squares=LeastSquaresSettings(kappa=0.7), gamma_d=(3.0e4, 3.0e4)
 )
+#: The estimators a scenario file may name instead of spelling them out.
+NAMED_ESTIMATORS = {"paper": EstimatorSettings(), "recommended": RECOMMENDED_ESTIMATOR}
+#: EstimatorSettings, or in a scenario file one of NAMED_ESTIMATORS by name.
+EstimatorChoice = OrNamed(EstimatorSettings, NAMED_ESTIMATORS)
 
 
 class EstimatorParams(NamedTuple):
@@ -430,7 +437,7 @@ class DRC(ArcController):
 
     kind = KIND_DRC
 
-    def __init__(self, gains: ArcGains | None = None, theta: tuple[float, ...] | None = None) -> None:
+    def __init__(self, gains: ArcGains | None = None, theta: Theta | None = None) -> None:
         if theta is not None:
             gains = ArcGains(**{**_gain_fields(gains or ArcGains()), "theta0": tuple(theta)})
         super().__init__(gains)
@@ -444,7 +451,7 @@ class DARC(ArcController):
 
     kind = KIND_DARC
 
-    def __init__(self, gains: ArcGains | None = None, gamma: tuple[float, ...] = DARC_GAMMA) -> None:
+    def __init__(self, gains: ArcGains | None = None, gamma: Rates = DARC_GAMMA) -> None:
         super().__init__(gains)
         self.gamma = np.asarray(gamma, dtype=float)
 
@@ -457,7 +464,7 @@ class DIARC(ArcController):
 
     kind = KIND_DIARC
 
-    def __init__(self, gains: ArcGains | None = None, estimator: EstimatorSettings | None = None) -> None:
+    def __init__(self, gains: ArcGains | None = None, estimator: EstimatorChoice | None = None) -> None:
         super().__init__(gains)
         self.estimator_settings = estimator or EstimatorSettings()
         self.estimator: IndirectEstimator | None = None

@@ -13,13 +13,14 @@ into a preallocated :class:`LawWork`.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
 
 from gantry_twin._jit import kernel
 from gantry_twin.estimation import FRICTION_SLOPE_S_M, clip, friction_shape
+from gantry_twin.plant import THETA_NAMES
+from gantry_twin.ranges import Number, Positive, Real, Vector, rule, settings
 from gantry_twin.taskframe import error_gains, sliding_variable
 
 #: The paper's initial estimates theta0 (section 5), volt units.
@@ -32,7 +33,13 @@ THETA_MAX = (0.20, 0.60, 0.55, 0.8, 0.15, 0.25, 0.5, 1.0)
 REF_Q, REF_DQ, REF_DDQ, REF_ALPHA, REF_DALPHA, REF_DDALPHA = 0, 2, 4, 6, 7, 8
 
 
-@dataclass(frozen=True)
+#: theta-shaped settings: eight finite numbers, volt units, named as THETA_NAMES.
+Theta = Vector(Real, THETA_NAMES)
+#: Task-frame gains (normal, tangential).
+TaskPair = Vector(Positive, ("normal", "tangential"))
+
+
+@settings("gains")
 class ArcGains:
     """Settings shared by the three controllers (paper section 5).
 
@@ -40,24 +47,46 @@ class ArcGains:
     ks_v_s_m: Ks = diag(k_n, k_t), V/(m/s) (task frame).
     friction_slope_s_m: the 9000 in Sf(v) = (2/pi) atan(9000 v), s/m.
     theta0, theta_min, theta_max: initial estimate and bounds, volt units.
+    theta0 may be any number here: DRC fixes theta^ = theta0 anywhere (the
+    true parameters, a NaN that the loop must catch); a scenario file also
+    requires :meth:`theta0_in_bounds`, the adaptive laws' starting point.
     """
 
-    lambda_1_s: tuple[float, float] = (100.0, 30.0)
-    ks_v_s_m: tuple[float, float] = (100.0, 60.0)
-    friction_slope_s_m: float = FRICTION_SLOPE_S_M
-    theta0: tuple[float, ...] = THETA0
-    theta_min: tuple[float, ...] = THETA_MIN
-    theta_max: tuple[float, ...] = THETA_MAX
-    lam: np.ndarray = field(init=False, repr=False, compare=False)
-    ks: np.ndarray = field(init=False, repr=False, compare=False)
-    lower: np.ndarray = field(init=False, repr=False, compare=False)
-    upper: np.ndarray = field(init=False, repr=False, compare=False)
+    lambda_1_s: TaskPair = (100.0, 30.0)
+    ks_v_s_m: TaskPair = (100.0, 60.0)
+    friction_slope_s_m: Positive = FRICTION_SLOPE_S_M
+    theta0: Vector(Number, THETA_NAMES) = THETA0
+    theta_min: Theta = THETA_MIN
+    theta_max: Theta = THETA_MAX
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "lam", np.asarray(self.lambda_1_s, dtype=float))
-        object.__setattr__(self, "ks", np.asarray(self.ks_v_s_m, dtype=float))
-        object.__setattr__(self, "lower", np.asarray(self.theta_min, dtype=float))
-        object.__setattr__(self, "upper", np.asarray(self.theta_max, dtype=float))
+        if np.any(self.lower > self.upper):
+            raise rule("theta_max", "need theta_min <= theta_max element-wise")
+
+    def theta0_in_bounds(self) -> bool:
+        """theta_min <= theta0 <= theta_max element-wise (False for a NaN)."""
+        th = np.asarray(self.theta0)
+        return bool(np.all((self.lower <= th) & (th <= self.upper)))
+
+    @property
+    def lam(self) -> np.ndarray:
+        """Diagonal of Lambda (2,), 1/s."""
+        return np.asarray(self.lambda_1_s, dtype=float)
+
+    @property
+    def ks(self) -> np.ndarray:
+        """Diagonal of Ks (2,), V/(m/s)."""
+        return np.asarray(self.ks_v_s_m, dtype=float)
+
+    @property
+    def lower(self) -> np.ndarray:
+        """theta_min (8,), volt units."""
+        return np.asarray(self.theta_min, dtype=float)
+
+    @property
+    def upper(self) -> np.ndarray:
+        """theta_max (8,), volt units."""
+        return np.asarray(self.theta_max, dtype=float)
 
 
 class LawWork(NamedTuple):

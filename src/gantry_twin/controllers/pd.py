@@ -22,6 +22,11 @@ from gantry_twin._jit import kernel
 from gantry_twin.controllers.base import Measurement, ReferenceSample, RunContext
 from gantry_twin.controllers.law import REF_DDQ, REF_DQ, REF_Q
 from gantry_twin.estimation import clip
+from gantry_twin.plant import AXES
+from gantry_twin.ranges import NonNegative, Vector
+
+#: A gain per axis (X, Y), >= 0; the types of PD's fields are what a scenario's options accept.
+Gains = Vector(NonNegative, AXES)
 
 
 class PDParams(NamedTuple):
@@ -49,10 +54,10 @@ def pd_step(params, q_m, dq_m_s, ref, u_v):
 class PD:
     """Per-axis PD + feed-forward; all gains per axis (X, Y)."""
 
-    kp_v_m: tuple[float, float] = (10000.0, 10000.0)
-    kd_v_s_m: tuple[float, float] = (100.0, 100.0)
-    kv_v_s_m: tuple[float, float] = (0.5, 0.7)
-    ka_v_s2_m: tuple[float, float] = (0.12, 0.5)
+    kp_v_m: Gains = (10000.0, 10000.0)
+    kd_v_s_m: Gains = (100.0, 100.0)
+    kv_v_s_m: Gains = (0.5, 0.7)
+    ka_v_s2_m: Gains = (0.12, 0.5)
 
     def __post_init__(self) -> None:
         self._u_max_v = np.full(2, 10.0)

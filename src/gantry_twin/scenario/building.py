@@ -1,0 +1,134 @@
+"""Building a run: a validated :class:`Scenario` -> the plant, path, controller, ... ``simulate`` takes.
+
+What needs the compiled model is checked here: the contour inside the
+travel, each window holding a sample; and the controller's factory gets
+its options (an exception from a plug-in's factory is reported against
+``controller.options``).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from gantry_twin.changes import PlantChanges
+from gantry_twin.controllers import Controller, EstimatorSettings, create
+from gantry_twin.monitor import Baseline, ExcitationSettings, HealthSettings, MachineMonitor
+from gantry_twin.paths import Ellipse, TimingLaw
+from gantry_twin.plant import AXES, Plant
+from gantry_twin.scenario.errors import ScenarioError
+from gantry_twin.scenario.loading import controller_options
+from gantry_twin.scenario.schema import Scenario
+from gantry_twin.sensing import SensingConfig
+from gantry_twin.simulate import Disturbance
+
+#: Clearance kept between a contour and the end of travel, metres.
+TRAVEL_MARGIN_M = 0.005
+
+
+@dataclass(frozen=True)
+class BuiltRun:
+    """Everything ``simulate`` needs, made from a scenario."""
+
+    scenario: Scenario
+    plant: Plant
+    path: Ellipse
+    timing: TimingLaw
+    controller: Controller
+    sensing: SensingConfig
+    disturbance: Disturbance | None
+    changes: PlantChanges | None = None
+    monitor: MachineMonitor | None = None  # a fresh one when monitor.enable
+
+
+def build(scenario: Scenario, source: str = "<scenario>") -> BuiltRun:
+    """Compile the plant, make the controller and check the contour fits the travel."""
+    changes = None if scenario.changes.empty else scenario.changes
+    payload_body = changes is not None and bool(changes.payload_change)
+    plant = Plant(scenario.payload, payload_body=payload_body)
+    path = scenario.contour.path()
+    _check_travel(plant, path, source)
+    _check_samples(scenario, plant.timestep_s, source)
+    kwargs = controller_options(scenario, source)
+    try:
+        controller = create(scenario.controller.name, **kwargs)
+    except (TypeError, ValueError) as exc:
+        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        name = scenario.controller.name
+        raise ScenarioError(source, "controller.options", f"rejected by {name!r}: {first}") from None
+    disturbance = None if scenario.disturbance.empty else scenario.disturbance.function()
+    monitor = make_monitor(scenario, controller, source) if scenario.monitor.enable else None
+    return BuiltRun(scenario, plant, path, scenario.timing_law(), controller, scenario.sensing, disturbance, changes,
+                    monitor)  # fmt: skip
+
+
+def make_monitor(scenario: Scenario, controller: Controller, source: str = "<scenario>") -> MachineMonitor:
+    """The MachineMonitor of a scenario: filters default to the controller's estimator's (DIARC)."""
+    m = scenario.monitor
+    filter_hz = m.filter_hz
+    if filter_hz is None:
+        settings = getattr(controller, "estimator_settings", None) or EstimatorSettings()
+        filter_hz = settings.filter_hz
+    excitation = ExcitationSettings(window_s=m.excitation_window_s, filter_hz=tuple(filter_hz),
+                                    min_parameter_v=m.min_parameter_v)  # fmt: skip
+    tolerance = tuple([m.tolerance_pct / 100.0] * 6 + [m.tolerance_dn_v] * 2)
+    health = HealthSettings(tolerance, m.decision_interval_s, tuple(m.baseline_window_s), m.judge_from_s)
+    baseline = None
+    if m.baseline_summary is not None:
+        baseline = _baseline_from_summary(m.baseline_summary, source)
+    return MachineMonitor(excitation, health, baseline)
+
+
+def _baseline_from_summary(given: str, source: str) -> Baseline:
+    """A commissioning run's estimates (its summary.json) as the monitor's baseline; path relative to the scenario."""
+    path = Path(given)
+    if not path.is_absolute() and Path(source).is_file():
+        path = Path(source).parent / path
+    field = "monitor.baseline_summary"
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+        estimates = {name: float(e["estimate"]) for name, e in data["estimates"].items()}
+        return Baseline.from_mapping(estimates, f"commissioning run {path}")
+    except OSError as exc:
+        raise ScenarioError(source, field, f"cannot read {path} ({exc.strerror}); give a run's summary.json") from None
+    except (ValueError, KeyError, TypeError, AttributeError) as exc:
+        why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise ScenarioError(source, field, f"{path} is not a DIARC run's summary.json with estimates ({why})") from None
+
+
+def _check_samples(scenario: Scenario, sample_period_s: float, source: str) -> None:
+    """The run holds two samples and each window at least one (samples at k Ts, k < n)."""
+    n = int(round(scenario.duration_s / sample_period_s))
+    if n < 2:
+        raise ScenarioError(
+            source,
+            "duration_s",
+            f"must hold at least two samples of {sample_period_s:g} s, got {scenario.duration_s:g}",
+        )
+    t = np.arange(n) * sample_period_s
+    for field, (lo, hi) in (("window_s", scenario.metric_window_s), ("estimates_window_s", scenario.estimate_window_s)):
+        if not np.any((t >= lo) & (t < hi)):
+            raise ScenarioError(
+                source, field, f"[{lo:g}, {hi:g}) s holds no sample; samples are at multiples of {sample_period_s:g} s"
+            )
+
+
+def _check_travel(plant: Plant, path: Ellipse, source: str) -> None:
+    """Every point of the contour within the joint range less a margin."""
+    ranges = plant.model.jnt_range
+    joints = [plant.model.joint(a).id for a in AXES]
+    phi = np.linspace(0.0, path.period_rad, 721)
+    p, *_ = path.derivatives(phi)
+    for axis, (name, joint) in enumerate(zip(AXES, joints, strict=True)):
+        lo, hi = ranges[joint] + np.array([TRAVEL_MARGIN_M, -TRAVEL_MARGIN_M])
+        reach = (float(p[:, axis].min()), float(p[:, axis].max()))
+        if reach[0] < lo - 1e-12 or reach[1] > hi + 1e-12:
+            raise ScenarioError(
+                source,
+                "contour",
+                f"the path spans {name} in [{reach[0]:.4g}, {reach[1]:.4g}] m; the travel allows "
+                f"[{lo:.4g}, {hi:.4g}] m (joint range less {TRAVEL_MARGIN_M * 1e3:g} mm); shrink or move it",
+            )

@@ -1,0 +1,333 @@
+"""The scenario schema: what a scenario file may say, field by field.
+
+The domain settings are fields of their own types (:class:`Payload`,
+:class:`SensingConfig`, :class:`PlantChanges`, and the built-in controllers'
+``gains``, ``estimator``, ...): their ranges are declared once, on those
+types (:mod:`gantry_twin.ranges`). What exists only in a scenario (the
+contour and its timing, disturbance events, the monitor switch and windows,
+outputs) is declared here as pydantic models. Unknown keys are rejected with
+the list of allowed keys.
+"""
+
+from __future__ import annotations
+
+import functools
+import inspect
+import math
+from typing import Annotated, Any, ClassVar, Literal, get_type_hints
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, create_model, model_validator
+from pydantic_core import PydanticCustomError
+
+from gantry_twin.changes import PlantChanges
+from gantry_twin.controllers import available
+from gantry_twin.estimation import FilterHz
+from gantry_twin.monitor import (
+    DecisionIntervalS,
+    ExcitationSettings,
+    ExcitationWindowS,
+    HealthSettings,
+    MinParameterV,
+)
+from gantry_twin.paths import Ellipse, TimingLaw
+from gantry_twin.plant import Payload
+from gantry_twin.ranges import VOLTS_MAX_V, Frequency, Range, Real, Seconds, Window, known_keys
+from gantry_twin.sensing import SensingConfig
+from gantry_twin.simulate import Disturbance
+
+#: Longest run accepted, s (30 s is the paper's; an hour is 18 M samples).
+DURATION_MAX_S = 3600.0
+#: A disturbance event's volts.
+Volts = Range(-VOLTS_MAX_V, VOLTS_MAX_V, "V")
+
+
+class _Model(BaseModel):
+    """Frozen, unknown keys rejected with the list of allowed keys."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    _known_keys = model_validator(mode="before")(classmethod(known_keys))
+
+
+# ---------------------------------------------------------------------------
+# The contour and its timing.
+
+
+class TimingSpec(_Model):
+    """phi(t): constant rate after an optional smooth start (control-spec section 3)."""
+
+    rate_rad_s: Range(0.0, 20.0, "rad/s", lo_open=True) | None = None
+    start: Literal["on_path", "rest"] = "on_path"
+    ramp_s: Range(0.0, 60.0, "s", lo_open=True) = 0.5
+
+
+Point2 = tuple[Real, Real]
+Extent = Range(0.0, 1.0, "m", lo_open=True)
+
+
+class CircleSpec(_Model):
+    """The paper's circle (5.1): radius 0.2 m at 2 rad/s (0.4 m/s)."""
+
+    type: Literal["circle"] = "circle"
+    radius_m: Extent = 0.2
+    centre_m: Point2 = (0.0, 0.0)
+    timing: TimingSpec = TimingSpec()
+
+    default_rate_rad_s: ClassVar[float] = 2.0
+
+    def path(self) -> Ellipse:
+        return Ellipse(self.radius_m, self.radius_m, tuple(self.centre_m))
+
+
+class EllipseSpec(_Model):
+    """p(phi) = centre + [a sin phi, -b cos phi]; the paper's (5.2) at 3 rad/s."""
+
+    type: Literal["ellipse"] = "ellipse"
+    semi_x_m: Extent = 0.2
+    semi_y_m: Extent = 0.1
+    centre_m: Point2 = (0.0, 0.1)
+    timing: TimingSpec = TimingSpec()
+
+    default_rate_rad_s: ClassVar[float] = 3.0
+
+    def path(self) -> Ellipse:
+        return Ellipse(self.semi_x_m, self.semi_y_m, tuple(self.centre_m))
+
+
+ContourSpec = Annotated[CircleSpec | EllipseSpec, Field(discriminator="type")]
+
+
+# ---------------------------------------------------------------------------
+# Disturbance events.
+
+
+class _Event(_Model):
+    start_s: Seconds = 0.0
+    end_s: Seconds | None = None
+
+    @model_validator(mode="after")
+    def _ordered(self) -> _Event:
+        if self.end_s is not None and self.end_s <= self.start_s:
+            raise PydanticCustomError(
+                "order", "end_s must be after start_s = {start}, got {end}", {"start": self.start_s, "end": self.end_s}
+            )
+        return self
+
+    def _active(self, t: np.ndarray) -> np.ndarray:
+        end = math.inf if self.end_s is None else self.end_s
+        return (t >= self.start_s) & (t < end)
+
+
+class StepEvent(_Event):
+    """value_v on [start_s, end_s) (end_s omitted: to the end of the run)."""
+
+    type: Literal["step"] = "step"
+    value_v: Volts
+    start_s: Seconds = 0.0
+    end_s: Seconds | None = None
+
+    def volts(self, t: np.ndarray) -> np.ndarray:
+        return np.where(self._active(t), self.value_v, 0.0)
+
+
+class RampEvent(_Event):
+    """Linear from from_v at start_s to to_v at end_s, zero outside [start_s, end_s)."""
+
+    type: Literal["ramp"] = "ramp"
+    from_v: Volts = 0.0
+    to_v: Volts
+    start_s: Seconds = 0.0
+    end_s: Seconds
+
+    def volts(self, t: np.ndarray) -> np.ndarray:
+        frac = (t - self.start_s) / (self.end_s - self.start_s)
+        return np.where(self._active(t), self.from_v + (self.to_v - self.from_v) * frac, 0.0)
+
+
+class SineEvent(_Event):
+    """amplitude_v sin(2 pi frequency_hz t + phase_rad) on [start_s, end_s), t the run time."""
+
+    type: Literal["sine"] = "sine"
+    amplitude_v: Volts
+    frequency_hz: Frequency
+    phase_rad: Real = 0.0
+    start_s: Seconds = 0.0
+    end_s: Seconds | None = None
+
+    def volts(self, t: np.ndarray) -> np.ndarray:
+        wave = self.amplitude_v * np.sin(2.0 * np.pi * self.frequency_hz * t + self.phase_rad)
+        return np.where(self._active(t), wave, 0.0)
+
+
+EventSpec = Annotated[StepEvent | RampEvent | SineEvent, Field(discriminator="type")]
+#: The ``type`` tags of the two discriminated unions (pydantic puts them in an error's location).
+CONTOUR_TYPES = tuple(m.model_fields["type"].default for m in (CircleSpec, EllipseSpec))
+EVENT_TYPES = tuple(m.model_fields["type"].default for m in (StepEvent, RampEvent, SineEvent))
+
+
+class DisturbanceSpec(_Model):
+    """Input disturbance per axis (volts, summed over events), unseen by the controller."""
+
+    x: list[EventSpec] = []
+    y: list[EventSpec] = []
+
+    def function(self) -> Disturbance:
+        """t (N,) s -> (N, 2) volts, for ``simulate(disturbance=...)``."""
+        per_axis = (tuple(self.x), tuple(self.y))
+
+        def volts(t_s: np.ndarray) -> np.ndarray:
+            t = np.asarray(t_s, dtype=float)
+            out = np.zeros((t.size, 2))
+            for axis, events in enumerate(per_axis):
+                for event in events:
+                    out[:, axis] += event.volts(t)
+            return out
+
+        return volts
+
+    @property
+    def empty(self) -> bool:
+        return not (self.x or self.y)
+
+
+# ---------------------------------------------------------------------------
+# Controller, monitor, outputs.
+
+
+class ControllerSpec(_Model):
+    """A controller by registry name and the keyword options of its factory."""
+
+    name: str = "diarc"
+    options: dict[str, Any] = {}
+
+    @model_validator(mode="after")
+    def _known_name(self) -> ControllerSpec:
+        names = available()
+        if self.name not in names:
+            raise PydanticCustomError(
+                "unknown_controller",
+                "unknown controller '{name}'; available: {names}",
+                {"name": self.name, "names": ", ".join(names)},
+            )
+        return self
+
+
+_HEALTH = HealthSettings()
+_EXCITATION = ExcitationSettings()
+
+
+class MonitorSpec(_Model):
+    """The excitation and health monitor (gantry_twin.monitor, docs/health.md).
+
+    Its fields are those of :class:`ExcitationSettings` and
+    :class:`HealthSettings` (same types and defaults), except the tolerance,
+    given as one relative value for M, B, Af and one in volts for dN.
+    """
+
+    enable: bool = False
+    baseline_window_s: Window = _HEALTH.baseline_window_s
+    baseline_summary: str | None = None
+    judge_from_s: Seconds | None = _HEALTH.judge_from_s
+    tolerance_pct: Range(0.0, 100.0, "%", lo_open=True) = 100.0 * _HEALTH.tolerance[0]
+    tolerance_dn_v: Range(0.0, VOLTS_MAX_V, "V", lo_open=True) = _HEALTH.tolerance[6]
+    decision_interval_s: DecisionIntervalS = _HEALTH.decision_interval_s
+    excitation_window_s: ExcitationWindowS = _EXCITATION.window_s
+    min_parameter_v: MinParameterV = _EXCITATION.min_parameter_v
+    filter_hz: FilterHz | None = None
+
+
+class OutputsSpec(_Model):
+    """Where and what ``gantry-twin run`` writes."""
+
+    dir: str | None = None
+    trace: bool = True
+    trace_stride: Annotated[int, Field(ge=1, le=100000)] = 1
+
+
+# ---------------------------------------------------------------------------
+# The whole run.
+
+
+class Scenario(_Model):
+    """A whole run. Every field has a default; see docs/scenarios.md."""
+
+    name: str | None = None
+    description: str = ""
+    contour: ContourSpec = CircleSpec()
+    payload: Payload = Payload()
+    disturbance: DisturbanceSpec = DisturbanceSpec()
+    controller: ControllerSpec = ControllerSpec()
+    sensing: SensingConfig = SensingConfig()
+    duration_s: Range(0.0, DURATION_MAX_S, "s", lo_open=True) = 30.0
+    window_s: Window | None = None
+    estimates_window_s: Window | None = None
+    changes: PlantChanges = PlantChanges()
+    monitor: MonitorSpec = MonitorSpec()
+
+    outputs: OutputsSpec = OutputsSpec()
+
+    @model_validator(mode="before")
+    @classmethod
+    def _circle_by_default(cls, data: Any) -> Any:
+        """A contour mapping without ``type`` is a circle (the default contour)."""
+        if isinstance(data, dict) and isinstance(data.get("contour"), dict) and "type" not in data["contour"]:
+            data = {**data, "contour": {"type": "circle", **data["contour"]}}
+        return data
+
+    # -- derived quantities -------------------------------------------------
+    @property
+    def rate_rad_s(self) -> float:
+        rate = self.contour.timing.rate_rad_s
+        return self.contour.default_rate_rad_s if rate is None else rate
+
+    @property
+    def period_s(self) -> float:
+        """T = 2 pi / rate: one lap of the contour at full speed."""
+        return 2.0 * math.pi / self.rate_rad_s
+
+    def timing_law(self) -> TimingLaw:
+        t = self.contour.timing
+        return TimingLaw(self.rate_rad_s, t.start, t.ramp_s)
+
+    @property
+    def metric_window_s(self) -> tuple[float, float]:
+        """window_s, or the second period [t0 + T, t0 + 2T] (t0: end of the start ramp)."""
+        if self.window_s is not None:
+            return (float(self.window_s[0]), float(self.window_s[1]))
+        t0 = self.timing_law().settled_s
+        return (t0 + self.period_s, t0 + 2.0 * self.period_s)
+
+    @property
+    def estimate_window_s(self) -> tuple[float, float]:
+        """estimates_window_s, or the last period [duration - T, duration]."""
+        if self.estimates_window_s is not None:
+            return (float(self.estimates_window_s[0]), float(self.estimates_window_s[1]))
+        return (self.duration_s - self.period_s, self.duration_s)
+
+    def resolved(self) -> dict[str, Any]:
+        """Every field with its value (defaults and windows filled in), JSON-compatible."""
+        data = self.model_dump(mode="json")
+        data["contour"]["timing"]["rate_rad_s"] = self.rate_rad_s
+        data["window_s"] = list(self.metric_window_s)
+        data["estimates_window_s"] = list(self.estimate_window_s)
+        return data
+
+
+# ---------------------------------------------------------------------------
+# Controller options: a built-in's are the keyword arguments of its factory, typed by
+# the factory's own annotations; a plug-in's pass through untyped.
+
+
+@functools.cache
+def typed_options(factory: Any) -> type[_Model] | None:
+    """A model of the factory's keyword arguments, for a built-in (defined in gantry_twin); None for a plug-in."""
+    if not str(getattr(factory, "__module__", "")).startswith("gantry_twin."):
+        return None
+    hints = get_type_hints(factory.__init__ if inspect.isclass(factory) else factory, include_extras=True)
+    fields = {
+        name: (hints.get(name, Any), None if p.default is inspect.Parameter.empty else p.default)
+        for name, p in inspect.signature(factory).parameters.items()
+        if p.kind in (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)
+    }
+    return create_model(f"{factory.__name__}Options", __base__=_Model, **fields)
