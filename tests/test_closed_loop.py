@@ -15,7 +15,7 @@ from gantry_twin import Plant, SensingConfig, TimingLaw, circle, simulate
 from gantry_twin.controllers import DRC
 from gantry_twin.metrics import contour_metrics, window_mask
 
-from .conftest import run, step_on_y
+from .helpers import run, step_on_y
 
 
 def test_feedforward_is_exact_with_true_parameters():

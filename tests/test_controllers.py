@@ -13,7 +13,7 @@ from gantry_twin.controllers import available, create, register, unregister
 from gantry_twin.controllers.base import Measurement, ReferenceSample, RunContext
 from gantry_twin.trace import SimulationError
 
-from .conftest import run
+from .helpers import run
 
 
 class ToyController:

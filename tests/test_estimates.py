@@ -16,7 +16,7 @@ from gantry_twin import SensingConfig
 from gantry_twin.controllers import RECOMMENDED_ESTIMATOR, EstimatorSettings
 from gantry_twin.metrics import estimate_errors_pct, steady_estimates
 
-from .conftest import run
+from .helpers import run
 
 PHYSICAL = ("M1", "M2", "B1", "B2", "Af1", "Af2")
 CASES = [(c, load) for c in ("circle", "ellipse") for load in (0.0, 5.0)]
