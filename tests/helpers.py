@@ -70,12 +70,13 @@ def step_on_y(value_v: float = 0.6, start_s: float = 1.86, end_s: float = 4.86):
     return disturbance
 
 
-def run(controller: str, contour_name: str = "circle", duration_s: float = 7.0, payload_kg: float = 0.0,
-        sensing: SensingConfig | None = None, disturbance=None, observers=(), **options):  # fmt: skip
-    """Simulate one paper-style run; returns (trace, period s)."""
+def run(name: str, contour_name: str = "circle", duration_s: float = 7.0, payload_kg: float = 0.0,
+        sensing: SensingConfig | None = None, disturbance=None, observers=(), controller=None, **options):  # fmt: skip
+    """Simulate one paper-style run of controller ``name`` (or of ``controller``); returns (trace, period s)."""
     path, timing, period = contour(contour_name)
-    trace = simulate(Plant(Payload(payload_kg)), path, timing, create(controller, **options), duration_s,
-                     sensing=sensing, disturbance=disturbance, observers=observers)  # fmt: skip
+    controller = controller if controller is not None else create(name, **options)
+    trace = simulate(Plant(Payload(payload_kg)), path, timing, controller, duration_s, sensing=sensing,
+                     disturbance=disturbance, observers=observers)  # fmt: skip
     return trace, period
 
 
