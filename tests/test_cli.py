@@ -13,7 +13,7 @@ from gantry_twin import cli, report, results
 from gantry_twin.plant import THETA_NAMES
 from gantry_twin.scenario import shipped
 
-from .helpers import deviation_pct, spec_theta
+from .helpers import deviation_pct, read_rrd, scalars, spec_theta
 
 #: Short runs: 0.2 s of simulation (1000 samples) with windows inside it.
 SHORT = ["--set", "duration_s=0.2", "--set", "window_s=[0.05, 0.2]", "--set", "estimates_window_s=[0.1, 0.2]"]
@@ -386,7 +386,52 @@ def test_paper_matrix_has_16_paper_runs_and_4_recommended():
     assert sum(k[2] == "C2r" for k in labels) == 4
 
 
-def test_report_on_a_tiny_matrix(tmp_path):
+#: The tiny matrix's runs as the paper defines its columns (C1 DARC, C2 DIARC with the paper's estimator,
+#: C2r DIARC with the recommended one; Set 1 no load, Set 3 step disturbance): key -> (scenario, controller, --set).
+TINY_RUNS = {
+    "set1_circle_C1": ("no_load_circle", "darc", ()),
+    "set1_circle_C2": ("no_load_circle", "diarc", ("controller.options.estimator=paper",)),
+    "set1_circle_C2r": ("no_load_circle", "diarc", ("controller.options.estimator=recommended",)),
+    "set3_circle_C1": ("step_disturbance_circle", "darc", ()),
+    "set3_circle_C2": ("step_disturbance_circle", "diarc", ("controller.options.estimator=paper",)),
+}
+
+
+def _independent_numbers(tmp_path, capsys) -> dict[str, dict]:
+    """Each tiny-matrix run done again with `run`, its numbers computed from trace.parquet with plain numpy."""
+    numbers = {}
+    for key, (scenario, controller, extra) in TINY_RUNS.items():
+        out = tmp_path / "independent" / key
+        sets = [arg for override in (*TINY, *extra) for arg in ("--set", override)]
+        code, _, err = run_main(["run", scenario, "--controller", controller, *sets, "--out", str(out)], capsys)
+        assert code == 0, err
+        table = pq.read_table(out / "trace.parquet")
+        t = table.column("t_s").to_numpy()
+        eps_um = np.abs(table.column("eps_c_m").to_numpy()[(t >= 0.02) & (t < 0.1)]) * 1e6
+        in_estimates_window = (t >= 0.05) & (t < 0.1)
+        estimates = [table.column(f"theta_hat_{n}").to_numpy()[in_estimates_window].mean() for n in THETA_NAMES]
+        numbers[key] = {"steps": t.size, "rms_um": math.sqrt(np.mean(eps_um**2)), "max_um": eps_um.max(),
+                        "estimates": np.array(estimates)}  # fmt: skip
+    return numbers
+
+
+def _section(text: str, heading: str) -> str:
+    """The Markdown from the heading starting with ``heading`` to the next heading of its level."""
+    start = text.index(heading)
+    end = text.find("\n## ", start + len(heading))
+    return text[start : end if end >= 0 else None]
+
+
+def _row_cells(text: str, row_start: str) -> list[str]:
+    """The cells after the label of the one Markdown table row starting with row_start."""
+    rows = [line for line in text.splitlines() if line.startswith(row_start)]
+    assert len(rows) == 1, (row_start, rows)
+    return [cell.strip() for cell in rows[0].strip("|").split("|")[1:]]
+
+
+def test_report_on_a_tiny_matrix(tmp_path, capsys):
+    """The report's numbers (results.json, Tables 1 and 3, the runs table) against the same runs done with
+    `run` and computed from their traces, estimates judged against the spec's machine."""
     cases = report.paper_matrix(TINY, sets=(1, 3), contours=("circle",), labels=("C1", "C2", "C2r"))
     assert len(cases) == 5
     res = report.run_matrix(cases, jobs=2)
@@ -396,15 +441,35 @@ def test_report_on_a_tiny_matrix(tmp_path):
     for heading in ("Table 1", "Table 2", "Table 3", "Table 4", "after running the gantry for one period"):
         assert heading in text
     assert "| rms paper (um) | 2.03 | 1.99 | 7.33 |" in text
-    assert "DIARC recommended: max deviation %" in text
     pngs = sorted(p.name for p in (tmp_path / "rep").glob("*.png"))
     assert pngs == ["fig2_set3_circle_contour_error.png", "fig4_set1_y_estimates.png"]
     for name in pngs:
         assert (tmp_path / "rep" / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    numbers = json.loads((tmp_path / "rep" / "results.json").read_text())
-    assert len(numbers["runs"]) == 5
-    c1 = next(r for r in res if r.case.key == "set1_circle_C1")
-    assert numbers["runs"][0]["rms_um"] == c1.rms_um
+
+    expected = _independent_numbers(tmp_path, capsys)
+    truth = spec_theta(0.0)  # Sets 1 and 3 carry no load
+    runs = {run["key"]: run for run in json.loads((tmp_path / "rep" / "results.json").read_text())["runs"]}
+    assert set(runs) == set(TINY_RUNS)
+    for key, want in expected.items():
+        got = runs[key]
+        assert got["steps"] == want["steps"] == 500, key
+        assert got["rms_um"] == pytest.approx(want["rms_um"], rel=1e-12), key
+        assert got["max_um"] == pytest.approx(want["max_um"], rel=1e-12), key
+        np.testing.assert_allclose(got["estimates"], want["estimates"], rtol=1e-12, atol=1e-15, err_msg=key)
+        np.testing.assert_allclose(got["true_theta"], truth, rtol=1e-12, atol=1e-15, err_msg=key)
+        row = _row_cells(_section(text, "## Runs"), f"| {key} |")
+        assert row[:3] == ["500", f"{want['rms_um']:.3f}", f"{want['max_um']:.3f}"], key
+    # Table 1 (circle): columns Set 1 C1 C2 C3, Set 2 C1 C2 C3, Set 3 C1 C2; runs not in the matrix show "-".
+    columns = ["set1_circle_C1", "set1_circle_C2", None, None, None, None, "set3_circle_C1", "set3_circle_C2"]
+    for what in ("rms", "max"):
+        cells = [f"**{expected[key][f'{what}_um']:.2f}**" if key else "**-**" for key in columns]
+        assert _row_cells(_section(text, "## Table 1:"), f"| **{what} twin (um)** |") == cells
+    # Table 3 (Set 1): each estimate with its deviation from the spec's value.
+    for name, key in (("DIARC paper settings", "set1_circle_C2"), ("DIARC recommended", "set1_circle_C2r"),
+                      ("DARC", "set1_circle_C1")):  # fmt: skip
+        estimates = expected[key]["estimates"]
+        cells = [f"{estimates[i]:.4f} ({deviation_pct(estimates[i], truth[i]):+.1f} %)" for i in range(6)]
+        assert _row_cells(_section(text, "## Table 3:"), f"| {name}: circle |") == cells, name
 
 
 def _fake(set_id, contour, label, rms, peak, est=None, true=None):
@@ -439,11 +504,31 @@ def test_findings_apply_the_issue_thresholds():
 
 
 def test_run_records_telemetry_to_a_file(tmp_path):
+    """The recording `run --save` writes holds the run's trace.parquet, sample for sample."""
     rrd = tmp_path / "run.rrd"
-    code = cli.main(["run", "no_load_circle", *SHORT, "--out", str(tmp_path / "out"), "--save", str(rrd)])
+    out = tmp_path / "out"
+    code = cli.main(["run", "no_load_circle", *SHORT, "--out", str(out), "--save", str(rrd)])
     assert code == 0
-    assert rrd.stat().st_size > 0
-    assert (tmp_path / "out" / "summary.json").is_file()
+    table = pq.read_table(out / "trace.parquet")
+    assert table.num_rows == 1000
+    data = read_rrd(rrd)
+    times_ns = np.rint(table.column("t_s").to_numpy() * 1e9).astype(np.int64)
+    recorded = {
+        "errors/contour/eps_c_um": table.column("eps_c_m").to_numpy() * 1e6,
+        "errors/axial/e_x_um": table.column("x_m").to_numpy() * 1e6 - table.column("x_d_m").to_numpy() * 1e6,
+        "inputs/u_x_V": table.column("u_x_v").to_numpy(),
+        "inputs/u_y_V": table.column("u_y_v").to_numpy(),
+        "estimates/M1_V_s2_per_m/estimate": table.column("theta_hat_M1").to_numpy(),
+        "estimates/Af2_V/estimate": table.column("theta_hat_Af2").to_numpy(),
+    }
+    for entity, expected in recorded.items():
+        np.testing.assert_array_equal(data[entity]["time_ns"], times_ns, err_msg=entity)
+        np.testing.assert_allclose(scalars(data, entity)[:, 0], expected, rtol=1e-12, atol=1e-9, err_msg=entity)
+    # The 3D view: the X carriage's translation, 50 Hz (every 100th sample), float32.
+    carriage = data["gantry/y_carriage/x_carriage"]
+    np.testing.assert_array_equal(carriage["time_ns"], times_ns[::100])
+    translation = np.asarray(carriage["Transform3D:translation"], dtype=np.float32).reshape(-1, 3)
+    np.testing.assert_array_equal(translation[:, 0], table.column("x_m").to_numpy()[::100].astype(np.float32))
 
 
 def test_run_viewer_without_display_is_a_one_line_error(tmp_path, monkeypatch, capsys):
