@@ -123,6 +123,16 @@ MALFORMED = [
     ("sensing_bool", "sensing: {quantize: maybe}\n", "sensing.quantize", "valid boolean"),
     ("sensing_resolution", "sensing: {resolution_m: 0.5}\n", "sensing.resolution_m", "(0, 0.001] m"),
     ("trace_stride_zero", "outputs: {trace_stride: 0}\n", "outputs.trace_stride", "greater than or equal to 1"),
+    ("name_not_text", "name: [1, 2]\n", "name", "valid string"),
+    ("description_not_text", "description: {a: 1}\n", "description", "valid string"),
+    ("monitor_enable_not_bool", "monitor: {enable: maybe}\n", "monitor.enable", "valid boolean"),
+    ("unknown_change", "changes: {bogus: 1}\n", "changes.bogus", "allowed: friction_drift, payload_change"),
+    (
+        "payload_change_before_start",
+        "changes: {payload_change: [{time_s: -1, mass_kg: 5}]}\n",
+        "changes.payload_change[0].time_s",
+        "got -1",
+    ),
 ]
 
 
@@ -152,8 +162,32 @@ def test_malformed_scenario_exit_2_one_line_nothing_written(tmp_path, capsys, te
     assert stdout == ""
 
 
-def test_at_least_25_malformed_files():
-    assert len(MALFORMED) >= 25
+#: Cases that are the same malformation written differently, so get the same message: case -> its twin.
+SAME_MALFORMATION = {"only_comment": "empty"}
+
+
+def test_at_least_25_malformed_files(tmp_path, capsys):
+    """The program tells every malformation here apart (a message of its own once the file's name is taken
+    out: at least 25 of them), and every top-level field it accepts (the list its own error gives) has a case."""
+    messages: dict[str, str] = {}
+    for name, text, _, _ in MALFORMED:
+        path = tmp_path / f"{name}.yaml"
+        path.write_text(text)
+        code, _, err = run_main(["validate", str(path)], capsys)
+        assert code == 2, name
+        messages[name] = err.strip().replace(str(path), "<file>")
+    for name, twin in SAME_MALFORMATION.items():
+        assert messages.pop(name) == messages[twin]
+    shared = {m: [n for n in messages if messages[n] == m] for m in messages.values()}
+    assert len(shared) == len(messages), [names for names in shared.values() if len(names) > 1]
+    assert len(shared) >= 25
+    unknown = tmp_path / "unknown.yaml"
+    unknown.write_text("no_such_field: 1\n")
+    _, _, err = run_main(["validate", str(unknown)], capsys)
+    accepted = err.strip().split("allowed: ", 1)[1].split(", ")
+    assert len(accepted) >= 10 and "duration_s" in accepted
+    malformed_fields = {field.split(".")[0].split("[")[0] for _, _, field, _ in MALFORMED}
+    assert not set(accepted) - malformed_fields, f"fields without a malformed case: {set(accepted) - malformed_fields}"
 
 
 @pytest.mark.parametrize(
