@@ -41,6 +41,7 @@ def test_feedforward_is_exact_with_true_parameters():
     assert theta0 > 20 * exact
 
 
+@pytest.mark.slow
 def test_circle_no_load_paper_ranking(circle_set1_traces):
     """Set 1 circle over the second period: DIARC ~ DARC, DRC 2.5x worse (paper Table 1)."""
     window = (math.pi, 2 * math.pi)
@@ -114,6 +115,7 @@ def test_control_stays_in_dac_range():
     np.testing.assert_allclose(trace.q_m, q, rtol=0, atol=1e-9)
 
 
+@pytest.mark.slow
 def test_step_disturbance_spikes_and_recovery():
     """Set 3 circle: +0.6 V on Y from 1.86 s to 4.86 s, never seen by DIARC."""
     trace, _ = run("diarc", duration_s=6.5, disturbance=step_on_y())

@@ -146,6 +146,7 @@ class GammaSampler:
         pass
 
 
+@pytest.mark.slow
 def test_gamma_stays_spd_and_bounded_through_20_s():
     """The full Gamma, sampled every 0.1 s of a 20 s circle run, is symmetric positive definite and
     bounded (control-spec section 7); the logged lambda_max and diagonal are those of that matrix."""

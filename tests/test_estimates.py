@@ -18,6 +18,9 @@ from gantry_twin.controllers import RECOMMENDED_ESTIMATOR, EstimatorSettings
 
 from .helpers import THETA_MIN, deviation_pct, run, spec_theta
 
+#: Every test here is a 30 s closed-loop run (seconds each).
+pytestmark = pytest.mark.slow
+
 PHYSICAL = ("M1", "M2", "B1", "B2", "Af1", "Af2")
 CASES = [(c, load) for c in ("circle", "ellipse") for load in (0.0, 5.0)]
 DURATION_S = 30.0

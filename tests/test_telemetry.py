@@ -353,6 +353,7 @@ def test_connect_streams_every_sample_to_a_running_rerun_server(tmp_path):
     np.testing.assert_allclose(m1, table.column("theta_hat_M1").to_numpy())
 
 
+@pytest.mark.slow
 def test_health_alarms_are_events_on_the_timeline(tmp_path):
     """A monitored run records each alarm as a text event at its time, and the excitation per axis."""
     import json
