@@ -80,6 +80,15 @@ def run(name: str, contour_name: str = "circle", duration_s: float = 7.0, payloa
     return trace, period
 
 
+def run_main(argv: list[str], capsys) -> tuple[int, str, str]:  # noqa: ANN001
+    """The command line through ``gantry_twin.cli.main``: (exit code, stdout, stderr)."""
+    from gantry_twin import cli
+
+    code = cli.main(argv)
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
+
+
 # ---------------------------------------------------------------------------
 # Rerun recordings read back headless (rerun 0.41).
 
