@@ -50,6 +50,7 @@ def assert_same_trace(a, b):  # noqa: ANN001, ANN201
     assert a.filled == b.filled == a.t_s.size
 
 
+@pytest.mark.slow
 def test_diarc_two_seconds_compiled_equals_reference():
     (a, ca), (b, cb) = run_both(DIARC, 2.0)
     assert_same_trace(a, b)

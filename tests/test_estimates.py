@@ -1,10 +1,11 @@
 """DIARC's physical parameter estimates against the model's true values (issue 3, item 3).
 
 Steady-state estimate = mean theta^ over the last period of a 30 s run
-(control-spec section 8), compared with ``true_parameters`` of the compiled
-model. Checked on the estimates themselves, not only the contour error: a
-zero-order-hold position filter or a wrong regressor keeps the contour error
-small but pins the estimates at their bounds.
+(control-spec section 8), compared with the spec's machine (section 1, typed
+in tests/helpers.py, not read back from the code). Checked on the estimates
+themselves, not only the contour error: a zero-order-hold position filter or
+a wrong regressor keeps the contour error small but pins the estimates at
+their bounds.
 """
 
 from __future__ import annotations
@@ -14,18 +15,23 @@ import pytest
 
 from gantry_twin import SensingConfig
 from gantry_twin.controllers import RECOMMENDED_ESTIMATOR, EstimatorSettings
-from gantry_twin.metrics import estimate_errors_pct, steady_estimates
 
-from .conftest import run
+from .helpers import THETA_MIN, deviation_pct, run, spec_theta
+
+#: Every test here is a 30 s closed-loop run (seconds each).
+pytestmark = pytest.mark.slow
 
 PHYSICAL = ("M1", "M2", "B1", "B2", "Af1", "Af2")
 CASES = [(c, load) for c in ("circle", "ellipse") for load in (0.0, 5.0)]
+DURATION_S = 30.0
 
 
 def steady_errors(contour_name, payload_kg, sensing, estimator):
-    trace, period = run("diarc", contour_name, 30.0, payload_kg, sensing=sensing, estimator=estimator)
-    estimate = steady_estimates(trace, (30.0 - period, 30.0))
-    return estimate_errors_pct(estimate, trace.true_theta), estimate
+    """% deviation of each physical estimate from the spec's value, and the last period's theta^ (samples x 8)."""
+    trace, period = run("diarc", contour_name, DURATION_S, payload_kg, sensing=sensing, estimator=estimator)
+    last_period = trace.controller_state["theta_hat"][trace.t_s >= DURATION_S - period]
+    errors = deviation_pct(last_period.mean(axis=0)[:6], spec_theta(payload_kg)[:6])
+    return dict(zip(PHYSICAL, errors, strict=True)), last_period
 
 
 @pytest.mark.parametrize(("contour_name", "payload_kg"), CASES)
@@ -37,16 +43,22 @@ def test_ideal_sensing_paper_filters_within_5_percent(contour_name, payload_kg):
 
 @pytest.mark.parametrize(("contour_name", "payload_kg"), CASES)
 def test_encoder_with_recommended_estimator_within_5_percent(contour_name, payload_kg):
-    errors, estimate = steady_errors(contour_name, payload_kg, SensingConfig(), RECOMMENDED_ESTIMATOR)
+    errors, last_period = steady_errors(contour_name, payload_kg, SensingConfig(), RECOMMENDED_ESTIMATOR)
     for name in PHYSICAL:
         assert abs(errors[name]) < 5.0, f"{name}: {errors[name]:+.2f} %"
     # No unmodelled input here, so the nominal disturbance estimates stay near 0 V.
-    assert np.all(np.abs(estimate[6:]) < 0.02)
+    assert np.all(np.abs(last_period.mean(axis=0)[6:]) < 0.02)
 
 
 def test_paper_filters_with_encoder_bias_m1_on_the_circle():
-    """Control-spec section 7: quantisation noise in x_f'' (gain ~wn^2) shrinks M1
-    by ~24 % with the 250 Hz filter (errors in variables). The twin reproduces it,
-    which is why its recommended estimator uses 50 Hz filters."""
-    errors, _ = steady_errors("circle", 0.0, SensingConfig(), EstimatorSettings())
-    assert errors["M1"] < -10.0
+    """Control-spec section 7: quantisation noise in x_f'' (gain ~wn^2, ~0.36 m/s^2 rms with the 250 Hz
+    filter) against the circle's X acceleration (0.8 m/s^2 amplitude, 0.57 rms) shrinks M1 by errors in
+    variables: by ~24 % (spec); 1 - 0.57^2 / (0.57^2 + 0.36^2) = 29 % for a lone regressor. The
+    twin reproduces it, which is why its recommended estimator uses 50 Hz filters. M1's lower bound
+    (0.05 V s^2/m) is -58 %: an estimate pinned there is a different failure and must not pass."""
+    errors, last_period = steady_errors("circle", 0.0, SensingConfig(), EstimatorSettings())
+    assert -32.0 < errors["M1"] < -18.0, f"M1 {errors['M1']:+.1f} %"
+    assert last_period[:, 0].min() > 1.5 * THETA_MIN[0]  # well inside the bounds for the whole last period
+    # The bias is M1's: the other physical parameters stay close.
+    for name in PHYSICAL[1:]:
+        assert abs(errors[name]) < 6.0, f"{name}: {errors[name]:+.2f} %"

@@ -16,7 +16,7 @@ from gantry_twin.estimation import (
     project_metric,
 )
 
-RNG = np.random.default_rng(20101)
+from .helpers import THETA_MAX, THETA_MIN
 
 
 def random_spd(n: int, rng: np.random.Generator, condition: float = 1e3) -> np.ndarray:
@@ -64,8 +64,7 @@ def test_metric_projection_p4_p5(seed):
     for every theta in the box, (x - theta)^T Gamma^-1 (x - y) <= 0."""
     rng = np.random.default_rng(1000 + seed)
     n = 8
-    lower = np.array([0.05, 0.45, 0.35, 0.5, 0.05, 0.08, -0.5, -1.0])
-    upper = np.array([0.20, 0.60, 0.55, 0.8, 0.15, 0.25, 0.5, 1.0])
+    lower, upper = THETA_MIN, THETA_MAX
     gamma = random_spd(n, rng, condition=1e4)
     y = rng.uniform(lower - (upper - lower) * 3, upper + (upper - lower) * 3)
     x = project_metric(y, gamma, lower, upper)
@@ -78,17 +77,19 @@ def test_metric_projection_p4_p5(seed):
 
 
 def test_metric_projection_leaves_interior_points_alone():
-    gamma = random_spd(8, RNG)
+    rng = np.random.default_rng(20101)
+    gamma = random_spd(8, rng)
     lower, upper = -np.ones(8), np.ones(8)
-    y = RNG.uniform(-0.9, 0.9, 8)
+    y = rng.uniform(-0.9, 0.9, 8)
     np.testing.assert_array_equal(project_metric(y, gamma, lower, upper), y)
 
 
 def test_metric_projection_with_diagonal_gamma_is_clipping():
     """For a diagonal Gamma, eq. (16) reduces to the element-wise eq. (9)."""
-    gamma = np.diag(RNG.uniform(1, 100, 8))
+    rng = np.random.default_rng(20102)
+    gamma = np.diag(rng.uniform(1, 100, 8))
     lower, upper = -np.ones(8), np.ones(8)
-    y = RNG.uniform(-3, 3, 8)
+    y = rng.uniform(-3, 3, 8)
     np.testing.assert_allclose(project_metric(y, gamma, lower, upper), project_box(y, lower, upper))
 
 
@@ -115,8 +116,7 @@ def test_filter_discretisation_is_exact_for_ramps_and_holds():
 def test_least_squares_keeps_gamma_spd_and_recovers_parameters():
     """Noise-free linear regression u = g^T theta: estimates converge, Gamma stays SPD."""
     settings = LeastSquaresSettings()
-    lower = np.array([0.05, 0.45, 0.35, 0.5, 0.05, 0.08, -0.5, -1.0])
-    upper = np.array([0.20, 0.60, 0.55, 0.8, 0.15, 0.25, 0.5, 1.0])
+    lower, upper = THETA_MIN, THETA_MAX
     true = np.array([0.12, 0.5, 0.5, 0.7, 0.1, 0.15, 0.02, -0.03])
     theta = np.array([0.1, 0.55, 0.35, 0.5, 0.1, 0.15, 0.0, 0.0])
     gamma = np.diag(settings.gamma0_diag).astype(float)

@@ -19,11 +19,12 @@ import pytest
 
 from gantry_twin import Payload, Plant
 
-# Spec values, volt units; index 0 = X, 1 = Y.
-SPEC_M = {0.0: np.array([0.12, 0.50]), 5.0: np.array([13.28, 39.5]) / 69.0}
-SPEC_B = np.array([0.5, 0.7])
-SPEC_AF = np.array([0.10, 0.15])
-GEAR_N_PER_V = 69.0
+from .helpers import GEAR_N_PER_V, spec_theta
+
+# The spec's values (volt units), index 0 = X, 1 = Y.
+SPEC_M = {kg: spec_theta(kg)[0:2] for kg in (0.0, 5.0)}
+SPEC_B = spec_theta()[2:4]
+SPEC_AF = spec_theta()[4:6]
 
 CASES = [(payload, axis, sign) for payload in (0.0, 5.0) for axis in (0, 1) for sign in (1.0, -1.0)]
 

@@ -33,6 +33,7 @@ def relative_error(trace, j):  # noqa: ANN001, ANN201
     return (trace.controller_state["theta_hat"][:, j] - true) / true
 
 
+@pytest.mark.slow
 def test_friction_drift_b2_tracked_and_only_b2_alarms():
     _, trace, report = run("friction_drift_circle")
     t = trace.t_s
@@ -48,6 +49,7 @@ def test_friction_drift_b2_tracked_and_only_b2_alarms():
     assert alarm.direction == "up" and alarm.change_pct > 10.0
 
 
+@pytest.mark.slow
 def test_payload_pickup_masses_tracked_within_4_s_and_alarmed():
     _, trace, report = run("payload_pickup_circle")
     t = trace.t_s
@@ -64,6 +66,7 @@ def test_payload_pickup_masses_tracked_within_4_s_and_alarmed():
     assert report.final_status()["M1"] == "alarm" and report.final_status()["M2"] == "alarm"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["no_load_circle", "no_load_ellipse", "load_5kg_circle", "load_5kg_ellipse"])
 def test_paper_scenarios_raise_no_alarm_over_60_s(name):
     _, _, report = run(name, "duration_s=60", "monitor.enable=true")
@@ -93,6 +96,7 @@ def test_step_disturbance_alarms_on_dn2(name):
     assert dn2[0].change > 0.1  # volts: part of the unseen 0.6 V step
 
 
+@pytest.mark.slow
 def test_cogging_keeps_diarc_within_twice_its_ripple_free_error():
     """The recommended estimator's fast compensation (gamma_d = 3e4) absorbs the ripple;
     with the paper's 1e4 the same scenario grows 2.3x (see the closing note of issue 7)."""
@@ -105,6 +109,7 @@ def test_cogging_keeps_diarc_within_twice_its_ripple_free_error():
     assert with_ripple < 2.0 * without
 
 
+@pytest.mark.slow
 def test_single_encoder_spike_is_survived():
     spike_s = 10.0
     glitch = f"changes.encoder_glitch=[{{kind: spike, time_s: {spike_s}, axis: x, offset_m: 5.0e-5}}]"
@@ -127,6 +132,7 @@ def test_single_encoder_spike_is_survived():
     assert np.sqrt(np.mean(trace.eps_c_m[after] ** 2)) <= 1.05 * np.sqrt(np.mean(clean.eps_c_m[after] ** 2))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("overrides", "code"), [((), EXIT_ALARM), (("changes.payload_change=[]",), EXIT_OK)])
 def test_monitor_fail_on_alarm_exit_status(tmp_path, capsys, overrides, code):
     args = ["monitor", str(shipped("payload_pickup_circle")), "--out", str(tmp_path), "--fail-on-alarm",

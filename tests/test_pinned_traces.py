@@ -46,13 +46,23 @@ def trace_digests(scenario: str, controller: str, backend: str) -> dict[str, str
 
 
 CASES = [(p.stem, c) for p in shipped_scenarios() for c in CONTROLLERS]
+#: The compiled cases the quick run (-m "not slow") keeps: every controller on the plain circle, and DIARC
+#: on each scenario that exercises another per-sample concern of the loop (disturbance input, payload
+#: change, friction drift, cogging). The others, and the whole reference half, are marked slow.
+REPRESENTATIVE = {("no_load_circle", c) for c in CONTROLLERS} | {
+    (s, "diarc") for s in ("step_disturbance_circle", "payload_pickup_circle", "friction_drift_circle",
+                           "cogging_circle")
+}  # fmt: skip
 
 
 def _recorded() -> dict[str, dict[str, str]]:
     return json.loads(DIGESTS.read_text(encoding="utf-8"))
 
 
-@pytest.mark.parametrize(("scenario", "controller"), CASES)
+@pytest.mark.parametrize(
+    ("scenario", "controller"), [pytest.param(*case, marks=() if case in REPRESENTATIVE else pytest.mark.slow)
+                                 for case in CASES]
+)  # fmt: skip
 def test_compiled_trace_is_pinned(scenario, controller):
     assert trace_digests(scenario, controller, "compiled") == _recorded()[f"{scenario}/{controller}"]
 
@@ -65,6 +75,7 @@ def test_reference_trace_is_pinned(scenario, controller):
 
 def test_every_shipped_case_is_pinned():
     assert sorted(_recorded()) == sorted(f"{s}/{c}" for s, c in CASES)
+    assert REPRESENTATIVE <= set(CASES)
 
 
 if __name__ == "__main__" and "--record" in sys.argv:

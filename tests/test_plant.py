@@ -16,11 +16,8 @@ import pytest
 from gantry_twin import Payload, Plant
 from gantry_twin.plant import PAYLOAD_MAX_KG, PAYLOAD_OFFSET_MAX_M, THETA_NAMES, moving_masses_kg
 
-GEAR_N_PER_V = 69.0
-# Spec section 1, SI units, index 0 = X, 1 = Y.
-MASS_NO_LOAD_KG = np.array([8.28, 34.5])
-DAMPING_N_S_PER_M = np.array([34.5, 48.3])
-FRICTION_N = np.array([6.9, 10.35])
+from .helpers import DAMPING_N_S_PER_M, FRICTION_N, GEAR_N_PER_V, MASS_NO_LOAD_KG
+
 # Spec theta (volt units) for no load and the 5 kg payload of Set 2.
 THETA_NO_LOAD = np.array([0.12, 0.50, 0.5, 0.7, 0.10, 0.15, 0.0, 0.0])
 THETA_5KG = np.array([0.1925, 0.5725, 0.5, 0.7, 0.10, 0.15, 0.0, 0.0])

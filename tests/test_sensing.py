@@ -7,7 +7,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from gantry_twin.sensing import ENCODER_RESOLUTION_M, Encoder, SensingConfig, quantize
+from gantry_twin import Plant, TimingLaw, Trace, circle, create, simulate
+from gantry_twin.sensing import Encoder, SensingConfig, quantize
 
 TS_S = 0.2e-3
 RES_M = 0.5e-6
@@ -15,10 +16,55 @@ positions = st.floats(min_value=-0.3, max_value=0.3, allow_nan=False, allow_infi
 velocities = st.floats(min_value=-1.0, max_value=1.0, allow_nan=False, allow_infinity=False)
 
 
+class Recorder:
+    """A plug-in wrapping the built-in PD that keeps every measurement the controller is given."""
+
+    def __init__(self) -> None:
+        self.inner = create("pd")
+        self.positions: list[np.ndarray] = []
+        self.velocities: list[np.ndarray] = []
+
+    def reset(self, context):  # noqa: ANN001, ANN201
+        self.inner.reset(context)
+
+    def update(self, measurement, reference):  # noqa: ANN001, ANN201
+        self.positions.append(np.array(measurement.q_m, dtype=float))
+        self.velocities.append(np.array(measurement.dq_m_s, dtype=float))
+        return self.inner.update(measurement, reference)
+
+    def state_for_logging(self):  # noqa: ANN201
+        return {}
+
+
+def slow_circle_run(controller) -> Trace:  # noqa: ANN001
+    """1 s on a 1 mm circle at 1 rad/s (1 mm/s: 0.2 um per sample, both axes move), default sensing."""
+    return simulate(Plant(), circle(radius_m=1e-3), TimingLaw(1.0), controller, 1.0)
+
+
 def test_resolution_is_half_a_micrometre() -> None:
-    assert ENCODER_RESOLUTION_M == 0.5e-6
-    assert SensingConfig().resolution_m == 0.5e-6
-    assert SensingConfig().quantize and SensingConfig().velocity_by_difference
+    """In a real run the recorded reading is the true position rounded to 0.5 um (control-spec section 2),
+    and a carriage moving less than a count per sample steps one count at a time."""
+    trace = slow_circle_run(create("pd"))
+    expected = np.floor(trace.q_m / RES_M + 0.5) * RES_M  # nearest count, written independently of sensing.quantize
+    np.testing.assert_allclose(trace.q_meas_m, expected, rtol=0, atol=1e-12)
+    assert np.abs(trace.q_meas_m - trace.q_m).max() <= RES_M / 2 * (1 + 1e-9)
+    steps = np.diff(trace.q_meas_m, axis=0)
+    moved = steps != 0.0
+    np.testing.assert_allclose(np.abs(steps[moved]), RES_M, rtol=1e-9)
+    # X travels 0.84 mm (1680 counts) and Y 0.46 mm (920 counts), neither more than a count per sample.
+    assert moved[:, 0].sum() >= 1600 and moved[:, 1].sum() >= 850
+
+
+def test_controller_sees_whole_counts_and_velocity_in_counts_per_sample() -> None:
+    """What a controller is given in a real run: the recorded reading, and velocity in steps of 0.5 um / 0.2 ms."""
+    recorder = Recorder()
+    trace = slow_circle_run(recorder)
+    positions, velocities = np.array(recorder.positions), np.array(recorder.velocities)
+    np.testing.assert_array_equal(positions, trace.q_meas_m)
+    counts_per_sample = velocities * TS_S / RES_M
+    np.testing.assert_allclose(counts_per_sample, np.round(counts_per_sample), rtol=0, atol=1e-6)
+    np.testing.assert_allclose(velocities[1:], np.diff(positions, axis=0) / TS_S, rtol=1e-12, atol=1e-12)
+    assert set(np.unique(np.round(counts_per_sample[1:, 0]))) == {0.0, 1.0}  # 1 mm/s: 0 or 1 count per sample
 
 
 @given(positions, positions)

@@ -23,10 +23,12 @@ import pytest
 
 from gantry_twin import Payload, Plant
 
-# Spec values (volt units), index 0 = X, 1 = Y; M with the 5 kg payload is (8.28 + 5) / 69, (34.5 + 5) / 69.
-SPEC_M = {0.0: np.array([0.12, 0.50]), 5.0: np.array([13.28, 39.5]) / 69.0}
-SPEC_B = np.array([0.5, 0.7])
-SPEC_AF = np.array([0.10, 0.15])
+from .helpers import spec_theta
+
+# The spec's values (volt units), index 0 = X, 1 = Y.
+SPEC_M = {kg: spec_theta(kg)[0:2] for kg in (0.0, 5.0)}
+SPEC_B = spec_theta()[2:4]
+SPEC_AF = spec_theta()[4:6]
 # (amplitude V, frequency Hz) per axis: low frequencies excite damping and friction,
 # high ones the mass. Y is heavier and gets larger inputs.
 EXCITATION = (

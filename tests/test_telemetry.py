@@ -10,7 +10,6 @@ import socket
 import subprocess
 import sys
 import urllib.request
-from collections import defaultdict
 from pathlib import Path
 
 import mujoco
@@ -31,6 +30,8 @@ from gantry_twin.telemetry import (
     theta_entity,
 )
 
+from .helpers import read_rrd, scalars
+
 SRC = Path(__file__).resolve().parents[1] / "src"
 #: `gantry-twin run` options for a run of 0.1 s (the metric windows must lie inside it).
 SHORT_RUN = ["--set", "duration_s=0.1", "--set", "window_s=[0.05,0.1]", "--set", "estimates_window_s=[0.05,0.1]"]
@@ -40,30 +41,6 @@ def run(controller: str = "diarc", duration_s: float = 0.5, payload_kg: float = 
     return simulate(
         Plant(Payload(payload_kg)), circle(), TimingLaw(2.0), create(controller), duration_s, observers=observers
     )
-
-
-def read_rrd(path: Path) -> dict[str, dict[str, np.ndarray]]:
-    """Temporal data of the first recording in an .rrd: entity -> {"time_ns": (N,), component: (N, k)}."""
-    rows: dict[str, dict[str, list]] = defaultdict(lambda: defaultdict(list))
-    for chunk in rr.chunk.RrdReader(path).stream().to_chunks():
-        if chunk.is_static:
-            continue
-        batch = chunk.to_record_batch()
-        entity = chunk.entity_path.lstrip("/")
-        rows[entity]["time_ns"].extend(batch.column("sim_time").cast("int64").to_pylist())
-        for field in batch.schema:
-            if ":" in field.name:
-                rows[entity][field.name].extend(batch.column(field.name).to_pylist())
-    out = {}
-    for entity, columns in rows.items():
-        order = np.argsort(columns["time_ns"], kind="stable")
-        out[entity] = {name: [values[i] for i in order] for name, values in columns.items()}
-        out[entity]["time_ns"] = np.asarray(out[entity]["time_ns"])
-    return out
-
-
-def scalars(data: dict[str, dict], entity: str) -> np.ndarray:
-    return np.asarray(data[entity]["Scalars:scalars"], dtype=float)
 
 
 def namespace(**kwargs) -> argparse.Namespace:
@@ -385,6 +362,7 @@ def test_connect_streams_every_sample_to_a_running_rerun_server(tmp_path):
     np.testing.assert_allclose(m1, table.column("theta_hat_M1").to_numpy())
 
 
+@pytest.mark.slow
 def test_health_alarms_are_events_on_the_timeline(tmp_path):
     """A monitored run records each alarm as a text event at its time, and the excitation per axis."""
     import json

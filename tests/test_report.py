@@ -1,0 +1,142 @@
+"""The paper-reproduction report (gantry_twin.report): the matrix, its numbers against independent runs, findings."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+
+from gantry_twin import report
+from gantry_twin.plant import THETA_NAMES
+
+from .helpers import deviation_pct, run_main, spec_theta
+
+TINY = ("duration_s=0.1", "window_s=[0.02, 0.1]", "estimates_window_s=[0.05, 0.1]")
+
+
+def test_paper_matrix_has_16_paper_runs_and_4_recommended():
+    cases = report.paper_matrix(TINY)
+    labels = [(c.set_id, c.contour, c.label) for c in cases]
+    assert len(cases) == 20 and len(set(labels)) == 20
+    assert not [k for k in labels if k[0] == 3 and k[2] in ("C3", "C2r")]
+    assert sum(k[2] == "C2r" for k in labels) == 4
+
+
+#: The tiny matrix's runs as the paper defines its columns (C1 DARC, C2 DIARC with the paper's estimator,
+#: C2r DIARC with the recommended one; Set 1 no load, Set 3 step disturbance): key -> (scenario, controller, --set).
+TINY_RUNS = {
+    "set1_circle_C1": ("no_load_circle", "darc", ()),
+    "set1_circle_C2": ("no_load_circle", "diarc", ("controller.options.estimator=paper",)),
+    "set1_circle_C2r": ("no_load_circle", "diarc", ("controller.options.estimator=recommended",)),
+    "set3_circle_C1": ("step_disturbance_circle", "darc", ()),
+    "set3_circle_C2": ("step_disturbance_circle", "diarc", ("controller.options.estimator=paper",)),
+}
+
+
+def _independent_numbers(tmp_path, capsys) -> dict[str, dict]:
+    """Each tiny-matrix run done again with `run`, its numbers computed from trace.parquet with plain numpy."""
+    numbers = {}
+    for key, (scenario, controller, extra) in TINY_RUNS.items():
+        out = tmp_path / "independent" / key
+        sets = [arg for override in (*TINY, *extra) for arg in ("--set", override)]
+        code, _, err = run_main(["run", scenario, "--controller", controller, *sets, "--out", str(out)], capsys)
+        assert code == 0, err
+        table = pq.read_table(out / "trace.parquet")
+        t = table.column("t_s").to_numpy()
+        eps_um = np.abs(table.column("eps_c_m").to_numpy()[(t >= 0.02) & (t < 0.1)]) * 1e6
+        in_estimates_window = (t >= 0.05) & (t < 0.1)
+        estimates = [table.column(f"theta_hat_{n}").to_numpy()[in_estimates_window].mean() for n in THETA_NAMES]
+        numbers[key] = {"steps": t.size, "rms_um": math.sqrt(np.mean(eps_um**2)), "max_um": eps_um.max(),
+                        "estimates": np.array(estimates)}  # fmt: skip
+    return numbers
+
+
+def _section(text: str, heading: str) -> str:
+    """The Markdown from the heading starting with ``heading`` to the next heading of its level."""
+    start = text.index(heading)
+    end = text.find("\n## ", start + len(heading))
+    return text[start : end if end >= 0 else None]
+
+
+def _row_cells(text: str, row_start: str) -> list[str]:
+    """The cells after the label of the one Markdown table row starting with row_start."""
+    rows = [line for line in text.splitlines() if line.startswith(row_start)]
+    assert len(rows) == 1, (row_start, rows)
+    return [cell.strip() for cell in rows[0].strip("|").split("|")[1:]]
+
+
+def test_report_on_a_tiny_matrix(tmp_path, capsys):
+    """The report's numbers (results.json, Tables 1 and 3, the runs table) against the same runs done with
+    `run` and computed from their traces, estimates judged against the spec's machine."""
+    cases = report.paper_matrix(TINY, sets=(1, 3), contours=("circle",), labels=("C1", "C2", "C2r"))
+    assert len(cases) == 5
+    res = report.run_matrix(cases, jobs=2)
+    assert [r.case for r in res] == cases
+    path = report.write_report(res, tmp_path / "rep", TINY)
+    text = path.read_text()
+    for heading in ("Table 1", "Table 2", "Table 3", "Table 4", "after running the gantry for one period"):
+        assert heading in text
+    assert "| rms paper (um) | 2.03 | 1.99 | 7.33 |" in text
+    pngs = sorted(p.name for p in (tmp_path / "rep").glob("*.png"))
+    assert pngs == ["fig2_set3_circle_contour_error.png", "fig4_set1_y_estimates.png"]
+    for name in pngs:
+        assert (tmp_path / "rep" / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+    expected = _independent_numbers(tmp_path, capsys)
+    truth = spec_theta(0.0)  # Sets 1 and 3 carry no load
+    runs = {run["key"]: run for run in json.loads((tmp_path / "rep" / "results.json").read_text())["runs"]}
+    assert set(runs) == set(TINY_RUNS)
+    for key, want in expected.items():
+        got = runs[key]
+        assert got["steps"] == want["steps"] == 500, key
+        assert got["rms_um"] == pytest.approx(want["rms_um"], rel=1e-12), key
+        assert got["max_um"] == pytest.approx(want["max_um"], rel=1e-12), key
+        np.testing.assert_allclose(got["estimates"], want["estimates"], rtol=1e-12, atol=1e-15, err_msg=key)
+        np.testing.assert_allclose(got["true_theta"], truth, rtol=1e-12, atol=1e-15, err_msg=key)
+        row = _row_cells(_section(text, "## Runs"), f"| {key} |")
+        assert row[:3] == ["500", f"{want['rms_um']:.3f}", f"{want['max_um']:.3f}"], key
+    # Table 1 (circle): columns Set 1 C1 C2 C3, Set 2 C1 C2 C3, Set 3 C1 C2; runs not in the matrix show "-".
+    columns = ["set1_circle_C1", "set1_circle_C2", None, None, None, None, "set3_circle_C1", "set3_circle_C2"]
+    for what in ("rms", "max"):
+        cells = [f"**{expected[key][f'{what}_um']:.2f}**" if key else "**-**" for key in columns]
+        assert _row_cells(_section(text, "## Table 1:"), f"| **{what} twin (um)** |") == cells
+    # Table 3 (Set 1): each estimate with its deviation from the spec's value.
+    for name, key in (("DIARC paper settings", "set1_circle_C2"), ("DIARC recommended", "set1_circle_C2r"),
+                      ("DARC", "set1_circle_C1")):  # fmt: skip
+        estimates = expected[key]["estimates"]
+        cells = [f"{estimates[i]:.4f} ({deviation_pct(estimates[i], truth[i]):+.1f} %)" for i in range(6)]
+        assert _row_cells(_section(text, "## Table 3:"), f"| {name}: circle |") == cells, name
+
+
+def _fake(set_id, contour, label, rms, peak, est=None, true=None):
+    case = report.Case(set_id, contour, label, "x.yaml", "diarc", ())
+    return report.CaseResult(
+        case, rms, peak, (0.0, 1.0), 10, 0.0, true or [1.0] * 8, est, (0.0, 1.0), np.zeros(1), np.zeros(1)
+    )
+
+
+def test_findings_apply_the_issue_thresholds():
+    rows = [
+        _fake(1, "circle", "C1", 1.0, 2.0),
+        _fake(1, "circle", "C2", 1.39, 2.0),
+        _fake(1, "circle", "C3", 2.7, 5.0),
+        _fake(3, "circle", "C1", 3.9, 6.0),
+        _fake(3, "circle", "C2", 4.1, 5.9),
+        _fake(1, "circle", "C2r", 1.0, 1.0, est=[1.049, 0.96, 1, 1, 1, 1, 5, 5]),
+        _fake(2, "circle", "C2r", 1.0, 1.0, est=[1.0, 1.0, 1, 1, 1, 0.94, 1, 1]),
+    ]
+    got = {
+        text.split(" (")[0]: ok
+        for ok, text in report.findings({(r.case.set_id, r.case.contour, r.case.label): r for r in rows})
+    }
+    assert got["circle Set 1: C1 and C2 rms within 40 % of each other"] is True
+    assert got["circle Set 1: C3 rms at least twice C1's and C2's"] is False  # 2.7 < 2 x 1.39
+    assert got["circle C1: Set 3 max at least 3x Set 1's"] is True
+    assert got["circle C2: Set 3 max at least 3x Set 1's"] is False
+    assert got["circle C1: Set 3 rms below 4 um"] is True
+    assert got["circle C2: Set 3 rms below 4 um"] is False
+    assert got["Set 1: DIARC recommended estimates of M, B, Af within 5 %"] is True  # dN is not judged
+    assert got["Set 2: DIARC recommended estimates of M, B, Af within 5 %"] is False  # Af2 -6 %
