@@ -13,8 +13,9 @@ in how theta^ (and for DIARC dc^) move after each sample:
 A controller's settings are an :class:`ArcParams` and its whole state an
 :class:`ArcState` of float64 arrays, both built by ``reset``. One sample is
 :func:`arc_step`, a numba kernel: ``update()`` runs its plain-Python
-reference version (the plug-in protocol), and the compiled loop of
-:mod:`gantry_twin.simulate` runs the compiled one on the same arrays.
+reference version, and each class offers the compiled one to the loop
+through the plug-in protocol (``compiled``, ``kernel_arguments``; see
+:mod:`gantry_twin.controllers.base`) like any other controller.
 """
 
 from __future__ import annotations
@@ -26,7 +27,14 @@ import numpy as np
 
 from gantry_twin import _jit
 from gantry_twin._jit import kernel
-from gantry_twin.controllers.base import Measurement, ReferenceSample, RunContext
+from gantry_twin.controllers.base import (
+    U_MAX_V,
+    CompiledStep,
+    Measurement,
+    ReferenceSample,
+    RunContext,
+    log_values,
+)
 from gantry_twin.controllers.law import ArcGains, LawWork, arc_law, law_work
 from gantry_twin.estimation import (
     FilterDiscretisation,
@@ -74,16 +82,12 @@ class EstimatorSettings:
 
 
 #: The twin's recommended estimator: 50 Hz filters, which keep the encoder's
-#: 0.5 um quantisation noise out of x_f'' (control-spec section 7), and
-#: forgetting kappa = 0.7 1/s (paper: 0.1), a memory of about 1.4 s, so that the
-#: estimates follow a changing machine (issue 7, docs/health.md): a 5 kg
-#: pick-up on the circle is within 5 % in 2.9 s (kappa = 0.5: 4.4 s, too slow for
-#: the 4 s target; the paper's 0.1: over 10 s), and a B2 drift of 0.5 %/s is
-#: tracked within 2 %. The fast compensation rate gamma_d is 3e4 (paper: 1e4):
-#: dc^ then follows a 0.05 V cogging ripple at 16 mm pitch well enough that the
-#: contour error grows 1.4x instead of 2.3x, and without ripple the circle's
-#: second-period error drops from 0.85 / 3.7 um (rms / max) to 0.81 / 2.5 um with
-#: the same command noise (measured in the closing note of issue 7).
+#: 0.5 um quantisation noise out of x_f'' (control-spec section 7); forgetting
+#: kappa = 0.7 1/s (paper: 0.1), a memory of about 1.4 s, so that the estimates
+#: follow a changing machine (a payload pick-up, a friction drift) within the
+#: health monitor's targets; and a faster dc^ rate gamma_d = 3e4 (paper: 1e4),
+#: so that dc^ follows cogging ripple. The measurements behind each choice are
+#: in docs/health.md ("The recommended estimator").
 RECOMMENDED_ESTIMATOR = EstimatorSettings(
     filter_hz=(50.0, 50.0), least_squares=LeastSquaresSettings(kappa=0.7), gamma_d=(3.0e4, 3.0e4)
 )
@@ -175,7 +179,7 @@ def estimator_start(params, est, q_m, dq_m_s, u_v):
     clock[CLOCK_STARTED] = 1.0
 
 
-@kernel
+@kernel(inline=True)
 def estimator_regression(params, est, q_m, dq_m_s, u_previous_v):
     """Advance the filters to this sample (eq. 25); fill est.regression (gamma_f) and est.u_f.
 
@@ -202,7 +206,7 @@ def estimator_regression(params, est, q_m, dq_m_s, u_previous_v):
         previous_q_m[axis] = q_m[axis]
 
 
-@kernel
+@kernel(inline=True)
 def estimator_update(params, theta, est, q_m, dq_m_s, u_previous_v):
     """One sample of the indirect estimator: filter, then least squares on theta (in place)."""
     estimator_regression(params, est, q_m, dq_m_s, u_previous_v)
@@ -247,6 +251,35 @@ def arc_step(params, state, q_m, dq_m_s, ref):
             dc[i] = clip(dc[i] + ts * gamma_d[i] * s_c[i], -dc_max[i], dc_max[i])
 
 
+
+@kernel
+def arc_command(params, state, t_s, q_m, dq_m_s, ref, u_v):
+    """The compiled-controller step (controllers.base): :func:`arc_step`, its command into u_v (2,) volts."""
+    arc_step(params, state, q_m, dq_m_s, ref)
+    command = state.law.u_v
+    u_v[0] = command[0]
+    u_v[1] = command[1]
+
+
+@kernel
+def log_theta(params, state, out):
+    """DARC's log: theta_hat (8,)."""
+    theta = state.theta
+    for j in range(8):
+        out[j] = theta[j]
+
+
+@kernel
+def log_diarc(params, state, out):
+    """DIARC's log: theta_hat (8,), dc_hat (2,), gamma_diag (8,), gamma_lambda_max."""
+    theta, dc, gamma = state.theta, state.dc, state.estimator.gamma
+    for j in range(8):
+        out[j] = theta[j]
+        out[10 + j] = gamma[j, j]
+    out[8] = dc[0]
+    out[9] = dc[1]
+    out[18] = state.estimator.clock[CLOCK_LAMBDA_MAX]
+
 class IndirectEstimator:
     """Filtered regression (eq. 25) and least squares (eq. 27-28) for both axes.
 
@@ -286,45 +319,13 @@ class IndirectEstimator:
 
     @property
     def gamma(self) -> np.ndarray:
+        """Gamma (8, 8), the adaptation gain (the state array itself)."""
         return self.state.gamma
 
     @property
-    def z(self) -> np.ndarray:
-        return self.state.z
-
-    @property
-    def previous_q_m(self) -> np.ndarray:
-        return self.state.previous_q_m
-
-    @property
-    def time_s(self) -> float:
-        return float(self.state.clock[CLOCK_TIME_S])
-
-    @property
-    def started(self) -> bool:
-        return bool(self.state.clock[CLOCK_STARTED])
-
-    @property
     def lambda_max(self) -> float:
+        """lambda_max(Gamma) after the last update."""
         return float(self.state.clock[CLOCK_LAMBDA_MAX])
-
-    def _arc_params(self) -> ArcParams:
-        return _arc_params(KIND_DIARC, self.gains, self.sample_period_s, np.full(2, 10.0), estimator=self.params)
-
-    def start(self, q_m: np.ndarray, dq_m_s: np.ndarray, u_v: np.ndarray) -> None:
-        """Put each filter in steady state for the first sample's inputs."""
-        estimator_start(self._arc_params(), self.state, _vec(q_m), _vec(dq_m_s), _vec(u_v))
-
-    def regression(
-        self, q_m: np.ndarray, dq_m_s: np.ndarray, u_previous_v: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Advance the filters to this sample; return (gamma_f 8 x 2, u_f 2)."""
-        estimator_regression(self._arc_params(), self.state, _vec(q_m), _vec(dq_m_s), _vec(u_previous_v))
-        return self.state.regression.copy(), self.state.u_f.copy()
-
-    def update(self, theta: np.ndarray, q_m: np.ndarray, dq_m_s: np.ndarray, u_previous_v: np.ndarray) -> None:
-        """One sample: filter, then least squares on theta (in place)."""
-        estimator_update(self._arc_params(), theta, self.state, _vec(q_m), _vec(dq_m_s), _vec(u_previous_v))
 
 
 def _vec(x: np.ndarray) -> np.ndarray:
@@ -370,7 +371,7 @@ class ArcController:
     def __init__(self, gains: ArcGains | None = None) -> None:
         self.gains = gains or ArcGains()
         self.sample_period_s = 0.0
-        self.u_max_v = np.full(2, 10.0)
+        self.u_max_v = np.array(U_MAX_V)
         self.params: ArcParams | None = None
         self.state = self._fresh_state(None)
 
@@ -408,17 +409,14 @@ class ArcController:
 
     def update(self, measurement: Measurement, reference: ReferenceSample) -> np.ndarray:
         params, state = self.kernel_arguments()
-        row = np.concatenate([reference.q_d, reference.dq_d, reference.ddq_d,
-                              [reference.alpha, reference.dalpha, reference.ddalpha]]).astype(float)  # fmt: skip
-        _reference_arc_step()(params, state, _vec(measurement.q_m), _vec(measurement.dq_m_s), row)
-        return state.law.u_v.copy()
+        u_v = np.zeros(2)
+        _jit.reference(arc_command)(params, state, float(measurement.t_s), _vec(measurement.q_m),
+                                    _vec(measurement.dq_m_s), reference.row(), u_v)  # fmt: skip
+        return u_v
 
     def state_for_logging(self) -> dict[str, np.ndarray]:
-        return {"theta_hat": self.theta.copy()}
-
-
-def _reference_arc_step():  # noqa: ANN202
-    return _jit.reference(arc_step)
+        params, state = self.kernel_arguments()
+        return log_values(type(self).compiled, params, state)
 
 
 class DRC(ArcController):
@@ -429,20 +427,19 @@ class DRC(ArcController):
     """
 
     kind = KIND_DRC
+    compiled = CompiledStep(arc_command)
 
     def __init__(self, gains: ArcGains | None = None, theta: tuple[float, ...] | None = None) -> None:
         if theta is not None:
             gains = ArcGains(**{**_gain_fields(gains or ArcGains()), "theta0": tuple(theta)})
         super().__init__(gains)
 
-    def state_for_logging(self) -> dict[str, np.ndarray]:
-        return {}
-
 
 class DARC(ArcController):
     """Direct adaptive robust control (C1): gradient adaptation, eq. (8)-(9)."""
 
     kind = KIND_DARC
+    compiled = CompiledStep(arc_command, log_theta, (("theta_hat", (8,)),))
 
     def __init__(self, gains: ArcGains | None = None, gamma: tuple[float, ...] = DARC_GAMMA) -> None:
         super().__init__(gains)
@@ -456,6 +453,9 @@ class DIARC(ArcController):
     """Integrated direct/indirect adaptive robust control (C2), section 4."""
 
     kind = KIND_DIARC
+    compiled = CompiledStep(
+        arc_command, log_diarc, (("theta_hat", (8,)), ("dc_hat", (2,)), ("gamma_diag", (8,)), ("gamma_lambda_max", ()))
+    )
 
     def __init__(self, gains: ArcGains | None = None, estimator: EstimatorSettings | None = None) -> None:
         super().__init__(gains)
@@ -479,14 +479,6 @@ class DIARC(ArcController):
     def u_previous_v(self) -> np.ndarray:
         return self.state.u_previous_v
 
-    def state_for_logging(self) -> dict[str, np.ndarray]:
-        assert self.estimator is not None, "reset() must be called before update()"
-        return {
-            "theta_hat": self.theta.copy(),
-            "dc_hat": self.dc.copy(),
-            "gamma_diag": np.diag(self.estimator.gamma).copy(),
-            "gamma_lambda_max": np.array([self.estimator.lambda_max]),
-        }
 
 
 def _gain_fields(gains: ArcGains) -> dict[str, object]:
