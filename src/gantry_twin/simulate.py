@@ -60,7 +60,7 @@ from gantry_twin.estimation import clip
 from gantry_twin.paths import Path, Reference, TimingLaw, contour_error, reference
 from gantry_twin.plant import Plant
 from gantry_twin.sensing import Encoder, SensingConfig, encoder_measure
-from gantry_twin.taskframe import task_errors
+from gantry_twin.taskframe import normal_errors
 from gantry_twin.trace import Observer, RunInfo, SimulationError, Trace
 
 #: A disturbance timeline: times (N,) s -> input disturbance (N, 2) volts.
@@ -69,9 +69,8 @@ Disturbance = Callable[[np.ndarray], np.ndarray]
 
 def _finish_chunk(trace: Trace, ref: Reference, path: Path, start: int, stop: int) -> None:
     """Derived errors for samples [start, stop): e, eps_n and the true eps_c."""
-    e = trace.q_m[start:stop] - ref.q_d[start:stop]
-    trace.e_m[start:stop] = e
-    trace.eps_n_m[start:stop] = task_errors(ref.alpha[start:stop], e)[:, 0]
+    normal_errors(ref.alpha[start:stop], trace.q_m[start:stop], ref.q_d[start:stop], trace.e_m[start:stop],
+                  trace.eps_n_m[start:stop])  # fmt: skip
     trace.eps_c_m[start:stop], _ = contour_error(path, trace.q_m[start:stop], ref.phi[start:stop])
     trace.filled = stop
 
