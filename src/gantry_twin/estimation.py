@@ -293,7 +293,7 @@ def least_squares_work(p: int, m: int, gamma: np.ndarray | None = None) -> Least
     )  # fmt: skip
 
 
-@kernel
+@kernel(inline=True)
 def least_squares_update(theta, gamma, g, target, nu, kappa, rho_max, lower, upper, sample_period_s, work):
     """One sample of eq. (27)-(28) with projection; updates theta, gamma in place.
 

@@ -245,7 +245,8 @@ def chunk_kernel(compiled: CompiledStep) -> Callable[..., tuple[int, int]]:
         log = compiled.log or _no_log
         py = getattr(compiled.step, "py_func", compiled.step)
         name = f"{py.__module__}_{py.__qualname__}_{source_digest(compiled.step, log)}".replace(".", "_")
-        found = specialise(_run_chunk, name, {"controller_step": compiled.step, "controller_log": log}, compiled=True)
+        step = kernel(getattr(compiled.step, "py_func", compiled.step), inline=True)  # no call: the step's tuples
+        found = specialise(_run_chunk, name, {"controller_step": step, "controller_log": log}, compiled=True)
         _chunk_kernels[compiled] = found
     return found
 

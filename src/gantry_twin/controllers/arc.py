@@ -221,7 +221,7 @@ def estimator_update(params, theta, est, q_m, dq_m_s, u_previous_v):
     )  # fmt: skip
 
 
-@kernel
+@kernel(inline=True)
 def arc_step(params, state, q_m, dq_m_s, ref):
     """One 0.2 ms sample of DRC/DARC/DIARC; the command (volts) is left in state.law.u_v.
 
