@@ -16,7 +16,7 @@ import pytest
 from gantry_twin import Plant, SensingConfig, TimingLaw, circle, paper_ellipse, simulate
 from gantry_twin._jit import reference
 from gantry_twin.controllers import DIARC, DRC, PD, RECOMMENDED_ESTIMATOR, create
-from gantry_twin.controllers.arc import arc_step
+from gantry_twin.controllers.arc import diarc_step
 from gantry_twin.estimation import LeastSquaresSettings, least_squares_step
 from gantry_twin.linalg import EIGENVALUE_TOLERANCE, largest_eigenvalue, largest_eigenvalue_exact
 from gantry_twin.trace import SimulationError
@@ -160,10 +160,11 @@ def test_plugin_controller_uses_the_python_loop():
 
 
 def test_reference_is_uncompiled_python():
-    ref = reference(arc_step)
+    ref = reference(diarc_step)
     assert isinstance(ref, types.FunctionType)
-    assert isinstance(ref.__globals__["arc_law"], types.FunctionType)
-    assert isinstance(ref.__globals__["arc_law"].__globals__["error_gains"], types.FunctionType)
+    assert isinstance(ref.__globals__["_law"], types.FunctionType)
+    assert isinstance(ref.__globals__["_law"].__globals__["arc_law"], types.FunctionType)
+    assert isinstance(ref.__globals__["_law"].__globals__["arc_law"].__globals__["error_gains"], types.FunctionType)
 
 
 def _spd_with_top_pair(rng, gap):  # noqa: ANN001, ANN202

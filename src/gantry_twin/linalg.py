@@ -16,7 +16,7 @@ import numpy as np
 from gantry_twin._jit import kernel
 
 
-@kernel
+@kernel(inline=True)
 def cholesky_factor(a, n, factor):
     """Lower Cholesky factor of a[:n, :n] into factor[:n, :n]; False if a is not positive definite."""
     for i in range(n):
@@ -33,7 +33,7 @@ def cholesky_factor(a, n, factor):
     return True
 
 
-@kernel
+@kernel(inline=True)
 def cholesky_substitute(factor, n, b, x):
     """Solve L L^T x = b[:n] with L = factor[:n, :n] from :func:`cholesky_factor`."""
     for i in range(n):
@@ -153,7 +153,7 @@ def largest_eigenvalue_exact(a, upper_bound, t, diag, off):
 EIGENVALUE_TOLERANCE = 1e-10
 
 
-@kernel
+@kernel(inline=True)
 def _orthonormalise(w, v):
     """v = Gram-Schmidt orthonormal basis of the two rows of w (2, p); False if they are dependent."""
     p = w.shape[1]
@@ -185,7 +185,7 @@ def _orthonormalise(w, v):
     return True
 
 
-@kernel
+@kernel(inline=True)
 def largest_eigenvalue(a, v, w, t, diag, off, upper_bound=math.inf, iterations=12):
     """lambda_max of a symmetric positive definite a (p x p), certified to EIGENVALUE_TOLERANCE.
 

@@ -252,7 +252,7 @@ def chunk_kernel(compiled: CompiledStep) -> Callable[..., tuple[int, int]]:
 
 
 def loop_needs_compiling(controller: Controller) -> bool:
-    """True if simulate() with this controller will first compile the loop (about 25 s, once per machine)."""
+    """True if simulate() with this controller will first compile its loop (once per machine and source version)."""
     compiled = compiled_step_of(controller)
     if compiled is None or not compiled_available():
         return False

@@ -12,7 +12,8 @@ in how theta^ (and for DIARC dc^) move after each sample:
 
 A controller's settings are an :class:`ArcParams` and its whole state an
 :class:`ArcState` of float64 arrays, both built by ``reset``. One sample is
-:func:`arc_step`, a numba kernel: ``update()`` runs its plain-Python
+:func:`drc_step`, :func:`darc_step` or :func:`diarc_step`, numba kernels
+around the shared :func:`_law`: ``update()`` runs the plain-Python
 reference version, and each class offers the compiled one to the loop
 through the plug-in protocol (``compiled``, ``kernel_arguments``; see
 :mod:`gantry_twin.controllers.base`) like any other controller.
@@ -53,8 +54,6 @@ from gantry_twin.estimation import (
 #: DARC's adaptation rates (paper section 5).
 DARC_GAMMA = (10.0, 10.0, 10.0, 10.0, 1.0, 1.0, 10000.0, 10000.0)
 
-#: ArcParams.kind: where theta^ comes from.
-KIND_DRC, KIND_DARC, KIND_DIARC = 0, 1, 2
 #: Entries of EstimatorState.clock.
 CLOCK_TIME_S, CLOCK_STARTED, CLOCK_LAMBDA_MAX = 0, 1, 2
 
@@ -133,13 +132,12 @@ class EstimatorState(NamedTuple):
 class ArcParams(NamedTuple):
     """Everything fixed during a run of DRC, DARC or DIARC (float64 arrays, SI/volts).
 
-    kind: KIND_DRC, KIND_DARC or KIND_DIARC; lam (2,) 1/s and ks (2,)
+    lam (2,) 1/s and ks (2,)
     V/(m/s): diagonals of Lambda and Ks; lower, upper (8,): theta bounds;
     u_max_v (2,); darc_gamma (8,): DARC's rates; gamma_d (2,), dc_max_v (2,):
     DIARC's dc^ law; estimator: DIARC's (placeholders for the others).
     """
 
-    kind: int
     sample_period_s: float
     lam: np.ndarray
     ks: np.ndarray
@@ -222,43 +220,50 @@ def estimator_update(params, theta, est, q_m, dq_m_s, u_previous_v):
 
 
 @kernel(inline=True)
-def arc_step(params, state, q_m, dq_m_s, ref):
-    """One 0.2 ms sample of DRC/DARC/DIARC; the command (volts) is left in state.law.u_v.
-
-    DIARC first updates theta^ from the data up to this sample; then the
-    shared law (eq. 13-14, 17, 21); then DARC's gradient step (eq. 8-9) or
-    DIARC's dc^ step (eq. 21-22), both driven by this sample's s_c.
-    """
-    theta, dc, u_previous_v, est, law = state
-    started = est.clock[CLOCK_STARTED] > 0.0
-    if params.kind == KIND_DIARC and started:
-        estimator_update(params, theta, est, q_m, dq_m_s, u_previous_v)
-    arc_law(q_m, dq_m_s, ref, theta, dc, params.lam, params.ks, params.friction_slope_s_m, params.u_max_v, law)
-    ts = params.sample_period_s
-    phi, s_c, u_v = law.phi, law.s_c, law.u_v
-    if params.kind == KIND_DARC:
-        rates = params.darc_gamma
-        for j in range(8):
-            phi_s = phi[0, j] * s_c[0] + phi[1, j] * s_c[1]
-            theta[j] = theta[j] - ts * rates[j] * phi_s
-        project_box(theta, params.lower, params.upper, theta)
-    elif params.kind == KIND_DIARC:
-        if not started:
-            estimator_start(params, est, q_m, dq_m_s, u_v)
-        gamma_d, dc_max = params.gamma_d, params.dc_max_v
-        for i in range(2):
-            u_previous_v[i] = u_v[i]
-            dc[i] = clip(dc[i] + ts * gamma_d[i] * s_c[i], -dc_max[i], dc_max[i])
-
+def _law(params, state, q_m, dq_m_s, ref, u_v):
+    """The shared law (eq. 13-14, 17, 21) with this controller's theta^ and dc^; the command into u_v (2,) V."""
+    law = state.law
+    arc_law(q_m, dq_m_s, ref, state.theta, state.dc, params.lam, params.ks, params.friction_slope_s_m, params.u_max_v,
+            law)  # fmt: skip
+    u_v[0] = law.u_v[0]
+    u_v[1] = law.u_v[1]
 
 
 @kernel
-def arc_command(params, state, t_s, q_m, dq_m_s, ref, u_v):
-    """The compiled-controller step (controllers.base): :func:`arc_step`, its command into u_v (2,) volts."""
-    arc_step(params, state, q_m, dq_m_s, ref)
-    command = state.law.u_v
-    u_v[0] = command[0]
-    u_v[1] = command[1]
+def drc_step(params, state, t_s, q_m, dq_m_s, ref, u_v):
+    """One 0.2 ms sample of DRC: the law with theta^ fixed; the command (volts) into u_v (2,)."""
+    _law(params, state, q_m, dq_m_s, ref, u_v)
+
+
+@kernel
+def darc_step(params, state, t_s, q_m, dq_m_s, ref, u_v):
+    """One 0.2 ms sample of DARC: the law, then the gradient step (eq. 8-9) driven by this sample's s_c."""
+    _law(params, state, q_m, dq_m_s, ref, u_v)
+    theta, law, rates = state.theta, state.law, params.darc_gamma
+    phi, s_c, ts = law.phi, law.s_c, params.sample_period_s
+    for j in range(8):
+        phi_s = phi[0, j] * s_c[0] + phi[1, j] * s_c[1]
+        theta[j] = theta[j] - ts * rates[j] * phi_s
+    project_box(theta, params.lower, params.upper, theta)
+
+
+@kernel
+def diarc_step(params, state, t_s, q_m, dq_m_s, ref, u_v):
+    """One 0.2 ms sample of DIARC: theta^ from the data up to this sample (eq. 25-28), the law, then dc^ (eq. 21-22).
+
+    The first sample starts the estimator's filters instead of updating theta^.
+    """
+    theta, dc, u_previous_v, est, law = state
+    started = est.clock[CLOCK_STARTED] > 0.0
+    if started:
+        estimator_update(params, theta, est, q_m, dq_m_s, u_previous_v)
+    _law(params, state, q_m, dq_m_s, ref, u_v)
+    if not started:
+        estimator_start(params, est, q_m, dq_m_s, u_v)
+    s_c, ts, gamma_d, dc_max = law.s_c, params.sample_period_s, params.gamma_d, params.dc_max_v
+    for i in range(2):
+        u_previous_v[i] = u_v[i]
+        dc[i] = clip(dc[i] + ts * gamma_d[i] * s_c[i], -dc_max[i], dc_max[i])
 
 
 @kernel
@@ -339,7 +344,6 @@ def _placeholder_estimator() -> EstimatorParams:
 
 
 def _arc_params(
-    kind: int,
     gains: ArcGains,
     sample_period_s: float,
     u_max_v: np.ndarray,
@@ -348,7 +352,6 @@ def _arc_params(
     estimator: EstimatorParams | None = None,
 ) -> ArcParams:
     return ArcParams(
-        kind,
         float(sample_period_s),
         gains.lam.copy(),
         gains.ks.copy(),
@@ -365,8 +368,6 @@ def _arc_params(
 
 class ArcController:
     """The shared DRC/DARC/DIARC machinery; subclasses say where theta^ and dc^ come from."""
-
-    kind = KIND_DRC
 
     def __init__(self, gains: ArcGains | None = None) -> None:
         self.gains = gains or ArcGains()
@@ -385,7 +386,7 @@ class ArcController:
         return ArcState(np.array(self.gains.theta0, dtype=float), np.zeros(2), np.zeros(2), est, law_work())
 
     def _make_params(self) -> ArcParams:
-        return _arc_params(self.kind, self.gains, self.sample_period_s, self.u_max_v)
+        return _arc_params(self.gains, self.sample_period_s, self.u_max_v)
 
     def reset(self, context: RunContext) -> None:
         self.sample_period_s = float(context.sample_period_s)
@@ -403,15 +404,15 @@ class ArcController:
         self.state.theta[:] = value
 
     def kernel_arguments(self) -> tuple[ArcParams, ArcState]:
-        """(params, state) for :func:`arc_step`; valid after ``reset``."""
+        """(params, state) for the compiled step; valid after ``reset``."""
         assert self.params is not None, "reset() must be called before update()"
         return self.params, self.state
 
     def update(self, measurement: Measurement, reference: ReferenceSample) -> np.ndarray:
         params, state = self.kernel_arguments()
         u_v = np.zeros(2)
-        _jit.reference(arc_command)(params, state, float(measurement.t_s), _vec(measurement.q_m),
-                                    _vec(measurement.dq_m_s), reference.row(), u_v)  # fmt: skip
+        _jit.reference(type(self).compiled.step)(params, state, float(measurement.t_s), _vec(measurement.q_m),
+                                                 _vec(measurement.dq_m_s), reference.row(), u_v)  # fmt: skip
         return u_v
 
     def state_for_logging(self) -> dict[str, np.ndarray]:
@@ -426,8 +427,7 @@ class DRC(ArcController):
     feed-forward); nothing is estimated, so nothing is logged.
     """
 
-    kind = KIND_DRC
-    compiled = CompiledStep(arc_command)
+    compiled = CompiledStep(drc_step)
 
     def __init__(self, gains: ArcGains | None = None, theta: tuple[float, ...] | None = None) -> None:
         if theta is not None:
@@ -438,23 +438,21 @@ class DRC(ArcController):
 class DARC(ArcController):
     """Direct adaptive robust control (C1): gradient adaptation, eq. (8)-(9)."""
 
-    kind = KIND_DARC
-    compiled = CompiledStep(arc_command, log_theta, (("theta_hat", (8,)),))
+    compiled = CompiledStep(darc_step, log_theta, (("theta_hat", (8,)),))
 
     def __init__(self, gains: ArcGains | None = None, gamma: tuple[float, ...] = DARC_GAMMA) -> None:
         super().__init__(gains)
         self.gamma = np.asarray(gamma, dtype=float)
 
     def _make_params(self) -> ArcParams:
-        return _arc_params(self.kind, self.gains, self.sample_period_s, self.u_max_v, darc_gamma=self.gamma)
+        return _arc_params(self.gains, self.sample_period_s, self.u_max_v, darc_gamma=self.gamma)
 
 
 class DIARC(ArcController):
     """Integrated direct/indirect adaptive robust control (C2), section 4."""
 
-    kind = KIND_DIARC
     compiled = CompiledStep(
-        arc_command, log_diarc, (("theta_hat", (8,)), ("dc_hat", (2,)), ("gamma_diag", (8,)), ("gamma_lambda_max", ()))
+        diarc_step, log_diarc, (("theta_hat", (8,)), ("dc_hat", (2,)), ("gamma_diag", (8,)), ("gamma_lambda_max", ()))
     )
 
     def __init__(self, gains: ArcGains | None = None, estimator: EstimatorSettings | None = None) -> None:
@@ -467,7 +465,7 @@ class DIARC(ArcController):
         self.u_max_v = np.asarray(context.u_max_v, dtype=float)
         self.estimator = IndirectEstimator(self.estimator_settings, self.gains, self.sample_period_s)
         self.state = self._fresh_state(self.estimator)
-        self.params = _arc_params(self.kind, self.gains, self.sample_period_s, self.u_max_v,
+        self.params = _arc_params(self.gains, self.sample_period_s, self.u_max_v,
                                   settings=self.estimator_settings, estimator=self.estimator.params)  # fmt: skip
 
     @property
