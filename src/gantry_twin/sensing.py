@@ -39,9 +39,15 @@ class SensingConfig:
         return cls(quantize=False, velocity_by_difference=False)
 
 
-def quantize(q_m: np.ndarray, resolution_m: float) -> np.ndarray:
+@kernel
+def quantized(q_m, resolution_m):
     """Encoder reading: the nearest multiple of the resolution (metres), ties to even."""
-    return np.round(np.asarray(q_m, dtype=float) / resolution_m) * resolution_m
+    return np.rint(q_m / resolution_m) * resolution_m
+
+
+def quantize(q_m: np.ndarray, resolution_m: float) -> np.ndarray:
+    """:func:`quantized` for numbers or arrays, run uncompiled (no compile on first use)."""
+    return reference(quantized)(np.asarray(q_m, dtype=float), float(resolution_m))
 
 
 class EncoderState(NamedTuple):
@@ -58,7 +64,7 @@ class EncoderState(NamedTuple):
 def encoder_read(encoder, q_m):
     """One axis's reading of the true position q_m, metres (quantised if the encoder counts)."""
     if encoder.quantize:
-        return np.rint(q_m / encoder.resolution_m) * encoder.resolution_m
+        return quantized(q_m, encoder.resolution_m)
     return q_m
 
 
