@@ -350,7 +350,7 @@ class PlantChanges:
 # ---- what the loop applies each sample (both backends) -------------------------------------
 
 
-@kernel
+@kernel(inline=True)
 def cogging_force(table, axis, q_m):
     """Cogging force of one axis at the true position q_m, volts; table from PlantChanges.cogging_table."""
     if table[axis, 0] == 0.0:
@@ -408,7 +408,7 @@ def change_schedule(plant: Plant, changes: PlantChanges | None, t: np.ndarray) -
     )  # fmt: skip
 
 
-@kernel
+@kernel(inline=True)
 def apply_plant_changes(dof_index, changes, k):
     """Write sample k's scheduled joint damping, Coulomb level and payload mass into the model.
 
@@ -426,7 +426,7 @@ def apply_plant_changes(dof_index, changes, k):
         changes.body_mass[changes.payload_body] = changes.payload_kg[k]
 
 
-@kernel
+@kernel(inline=True)
 def sensor_glitches(changes, k):
     """Sample k's encoder glitches: (offset m (2,) or empty, hold, velocity noise m/s (2,) or empty)."""
     offset = changes.offset_m[k] if changes.offset_m.shape[0] > 0 else changes.none

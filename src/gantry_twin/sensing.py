@@ -39,7 +39,7 @@ class SensingConfig:
         return cls(quantize=False, velocity_by_difference=False)
 
 
-@kernel
+@kernel(inline=True)
 def quantized(q_m, resolution_m):
     """Encoder reading: the nearest multiple of the resolution (metres), ties to even."""
     return np.rint(q_m / resolution_m) * resolution_m
@@ -60,7 +60,7 @@ class EncoderState(NamedTuple):
     previous_m: np.ndarray
 
 
-@kernel
+@kernel(inline=True)
 def encoder_read(encoder, q_m):
     """One axis's reading of the true position q_m, metres (quantised if the encoder counts)."""
     if encoder.quantize:
@@ -68,7 +68,7 @@ def encoder_read(encoder, q_m):
     return q_m
 
 
-@kernel
+@kernel(inline=True)
 def encoder_measure(encoder, q_m, dq_m_s, offset_m, hold, velocity_noise_m_s, position, velocity):
     """Measured position m and velocity m/s (2,) from the true joint state, into position and velocity.
 

@@ -150,7 +150,7 @@ class SampleWork(NamedTuple):
 STATUS_OK, STATUS_BAD_MEASUREMENT, STATUS_BAD_COMMAND = 0, 1, 2
 
 
-@kernel
+@kernel(inline=True)
 def _measure(plant, encoder, sample, changes, k):
     """The encoder's reading of sample k, glitches included; False if not finite."""
     q_true, dq_true = sample.q_true, sample.dq_true
@@ -161,7 +161,7 @@ def _measure(plant, encoder, sample, changes, k):
     return encoder_measure(encoder, q_true, dq_true, offset, hold, noise, sample.position, sample.velocity)
 
 
-@kernel
+@kernel(inline=True)
 def _record_and_step(plant, recording, k, sample, changes):
     """Check the command; record the sample; hold u (clipped) and the disturbance (+ cogging); mj_step.
 
@@ -192,7 +192,7 @@ def _no_log(params, state, out):
     """The log of a controller that logs nothing."""
 
 
-@kernel
+@kernel(inline=True)
 def _record_log(recording, k, row):
     """Store sample k's log row into the log buffer (see :meth:`Trace.allocate_log`)."""
     log, sizes = recording.log, recording.log_sizes
