@@ -261,6 +261,7 @@ def test_plant_changes_compiled_equals_reference_and_restore_the_model():
 def test_loop_needs_compiling_reads_the_kernel_cache(tmp_path, monkeypatch):
     """An empty cache means a compile before the first step; numba's index file of the chunk kernel means none."""
     from gantry_twin import _jit
+    from gantry_twin.controllers.base import compiled_step_of
     from gantry_twin.simulate import chunk_kernel, compiled_available, loop_needs_compiling
 
     if not compiled_available():
@@ -282,3 +283,19 @@ def test_loop_needs_compiling_reads_the_kernel_cache(tmp_path, monkeypatch):
             return super().update(measurement, reference)
 
     assert not loop_needs_compiling(MyDIARC()) and not loop_needs_compiling(Overridden())
+    assert compiled_step_of(MyDIARC()) is DIARC.compiled and compiled_step_of(Overridden()) is None
+
+
+def test_a_subclass_overriding_update_runs_in_the_python_loop():
+    """The compiled loop would ignore an overridden update(); such a subclass must get the Python loop."""
+    calls = []
+
+    class Counting(PD):
+        def update(self, measurement, reference):  # noqa: ANN001, ANN201
+            calls.append(measurement.t_s)
+            return super().update(measurement, reference)
+
+    simulate(Plant(), circle(), TimingLaw(2.0), Counting(), 0.01)
+    assert len(calls) == 50
+    with pytest.raises(ValueError, match="does not"):
+        simulate(Plant(), circle(), TimingLaw(2.0), Counting(), 0.01, backend="compiled")

@@ -31,6 +31,7 @@ from __future__ import annotations
 import glob
 import math
 import os
+import re
 from collections.abc import Callable, Sequence
 from typing import Literal, NamedTuple
 
@@ -244,7 +245,7 @@ def chunk_kernel(compiled: CompiledStep) -> Callable[..., tuple[int, int]]:
     if found is None:
         log = compiled.log or _no_log
         py = getattr(compiled.step, "py_func", compiled.step)
-        name = f"{py.__module__}_{py.__qualname__}_{source_digest(compiled.step, log)}".replace(".", "_")
+        name = re.sub(r"\W", "_", f"{py.__module__}_{py.__qualname__}_{source_digest(compiled.step, log)}")
         step = kernel(getattr(compiled.step, "py_func", compiled.step), inline=True)  # no call: the step's tuples
         found = specialise(_run_chunk, name, {"controller_step": step, "controller_log": log}, compiled=True)
         _chunk_kernels[compiled] = found
