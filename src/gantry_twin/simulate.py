@@ -214,7 +214,7 @@ def _run_chunk(start, stop, plant, encoder, recording, sample, changes, params, 
     """Samples [start, stop): changes -> measure -> control -> record -> mj_step; returns (status, sample index).
 
     ``controller_step`` and ``controller_log`` are the controller's kernels,
-    bound per controller by :func:`_chunk_function`.
+    bound per controller by :func:`chunk_kernel` (compiled) or :func:`_python_chunk`.
     """
     plant, encoder, recording, sample, changes, params, state = borrowed(
         (plant, encoder, recording, sample, changes, params, state)
@@ -246,7 +246,7 @@ def chunk_kernel(compiled: CompiledStep) -> Callable[..., tuple[int, int]]:
         log = compiled.log or _no_log
         py = getattr(compiled.step, "py_func", compiled.step)
         name = re.sub(r"\W", "_", f"{py.__module__}_{py.__qualname__}_{source_digest(compiled.step, log)}")
-        step = kernel(getattr(compiled.step, "py_func", compiled.step), inline=True)  # no call: the step's tuples
+        step = kernel(py, inline=True)  # inlined: no per-sample call passing every array of the tuples
         found = specialise(_run_chunk, name, {"controller_step": step, "controller_log": log}, compiled=True)
         _chunk_kernels[compiled] = found
     return found

@@ -26,8 +26,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from gantry_twin import _jit
 from gantry_twin._jit import kernel
+from gantry_twin._jit import reference as uncompiled
 from gantry_twin.controllers.base import (
     U_MAX_V,
     CompiledStep,
@@ -411,7 +411,7 @@ class ArcController:
     def update(self, measurement: Measurement, reference: ReferenceSample) -> np.ndarray:
         params, state = self.kernel_arguments()
         u_v = np.zeros(2)
-        _jit.reference(type(self).compiled.step)(params, state, float(measurement.t_s), _vec(measurement.q_m),
+        uncompiled(type(self).compiled.step)(params, state, float(measurement.t_s), _vec(measurement.q_m),
                                                  _vec(measurement.dq_m_s), reference.row(), u_v)  # fmt: skip
         return u_v
 

@@ -17,8 +17,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from gantry_twin import _jit
 from gantry_twin._jit import kernel
+from gantry_twin._jit import reference as uncompiled
 from gantry_twin.controllers.base import (
     REF_DDQ,
     REF_DQ,
@@ -88,7 +88,7 @@ class PD:
     def update(self, measurement: Measurement, reference: ReferenceSample) -> np.ndarray:
         u = np.zeros(2)
         params, _ = self.kernel_arguments()
-        _jit.reference(pd_step)(params, np.asarray(measurement.q_m, dtype=float),
+        uncompiled(pd_step)(params, np.asarray(measurement.q_m, dtype=float),
                                 np.asarray(measurement.dq_m_s, dtype=float), reference.row(), u)  # fmt: skip
         return u
 
