@@ -39,8 +39,8 @@ offer theirs through this same door:
   is where ``update()`` would have left it.
 
 The loop uses the compiled step only if the class offering it also defines
-(or inherits from below it) ``update`` and ``state_for_logging``: a subclass
-overriding either runs in the Python loop. :func:`log_values` gives
+``update`` and ``state_for_logging`` or inherits them from its own bases: a
+subclass overriding either runs in the Python loop. :func:`log_values` gives
 ``state_for_logging`` from the log kernel, so the two cannot disagree.
 """
 
