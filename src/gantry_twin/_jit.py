@@ -155,16 +155,25 @@ def specialise(template: Callable[..., Any], name: str, bindings: dict[str, Any]
 
 
 def source_digest(*functions: Callable[..., Any]) -> str:
-    """A short digest of the source files defining ``functions`` (kernels or plain functions)."""
+    """A short digest of ``functions`` (kernels or plain functions): their code and their source files."""
     digest = hashlib.sha256()
     for function in functions:
         py = getattr(function, "py_func", function)
         digest.update(py.__module__.encode() + b":" + py.__qualname__.encode())
+        digest.update(_code_bytes(py.__code__))  # also for functions without a file (a notebook)
         try:
             digest.update(Path(py.__code__.co_filename).read_bytes())
         except OSError:
             pass
     return digest.hexdigest()[:12]
+
+
+def _code_bytes(code: types.CodeType) -> bytes:
+    """The bytecode, names and constants of a code object, nested functions included (stable across processes)."""
+    parts = [code.co_code, repr(code.co_names).encode()]
+    for const in code.co_consts:
+        parts.append(_code_bytes(const) if isinstance(const, types.CodeType) else repr(const).encode())
+    return b"\0".join(parts)
 
 
 def borrowed(value):  # noqa: ANN001, ANN201 (numba compares this signature with its overload's)
