@@ -1,14 +1,17 @@
-"""Cost of the 0.2 ms loop against a bare ``mujoco.mj_step`` (issue 6).
+"""Cost of the 0.2 ms loop against MuJoCo's own C loop (issues 6 and 11).
 
     PYTHONPATH=src python benchmarks/bench_loop.py [--seconds 4] [--repeats 5]
 
-Prints, from one run on one machine: us per step and real-time factor of a
-bare mj_step Python loop and of simulate() with the DRC, DARC, DIARC and pd
-controllers (compiled backend; DIARC also on the reference backend), each
-loop's ratio to the bare step; numba's first-use compile time (fresh cache)
-and cache-load time; the peak memory of a 60 s DIARC run with full 5 kHz
-recording. Loops are measured interleaved, best of ``--repeats``, in wall
-time and in this thread's CPU time (less sensitive to other processes).
+Prints, from one run on one machine: us per step and real-time factor of
+``mujoco.mj_step(m, d, nstep=N)`` (MuJoCo's C loop, the model at rest) and of
+simulate() as a user calls it with the pd, DRC, DARC and DIARC controllers
+and the example compiled plug-in of examples/gantry-example-pd (compiled
+backend; DIARC also on the reference backend); each loop's ratio to the C
+loop, and the plug-in's ratio to the built-in pd; numba's first-use compile
+time (fresh cache) and cache-load time; the peak memory of a 60 s DIARC run
+with full 5 kHz recording. Loops are measured interleaved, best of
+``--repeats``, in wall time and in this thread's CPU time (less sensitive to
+other processes on the machine): compare ratios, not absolute times.
 """
 
 from __future__ import annotations
@@ -25,11 +28,12 @@ import mujoco
 import numpy as np
 
 from gantry_twin import Plant, TimingLaw, circle, simulate
-from gantry_twin.controllers import create
-from gantry_twin.paths import reference
+from gantry_twin.controllers import available, create, register
 
-SRC = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "src")
-CONTROLLERS = ("pd", "drc", "darc", "diarc")
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+SRC = os.path.join(ROOT, "src")
+EXAMPLE_SRC = os.path.join(ROOT, "examples", "gantry-example-pd", "src")
+CONTROLLERS = ("pd", "drc", "darc", "diarc", "example_pd")
 
 _FIRST_USE = """
 import time, json
@@ -75,33 +79,25 @@ def _timed(fn) -> tuple[float, float]:  # noqa: ANN001
 
 
 def bare_steps(n: int) -> tuple[float, float]:
+    """MuJoCo's C loop on the same model, from rest."""
     plant = Plant()
     plant.reset(np.zeros(2), np.zeros(2))
-    model, data = plant.model, plant.data
+    return _timed(lambda: mujoco.mj_step(plant.model, plant.data, nstep=n))
 
-    def run() -> None:
-        for _ in range(n):
-            mujoco.mj_step(model, data)
 
-    return _timed(run)
+def _example_plugin() -> None:
+    """Register the example plug-in if it is not installed (then it is imported from examples/)."""
+    if "example_pd" in available():
+        return
+    sys.path.insert(0, EXAMPLE_SRC)
+    from gantry_example_pd import ExamplePD
+
+    register("example_pd", ExamplePD)
 
 
 def loop(name: str, seconds: float, backend: str = "compiled") -> tuple[float, float]:
     plant, controller = Plant(), create(name)
     return _timed(lambda: simulate(plant, circle(), TimingLaw(2.0), controller, seconds, backend=backend))
-
-
-def derived_errors_cost(seconds: float) -> float:
-    """Seconds simulate() spends on e, eps_n and the true eps_c (paths.contour_error) per chunk of 0.1 s."""
-    finish = sys.modules["gantry_twin.simulate"]._finish_chunk
-    path, timing = circle(), TimingLaw(2.0)
-    trace = simulate(Plant(), path, timing, create("pd"), seconds)
-    ref = reference(path, timing, trace.t_s)
-    chunk = 500
-    t0 = time.perf_counter()
-    for start in range(0, trace.t_s.size, chunk):
-        finish(trace, ref, path, start, min(trace.t_s.size, start + chunk))
-    return time.perf_counter() - t0
 
 
 def main() -> None:
@@ -113,42 +109,42 @@ def main() -> None:
     ts = 2e-4
     n = int(round(args.seconds / ts))
 
+    builtin = tuple(name for name in CONTROLLERS if name != "example_pd")
     with tempfile.TemporaryDirectory() as cache:
-        cold = _child(_FIRST_USE.format(names=CONTROLLERS), cache)
-        warm = _child(_FIRST_USE.format(names=CONTROLLERS), cache)
+        cold = _child(_FIRST_USE.format(names=builtin), cache)
+        warm = _child(_FIRST_USE.format(names=builtin), cache)
     print(f"numba, first use with an empty cache (compile all kernels): {cold['first_runs_s']:.1f} s "
           f"(import {cold['import_s']:.2f} s)")
     print(f"numba, later processes (load from cache):                  {warm['first_runs_s']:.2f} s "
           f"(import {warm['import_s']:.2f} s)")
 
-    for name in CONTROLLERS:  # load every kernel before timing
+    _example_plugin()
+    for name in CONTROLLERS:  # load (or compile) every kernel before timing
         loop(name, 0.01)
-    results: dict[str, list[tuple[float, float]]] = {"bare mj_step": []}
+    bare_key = "mj_step C loop"
+    results: dict[str, list[tuple[float, float]]] = {bare_key: []}
     results.update({name: [] for name in CONTROLLERS})
     for _ in range(args.repeats):
-        results["bare mj_step"].append(bare_steps(n))
+        results[bare_key].append(bare_steps(n))
         for name in CONTROLLERS:
             results[name].append(loop(name, args.seconds))
-    derived = min(derived_errors_cost(args.seconds) for _ in range(args.repeats)) / n * 1e6
     ref_seconds = min(0.5, args.seconds)
     results["diarc (reference)"] = [loop("diarc", ref_seconds, "reference")]
     steps = {key: (int(round(ref_seconds / ts)) if "reference" in key else n) for key in results}
 
     best = {key: (min(w for w, _ in v) / steps[key] * 1e6, min(c for _, c in v) / steps[key] * 1e6)
             for key, v in results.items()}  # fmt: skip
-    bare_wall, bare_cpu = best["bare mj_step"]
+    bare_wall, bare_cpu = best[bare_key]
     print(f"\nloops of {args.seconds:g} s simulated ({n} steps), best of {args.repeats}; "
-          f"simulate() with recording to memory, circle, default sensing")
-    print(f"{'loop':<20}{'us/step':>9}{'x bare':>8}{'RT factor':>11}{'CPU us/step':>13}{'x bare':>8}"
-          f"{'loop w/o eps_c':>16}{'x bare':>8}")
+          f"simulate() with recording to memory and the derived errors, circle, default sensing")
+    print(f"{'loop':<24}{'us/step':>9}{'x C loop':>10}{'RT factor':>11}{'CPU us/step':>13}{'x C loop':>10}")
     for key, (wall, cpu) in best.items():
-        label = key if key == "bare mj_step" or "reference" in key else f"{key} (compiled)"
-        row = f"{label:<20}{wall:9.2f}{wall / bare_wall:8.2f}{200.0 / wall:11.1f}{cpu:13.2f}{cpu / bare_cpu:8.2f}"
-        if key in CONTROLLERS:
-            row += f"{wall - derived:16.2f}{(wall - derived) / bare_wall:8.2f}"
-        print(row)
-    print(f"(derived errors e, eps_n and the true contour error eps_c, computed per 0.1 s chunk with numpy: "
-          f"{derived:.2f} us/step; 'loop w/o eps_c' = measure, control, record, mj_step)")
+        label = key if key == bare_key or "reference" in key else f"{key} (compiled)"
+        print(f"{label:<24}{wall:9.2f}{wall / bare_wall:10.2f}{200.0 / wall:11.1f}{cpu:13.2f}{cpu / bare_cpu:10.2f}")
+    (pd_wall, pd_cpu), (ex_wall, ex_cpu) = best["pd"], best["example_pd"]
+    print(f"\nDIARC / C loop: {best['diarc'][0] / bare_wall:.2f}x wall, {best['diarc'][1] / bare_cpu:.2f}x CPU "
+          f"(target 1.4x); example plug-in / built-in pd: {ex_wall / pd_wall:.2f}x wall, {ex_cpu / pd_cpu:.2f}x CPU "
+          f"(target 1.15x)")
 
     if not args.skip_memory:
         mem = _child(_MEMORY)

@@ -16,14 +16,9 @@ import pytest
 from gantry_twin import Plant, SensingConfig, TimingLaw, circle, paper_ellipse, simulate
 from gantry_twin._jit import reference
 from gantry_twin.controllers import DIARC, DRC, PD, RECOMMENDED_ESTIMATOR, create
-from gantry_twin.controllers.arc import arc_step
-from gantry_twin.estimation import (
-    EIGENVALUE_TOLERANCE,
-    LeastSquaresSettings,
-    largest_eigenvalue,
-    largest_eigenvalue_exact,
-    least_squares_step,
-)
+from gantry_twin.controllers.arc import diarc_step
+from gantry_twin.estimation import LeastSquaresSettings, least_squares_step
+from gantry_twin.linalg import EIGENVALUE_TOLERANCE, largest_eigenvalue, largest_eigenvalue_exact
 from gantry_twin.trace import SimulationError
 
 U_TOLERANCE_V = 1e-9
@@ -159,17 +154,18 @@ def test_plugin_controller_uses_the_python_loop():
 
     trace = simulate(Plant(), circle(), TimingLaw(2.0), Zero(), 0.01)
     assert np.all(trace.u_v == 0.0) and trace.controller_state["k"].shape == (50, 3)
-    with pytest.raises(ValueError, match="backend 'compiled' runs only"):
+    with pytest.raises(ValueError, match="backend 'compiled' runs only controllers that offer a compiled step"):
         simulate(Plant(), circle(), TimingLaw(2.0), Zero(), 0.01, backend="compiled")
     with pytest.raises(ValueError, match="backend must be"):
         simulate(Plant(), circle(), TimingLaw(2.0), DRC(), 0.01, backend="fast")
 
 
 def test_reference_is_uncompiled_python():
-    ref = reference(arc_step)
+    ref = reference(diarc_step)
     assert isinstance(ref, types.FunctionType)
-    assert isinstance(ref.__globals__["arc_law"], types.FunctionType)
-    assert isinstance(ref.__globals__["arc_law"].__globals__["error_gains"], types.FunctionType)
+    assert isinstance(ref.__globals__["_law"], types.FunctionType)
+    assert isinstance(ref.__globals__["_law"].__globals__["arc_law"], types.FunctionType)
+    assert isinstance(ref.__globals__["_law"].__globals__["arc_law"].__globals__["error_gains"], types.FunctionType)
 
 
 def _spd_with_top_pair(rng, gap):  # noqa: ANN001, ANN202
@@ -266,19 +262,41 @@ def test_plant_changes_compiled_equals_reference_and_restore_the_model():
 def test_loop_needs_compiling_reads_the_kernel_cache(tmp_path, monkeypatch):
     """An empty cache means a compile before the first step; numba's index file of the chunk kernel means none."""
     from gantry_twin import _jit
-    from gantry_twin.simulate import _run_arc_chunk, compiled_available, loop_needs_compiling
+    from gantry_twin.controllers.base import compiled_step_of
+    from gantry_twin.simulate import chunk_kernel, compiled_available, loop_needs_compiling
 
     if not compiled_available():
         pytest.skip("no compiled backend on this machine")
     monkeypatch.setattr(_jit, "_CACHE_DIR", str(tmp_path))
-    assert loop_needs_compiling(DIARC()) and loop_needs_compiling(PD())
-    index = tmp_path / "gantry_twin_0123" / f"simulate.{_run_arc_chunk.py_func.__qualname__}-400.py311.nbi"
+    assert loop_needs_compiling(DIARC()) and loop_needs_compiling(PD()) and loop_needs_compiling(DRC())
+    qualname = chunk_kernel(DIARC.compiled).py_func.__qualname__
+    index = tmp_path / "gantry_twin_0123" / f"simulate.{qualname}-400.py311.nbi"
     index.parent.mkdir()
     index.write_bytes(b"")
-    assert not loop_needs_compiling(DIARC()) and not loop_needs_compiling(DRC())
-    assert loop_needs_compiling(PD())  # its own kernel is not cached yet
+    assert not loop_needs_compiling(DIARC())
+    assert loop_needs_compiling(PD()) and loop_needs_compiling(DRC())  # their own chunk kernels are not cached yet
 
-    class MyDIARC(DIARC):  # a subclass runs in the reference loop: nothing to compile
+    class MyDIARC(DIARC):  # the same compiled step: the same kernel
         pass
 
-    assert not loop_needs_compiling(MyDIARC())
+    class Overridden(DIARC):  # update() overridden: the Python loop, nothing to compile
+        def update(self, measurement, reference):  # noqa: ANN001, ANN201
+            return super().update(measurement, reference)
+
+    assert not loop_needs_compiling(MyDIARC()) and not loop_needs_compiling(Overridden())
+    assert compiled_step_of(MyDIARC()) is DIARC.compiled and compiled_step_of(Overridden()) is None
+
+
+def test_a_subclass_overriding_update_runs_in_the_python_loop():
+    """The compiled loop would ignore an overridden update(); such a subclass must get the Python loop."""
+    calls = []
+
+    class Counting(PD):
+        def update(self, measurement, reference):  # noqa: ANN001, ANN201
+            calls.append(measurement.t_s)
+            return super().update(measurement, reference)
+
+    simulate(Plant(), circle(), TimingLaw(2.0), Counting(), 0.01)
+    assert len(calls) == 50
+    with pytest.raises(ValueError, match="does not"):
+        simulate(Plant(), circle(), TimingLaw(2.0), Counting(), 0.01, backend="compiled")

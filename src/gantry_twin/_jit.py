@@ -8,6 +8,17 @@ from ``__pycache__``). :func:`reference` returns the *same* code run by the
 Python interpreter, with every kernel it calls also uncompiled, so the
 compiled loop can be checked against an implementation numba never touched.
 
+:func:`borrowed` hands a kernel its arrays without their reference counts:
+numba counts references to every array it binds, with an atomic increment
+and decrement per array per binding, and the loop's nested tuples of
+settings, state and scratch arrays bind dozens of arrays per sample. Called
+once at the top of a chunk kernel, on arrays the caller keeps alive, it
+removes that cost from everything the chunk calls.
+
+:func:`specialise` makes one copy of a template kernel per set of callees
+named as globals (the compiled loop takes a controller's step this way), each
+cached on disk under its own name.
+
 Kernels use ``math`` functions on scalars (the C library's sin/cos/atan/exp,
 which numba calls too) rather than numpy ufuncs on scalars, so both versions
 do the same floating-point operations in the same order.
@@ -23,21 +34,30 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 import numba
+from numba.core import cgutils
+from numba.core import types as nbtypes
 from numba.core.registry import CPUDispatcher
+from numba.extending import intrinsic, overload
 
 F = TypeVar("F", bound=Callable[..., Any])
 
-#: The modules whose kernels call each other (paths relative to the package).
-KERNEL_MODULES = (
-    "_jit.py",
-    "taskframe.py",
-    "estimation.py",
-    "controllers/law.py",
-    "controllers/arc.py",
-    "controllers/pd.py",
-    "simulate.py",
-    "monitor.py",
-)
+def kernel_sources(package: Path | None = None) -> list[Path]:
+    """The package's modules that define kernels, and the package modules they import from.
+
+    A kernel reads the globals it uses (constants, other kernels) when it is
+    compiled, so the compiled code depends on these files and no others.
+    """
+    package = package or Path(__file__).resolve().parent
+    modules = {p.relative_to(package).with_suffix("").as_posix().replace("/", "."): p for p in package.rglob("*.py")}
+    kernels = {name for name, path in modules.items() if "@kernel" in path.read_text(encoding="utf-8")}
+    found = set(kernels)
+    for name in kernels:
+        for line in modules[name].read_text(encoding="utf-8").splitlines():
+            words = line.split()
+            if len(words) > 1 and words[0] == "from" and words[1].startswith("gantry_twin."):
+                target = words[1].removeprefix("gantry_twin.")
+                found.update(m for m in (target, f"{target}.__init__") if m in modules)
+    return sorted(modules[name] for name in found)
 
 
 def cache_dir() -> str:
@@ -48,10 +68,9 @@ def cache_dir() -> str:
     hash of every kernel module makes any edit recompile everything.
     NUMBA_CACHE_DIR, if set, is the parent; else ~/.cache/gantry_twin/numba.
     """
-    package = Path(__file__).resolve().parent
     digest = hashlib.sha256()
-    for name in KERNEL_MODULES:
-        digest.update((package / name).read_bytes())
+    for path in kernel_sources():
+        digest.update(path.read_bytes())
     root = os.environ.get("NUMBA_CACHE_DIR") or os.path.join(
         os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache"), "gantry_twin", "numba"
     )
@@ -61,12 +80,19 @@ def cache_dir() -> str:
 _CACHE_DIR = cache_dir()
 
 
-def kernel(function: F) -> F:
-    """Compile ``function`` in nopython mode, cached on disk under :func:`cache_dir`."""
+def kernel(function: F | None = None, *, inline: bool = False) -> Any:
+    """Compile ``function`` in nopython mode, cached on disk under :func:`cache_dir`.
+
+    ``@kernel(inline=True)``: numba inlines the function into its callers
+    (for per-sample kernels called once per sample that take large tuples:
+    a call would pass each of their arrays as separate arguments).
+    """
+    if function is None:
+        return lambda f: kernel(f, inline=inline)
     saved = numba.config.CACHE_DIR
     numba.config.CACHE_DIR = _CACHE_DIR  # read once, when the dispatcher's cache is created
     try:
-        return numba.njit(cache=True)(function)  # type: ignore[return-value]
+        return numba.njit(cache=True, inline="always" if inline else "never")(function)
     finally:
         numba.config.CACHE_DIR = saved
 
@@ -105,3 +131,88 @@ def _globals_for(module_globals: dict[str, Any]) -> dict[str, Any]:
             if isinstance(value, CPUDispatcher):
                 env[key] = reference(value)
     return env
+
+
+def reference_globals(module_globals: dict[str, Any]) -> dict[str, Any]:
+    """A copy of a module's globals in which every kernel is its uncompiled reference version."""
+    return _globals_for(module_globals)
+
+
+def specialise(template: Callable[..., Any], name: str, bindings: dict[str, Any], compiled: bool) -> Callable[..., Any]:
+    """A copy of kernel ``template`` whose globals ``bindings`` (name -> kernel or value) are replaced.
+
+    compiled: a kernel cached on disk as ``<template>_<name>`` (``name``
+    must identify the bindings, e.g. with a digest of their sources: numba
+    keys its cache on the template's code and argument types only);
+    otherwise the reference version, with every other kernel uncompiled.
+    """
+    py = getattr(template, "py_func", template)
+    env = dict(py.__globals__ if compiled else _globals_for(py.__globals__))
+    env.update(bindings)
+    function = types.FunctionType(py.__code__, env, py.__name__, py.__defaults__, py.__closure__)
+    function.__qualname__ = f"{py.__qualname__}_{name}"
+    function.__doc__, function.__module__ = py.__doc__, py.__module__
+    return kernel(function) if compiled else function
+
+
+def source_digest(*functions: Callable[..., Any]) -> str:
+    """A short digest of ``functions`` (kernels or plain functions): their code and their source files."""
+    digest = hashlib.sha256()
+    for function in functions:
+        py = getattr(function, "py_func", function)
+        digest.update(py.__module__.encode() + b":" + py.__qualname__.encode())
+        digest.update(_code_bytes(py.__code__))  # also for functions without a file (a notebook)
+        try:
+            digest.update(Path(py.__code__.co_filename).read_bytes())
+        except OSError:
+            pass
+    return digest.hexdigest()[:12]
+
+
+def _code_bytes(code: types.CodeType) -> bytes:
+    """The bytecode, names and constants of a code object, nested functions included (stable across processes)."""
+    parts = [code.co_code, repr(code.co_names).encode()]
+    for const in code.co_consts:
+        parts.append(_code_bytes(const) if isinstance(const, types.CodeType) else repr(const).encode())
+    return b"\0".join(parts)
+
+
+def borrowed(value):  # noqa: ANN001, ANN201 (numba compares this signature with its overload's)
+    """``value`` (an array, or a tuple of arrays, scalars and tuples) for use inside one kernel call.
+
+    Uncompiled this is the identity. Compiled, the arrays come back without
+    their reference-count owner, so numba's per-binding reference counting
+    (an atomic operation per array) becomes a test of a null pointer. Only
+    for arrays the caller keeps alive for the whole call (a kernel's own
+    arguments), and never to be returned or stored.
+    """
+    return value
+
+
+def _without_owner(context: Any, builder: Any, typ: Any, value: Any) -> Any:
+    if isinstance(typ, nbtypes.Array):
+        array = context.make_array(typ)(context, builder, value=value)
+        array.meminfo = cgutils.get_null_value(array.meminfo.type)
+        return array._getvalue()
+    if isinstance(typ, nbtypes.BaseTuple):
+        out = value
+        for i, member in enumerate(typ.types):
+            inner = _without_owner(context, builder, member, builder.extract_value(value, i))
+            out = builder.insert_value(out, inner, i)
+        return out
+    return value
+
+
+@intrinsic
+def _borrow(typingctx: Any, value: Any) -> Any:
+    def codegen(context: Any, builder: Any, signature: Any, args: Any) -> Any:
+        out = _without_owner(context, builder, signature.args[0], args[0])
+        context.nrt.incref(builder, signature.return_type, out)  # the result is a new reference (to non-arrays)
+        return out
+
+    return value(value), codegen
+
+
+@overload(borrowed)
+def _borrowed_compiled(value):  # noqa: ANN001, ANN202
+    return lambda value: _borrow(value)

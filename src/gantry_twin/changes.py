@@ -26,10 +26,11 @@ Validation errors are one line naming the field and its allowed range.
 from __future__ import annotations
 
 import math
-from typing import Literal
+from typing import Literal, NamedTuple
 
 import numpy as np
 
+from gantry_twin._jit import kernel, reference
 from gantry_twin.plant import AXES, Axis, PayloadMass, Plant, moving_masses_kg
 from gantry_twin.ranges import Count, Range, Vector, fmt, rule, settings
 
@@ -263,14 +264,19 @@ class PlantChanges:
         active = (t >= noise.start_s) & (t < noise.end_s)
         return draws * np.asarray(noise.std_m_s) * active[:, None]
 
+    def cogging_table(self) -> np.ndarray:
+        """(2, 3) per axis X, Y: amplitude V, pitch m, phase rad (amplitude 0: no ripple), for :func:`cogging_force`."""
+        table = np.zeros((2, 3))
+        table[:, 1] = 1.0
+        for ripple in self.cogging:
+            table[ripple.axis_index] = (ripple.amplitude_v, ripple.pitch_m, ripple.phase_rad)
+        return table
+
     def cogging_force_v(self, q_m: np.ndarray) -> np.ndarray:
         """Cogging force (X, Y) at position q (m), volts: amplitude sin(2 pi q / pitch + phase)."""
         q = np.asarray(q_m, dtype=float)
-        out = np.zeros(2)
-        for ripple in self.cogging:
-            a = ripple.axis_index
-            out[a] = ripple.amplitude_v * math.sin(2.0 * math.pi * q[a] / ripple.pitch_m + ripple.phase_rad)
-        return out
+        table, force = self.cogging_table(), reference(cogging_force)
+        return np.array([force(table, axis, float(q[axis])) for axis in range(2)])
 
     def true_parameters_over_time(self, plant: Plant, t: np.ndarray) -> np.ndarray:
         """The true theta [M1, M2, B1, B2, Af1, Af2, dN1, dN2] at each sample, volt units, (N, 8).
@@ -292,6 +298,94 @@ class PlantChanges:
         ])
 
 
+
+# ---- what the loop applies each sample (both backends) -------------------------------------
+
+
+@kernel(inline=True)
+def cogging_force(table, axis, q_m):
+    """Cogging force of one axis at the true position q_m, volts; table from PlantChanges.cogging_table."""
+    if table[axis, 0] == 0.0:
+        return 0.0
+    return table[axis, 0] * math.sin(2.0 * math.pi * q_m / table[axis, 1] + table[axis, 2])
+
+
+class ChangeSchedule(NamedTuple):
+    """Per-sample plant and sensor changes for the loop, over the run's N samples.
+
+    The first three are views of mjModel memory the loop writes into. Each
+    schedule is (N, ...) when the run has that kind of change, else empty
+    (0, ...), which the loop reads as "unchanged". cogging (2, 3): see
+    :meth:`PlantChanges.cogging_table`. none: an empty (0,) array, the
+    sensor's "no glitch".
+    """
+
+    dof_damping: np.ndarray
+    dof_frictionloss: np.ndarray
+    body_mass: np.ndarray
+    payload_body: int
+    damping_n_s_m: np.ndarray
+    frictionloss_n: np.ndarray
+    payload_kg: np.ndarray
+    cogging: np.ndarray
+    offset_m: np.ndarray
+    hold: np.ndarray
+    velocity_noise_m_s: np.ndarray
+    none: np.ndarray
+
+
+def change_schedule(plant: Plant, changes: PlantChanges | None, t: np.ndarray) -> ChangeSchedule:
+    """The loop's per-sample arrays for ``changes`` over the sample times t (N,) s."""
+    model = plant.model
+    none2, none1 = np.empty((0, 2)), np.empty(0)
+    changes = changes or PlantChanges()
+    body = -1
+    if changes.payload_change:
+        if plant.payload_body_id is None:
+            raise ValueError("changes.payload_change: the plant has no payload body to change; build it with "
+                             "Plant(payload, payload_body=True)")
+        body = plant.payload_body_id
+    glitches = changes.encoder_glitch
+    return ChangeSchedule(
+        model.dof_damping, model.dof_frictionloss, model.body_mass, body,
+        np.ascontiguousarray(changes.damping_n_s_m(plant, t)) if changes.friction_drift else none2,
+        np.ascontiguousarray(changes.frictionloss_n(plant, t)) if changes.friction_drift else none2,
+        np.ascontiguousarray(changes.payload_mass_kg(plant, t)) if changes.payload_change else none1,
+        changes.cogging_table(),
+        np.ascontiguousarray(changes.position_offset_m(t)) if any(g.kind == "spike" for g in glitches) else none2,
+        np.ascontiguousarray(changes.hold_mask(t)) if any(g.kind == "hold" for g in glitches) else
+        np.empty(0, dtype=np.bool_),
+        np.ascontiguousarray(changes.velocity_noise_m_s(t)) if changes.velocity_noise is not None else none2,
+        none1,
+    )  # fmt: skip
+
+
+@kernel(inline=True)
+def apply_plant_changes(dof_index, changes, k):
+    """Write sample k's scheduled joint damping, Coulomb level and payload mass into the model.
+
+    Only body_mass changes; MuJoCo derives the mass matrix from it at every
+    step. dof_invweight0 (set at compile time, used to scale constraint
+    regularisation) keeps its unloaded value: with this model's stiff friction
+    that changes nothing measurable (tests/test_changes_loop.py compares with a
+    plant compiled with the payload).
+    """
+    if changes.damping_n_s_m.shape[0] > 0:
+        for i in range(2):
+            changes.dof_damping[dof_index[i]] = changes.damping_n_s_m[k, i]
+            changes.dof_frictionloss[dof_index[i]] = changes.frictionloss_n[k, i]
+    if changes.payload_kg.shape[0] > 0:
+        changes.body_mass[changes.payload_body] = changes.payload_kg[k]
+
+
+@kernel(inline=True)
+def sensor_glitches(changes, k):
+    """Sample k's encoder glitches: (offset m (2,) or empty, hold, velocity noise m/s (2,) or empty)."""
+    offset = changes.offset_m[k] if changes.offset_m.shape[0] > 0 else changes.none
+    noise = changes.velocity_noise_m_s[k] if changes.velocity_noise_m_s.shape[0] > 0 else changes.none
+    hold = changes.hold.shape[0] > 0 and changes.hold[k]
+    return offset, hold, noise
+
 __all__ = [
     "CoggingRipple",
     "EncoderGlitch",
@@ -299,4 +393,6 @@ __all__ = [
     "PayloadChange",
     "PlantChanges",
     "VelocityNoise",
+    "change_schedule",
+    "cogging_force",
 ]

@@ -10,16 +10,20 @@ hands it to observers (progress bars, live telemetry, pacing) after every
 chunk of ``chunk_s`` simulated seconds. Observers only read the trace:
 nothing they do changes the simulation.
 
-Two backends run the same equations (docs/performance.md):
+One sample is written once, in :func:`_run_chunk`: plant changes
+(:mod:`gantry_twin.changes`), the encoder (:mod:`gantry_twin.sensing`), the
+controller, clipping and recording, MuJoCo's step. Two backends run it
+(docs/performance.md):
 
-* ``reference``: a Python loop that calls ``controller.update()`` every
-  sample and ``mujoco.mj_step``; any plug-in controller runs this way, and
-  the built-in controllers then run their kernels uncompiled.
-* ``compiled``: for the built-in controllers (drc, darc, diarc, pd), each
-  chunk is one numba kernel that measures, runs the controller's compiled
-  step, records and calls MuJoCo's C ``mj_step`` directly (through the
-  shared library the mujoco wheel ships), with no Python in the 0.2 ms loop.
-  It leaves the controller object in the state the reference run leaves.
+* ``compiled``: for a controller that offers a compiled step (the plug-in
+  protocol of :mod:`gantry_twin.controllers.base`; the built-ins do), one
+  numba kernel per chunk, specialised to that controller's step, which
+  calls MuJoCo's C ``mj_step`` directly (through the shared library the
+  mujoco wheel ships), with no Python in the 0.2 ms loop. It leaves the
+  controller object in the state the reference run leaves.
+* ``reference``: the same chunk function run by the Python interpreter with
+  every kernel uncompiled, calling ``controller.update()`` every sample and
+  ``mujoco.mj_step``; any controller runs this way.
 """
 
 from __future__ import annotations
@@ -27,6 +31,7 @@ from __future__ import annotations
 import glob
 import math
 import os
+import re
 from collections.abc import Callable, Sequence
 from typing import Literal, NamedTuple
 
@@ -34,16 +39,29 @@ import mujoco
 import numpy as np
 from numba import types
 
-from gantry_twin._jit import is_cached, kernel
+from gantry_twin._jit import borrowed, is_cached, kernel, source_digest, specialise
 from gantry_twin._jit import reference as uncompiled
-from gantry_twin.changes import PlantChanges
-from gantry_twin.controllers.arc import CLOCK_LAMBDA_MAX, DARC, DIARC, DRC, arc_step
-from gantry_twin.controllers.base import Controller, Measurement, ReferenceSample, RunContext
-from gantry_twin.controllers.pd import PD, pd_step
+from gantry_twin.changes import (
+    ChangeSchedule,
+    PlantChanges,
+    apply_plant_changes,
+    change_schedule,
+    cogging_force,
+    sensor_glitches,
+)
+from gantry_twin.controllers.base import (
+    CompiledStep,
+    Controller,
+    Measurement,
+    ReferenceSample,
+    RunContext,
+    compiled_step_of,
+)
+from gantry_twin.estimation import clip
 from gantry_twin.paths import Path, Reference, TimingLaw, contour_error, reference
 from gantry_twin.plant import Plant
-from gantry_twin.sensing import Encoder, SensingConfig
-from gantry_twin.taskframe import task_errors
+from gantry_twin.sensing import Encoder, SensingConfig, encoder_measure
+from gantry_twin.taskframe import normal_errors
 from gantry_twin.trace import Observer, RunInfo, SimulationError, Trace
 
 #: A disturbance timeline: times (N,) s -> input disturbance (N, 2) volts.
@@ -52,9 +70,8 @@ Disturbance = Callable[[np.ndarray], np.ndarray]
 
 def _finish_chunk(trace: Trace, ref: Reference, path: Path, start: int, stop: int) -> None:
     """Derived errors for samples [start, stop): e, eps_n and the true eps_c."""
-    e = trace.q_m[start:stop] - ref.q_d[start:stop]
-    trace.e_m[start:stop] = e
-    trace.eps_n_m[start:stop] = task_errors(ref.alpha[start:stop], e)[:, 0]
+    normal_errors(ref.alpha[start:stop], trace.q_m[start:stop], ref.q_d[start:stop], trace.e_m[start:stop],
+                  trace.eps_n_m[start:stop])  # fmt: skip
     trace.eps_c_m[start:stop], _ = contour_error(path, trace.q_m[start:stop], ref.phi[start:stop])
     trace.filled = stop
 
@@ -87,7 +104,7 @@ mj_step = _load_mj_step()
 
 
 class PlantIO(NamedTuple):
-    """What the compiled loop touches in MuJoCo: raw pointers, views into mjData, indices."""
+    """What the loop touches in MuJoCo: raw pointers, views into mjData, indices, the DAC limits (2,) V."""
 
     model_address: int
     data_address: int
@@ -101,164 +118,70 @@ class PlantIO(NamedTuple):
     u_max_v: np.ndarray
 
 
-class SensorState(NamedTuple):
-    """The encoder of :mod:`gantry_twin.sensing` for the compiled loop; previous_m (2,) is its memory."""
-
-    quantize: bool
-    resolution_m: float
-    velocity_by_difference: bool
-    sample_period_s: float
-    previous_m: np.ndarray
-
-
-class ChangeSchedule(NamedTuple):
-    """Per-sample plant and sensor changes (gantry_twin.changes) for both loops.
-
-    The first three are views of mjModel memory the loop writes into. Each
-    schedule is (N, ...) when the run has that kind of change, else empty
-    (0, ...), which the loop reads as "unchanged". cogging (2, 3): amplitude V,
-    pitch m, phase rad per axis (amplitude 0: no ripple).
-    """
-
-    dof_damping: np.ndarray
-    dof_frictionloss: np.ndarray
-    body_mass: np.ndarray
-    payload_body: int
-    damping_n_s_m: np.ndarray
-    frictionloss_n: np.ndarray
-    payload_kg: np.ndarray
-    cogging: np.ndarray
-    offset_m: np.ndarray
-    hold: np.ndarray
-    velocity_noise_m_s: np.ndarray
-
-
-def change_schedule(plant: Plant, changes: PlantChanges | None, t: np.ndarray) -> ChangeSchedule:
-    """The loop's per-sample arrays for ``changes`` over the sample times t (N,) s."""
-    model = plant.model
-    none2, none1 = np.empty((0, 2)), np.empty(0)
-    changes = changes or PlantChanges()
-    cogging = np.zeros((2, 3))
-    cogging[:, 1] = 1.0
-    for ripple in changes.cogging:
-        cogging[ripple.axis_index] = (ripple.amplitude_v, ripple.pitch_m, ripple.phase_rad)
-    body = -1
-    if changes.payload_change:
-        if plant.payload_body_id is None:
-            raise ValueError("changes.payload_change: the plant has no payload body to change; build it with "
-                             "Plant(payload, payload_body=True)")
-        body = plant.payload_body_id
-    glitches = changes.encoder_glitch
-    return ChangeSchedule(
-        model.dof_damping, model.dof_frictionloss, model.body_mass, body,
-        np.ascontiguousarray(changes.damping_n_s_m(plant, t)) if changes.friction_drift else none2,
-        np.ascontiguousarray(changes.frictionloss_n(plant, t)) if changes.friction_drift else none2,
-        np.ascontiguousarray(changes.payload_mass_kg(plant, t)) if changes.payload_change else none1,
-        cogging,
-        np.ascontiguousarray(changes.position_offset_m(t)) if any(g.kind == "spike" for g in glitches) else none2,
-        np.ascontiguousarray(changes.hold_mask(t)) if any(g.kind == "hold" for g in glitches) else
-        np.empty(0, dtype=np.bool_),
-        np.ascontiguousarray(changes.velocity_noise_m_s(t)) if changes.velocity_noise is not None else none2,
-    )  # fmt: skip
-
-
-@kernel
-def _change_plant(dof_index, changes, k):
-    """Write sample k's scheduled joint damping, Coulomb level and payload mass into the model.
-
-    Only body_mass changes; MuJoCo derives the mass matrix from it at every
-    step. dof_invweight0 (set at compile time, used to scale constraint
-    regularisation) keeps its unloaded value: with this model's stiff friction
-    that changes nothing measurable (tests/test_changes_loop.py compares with a
-    plant compiled with the payload).
-    """
-    if changes.damping_n_s_m.shape[0] > 0:
-        for i in range(2):
-            changes.dof_damping[dof_index[i]] = changes.damping_n_s_m[k, i]
-            changes.dof_frictionloss[dof_index[i]] = changes.frictionloss_n[k, i]
-    if changes.payload_kg.shape[0] > 0:
-        changes.body_mass[changes.payload_body] = changes.payload_kg[k]
-
-
-@kernel
-def _cogging_v(changes, axis, q_m):
-    """Cogging force of one axis at the true position q_m, volts (as PlantChanges.cogging_force_v)."""
-    c = changes.cogging
-    if c[axis, 0] == 0.0:
-        return 0.0
-    return c[axis, 0] * math.sin(2.0 * math.pi * q_m / c[axis, 1] + c[axis, 2])
-
-
 class Recording(NamedTuple):
-    """Inputs (reference rows, disturbance) and the trace arrays the compiled loop writes."""
+    """The loop's inputs (sample times, reference rows, disturbance) and the trace arrays it writes.
 
+    log: a compiled controller's log buffer (:meth:`Trace.allocate_log`;
+    empty for none), log_sizes (keys,) the size of each logged value.
+    """
+
+    t_s: np.ndarray
     rows: np.ndarray
     disturbance_v: np.ndarray
     q_m: np.ndarray
     q_meas_m: np.ndarray
     u_v: np.ndarray
+    log: np.ndarray
+    log_sizes: np.ndarray
 
 
 class SampleWork(NamedTuple):
-    """One sample: true position m, measured position m and velocity m/s, command volts (2,) each."""
+    """One sample: true position m and velocity m/s, measured position m and velocity m/s, command V,
+    the controller's log row."""
 
     q_true: np.ndarray
+    dq_true: np.ndarray
     position: np.ndarray
     velocity: np.ndarray
     command: np.ndarray
+    log_row: np.ndarray
 
 
-#: Status codes of the compiled chunk kernels.
+#: Status codes of the chunk function.
 STATUS_OK, STATUS_BAD_MEASUREMENT, STATUS_BAD_COMMAND = 0, 1, 2
 
 
-@kernel
-def _measure(plant, sensor, sample, changes, k):
-    """Encoder reading of sample k, glitches included (same arithmetic as sensing.Encoder); False if not finite."""
-    qpos, qvel, qpos_index, dof_index = plant.qpos, plant.qvel, plant.qpos_index, plant.dof_index
-    previous_m, resolution_m = sensor.previous_m, sensor.resolution_m
-    q_true, position, velocity = sample.q_true, sample.position, sample.velocity
-    spikes, noise = changes.offset_m.shape[0] > 0, changes.velocity_noise_m_s.shape[0] > 0
-    held = changes.hold.shape[0] > 0 and changes.hold[k]
-    finite = True
+@kernel(inline=True)
+def _measure(plant, encoder, sample, changes, k):
+    """The encoder's reading of sample k, glitches included; False if not finite."""
+    q_true, dq_true = sample.q_true, sample.dq_true
     for i in range(2):
-        q = qpos[qpos_index[i]]
-        q_true[i] = q
-        position[i] = np.rint(q / resolution_m) * resolution_m if sensor.quantize else q
-        if spikes:
-            position[i] = position[i] + changes.offset_m[k, i]
-        if held:
-            position[i] = previous_m[i]
-        if sensor.velocity_by_difference:
-            velocity[i] = (position[i] - previous_m[i]) / sensor.sample_period_s
-        else:
-            velocity[i] = qvel[dof_index[i]]
-        if noise:
-            velocity[i] = velocity[i] + changes.velocity_noise_m_s[k, i]
-        previous_m[i] = position[i]
-        finite = finite and np.isfinite(position[i]) and np.isfinite(velocity[i])
-    return finite
+        q_true[i] = plant.qpos[plant.qpos_index[i]]
+        dq_true[i] = plant.qvel[plant.dof_index[i]]
+    offset, hold, noise = sensor_glitches(changes, k)
+    return encoder_measure(encoder, q_true, dq_true, offset, hold, noise, sample.position, sample.velocity)
 
 
-@kernel
-def _record_and_step(plant, recording, k, sample, command, changes):
-    """Check the command; record the sample; hold u and the disturbance (+ cogging); mj_step. False if u not finite."""
-    kept = sample.command
+@kernel(inline=True)
+def _record_and_step(plant, recording, k, sample, changes):
+    """Check the command; record the sample; hold u (clipped) and the disturbance (+ cogging); mj_step.
+
+    Returns False if the command is not finite.
+    """
+    command = sample.command
     for i in range(2):
-        kept[i] = command[i]
-        if not np.isfinite(command[i]):
+        if not math.isfinite(command[i]):
             return False
     ctrl, u_max_v, motors, disturbances = plant.ctrl, plant.u_max_v, plant.motor_index, plant.disturbance_index
-    q_true, position = sample.q_true, sample.position
-    _, disturbance_v, q_m, q_meas_m, u_v = recording
+    q_true, position, disturbance_v = sample.q_true, sample.position, recording.disturbance_v
     for i in range(2):
-        u = min(max(command[i], -u_max_v[i]), u_max_v[i])
-        q_m[k, i] = q_true[i]
-        q_meas_m[k, i] = position[i]
-        u_v[k, i] = u
+        u = clip(command[i], -u_max_v[i], u_max_v[i])
+        recording.q_m[k, i] = q_true[i]
+        recording.q_meas_m[k, i] = position[i]
+        recording.u_v[k, i] = u
         ctrl[motors[i]] = u
         if changes.cogging[i, 0] != 0.0:
-            ctrl[disturbances[i]] = disturbance_v[k, i] + _cogging_v(changes, i, q_true[i])
+            ctrl[disturbances[i]] = disturbance_v[k, i] + cogging_force(changes.cogging, i, q_true[i])
         else:
             ctrl[disturbances[i]] = disturbance_v[k, i]
     mj_step(plant.model_address, plant.data_address)
@@ -266,54 +189,75 @@ def _record_and_step(plant, recording, k, sample, command, changes):
 
 
 @kernel
-def _run_arc_chunk(start, stop, plant, sensor, recording, sample, changes, params, state, theta_log, dc_log,
-                   gamma_log, lambda_log):  # fmt: skip
-    """Samples [start, stop) with DRC/DARC/DIARC; returns (status, sample index)."""
-    rows, position, velocity = recording.rows, sample.position, sample.velocity
-    theta, dc, u_v = state.theta, state.dc, state.law.u_v
-    gamma, clock = state.estimator.gamma, state.estimator.clock
-    for k in range(start, stop):
-        _change_plant(plant.dof_index, changes, k)
-        if not _measure(plant, sensor, sample, changes, k):
-            return STATUS_BAD_MEASUREMENT, k
-        arc_step(params, state, position, velocity, rows[k])
-        if not _record_and_step(plant, recording, k, sample, u_v, changes):
-            return STATUS_BAD_COMMAND, k
-        if theta_log.shape[0] > 0:
-            theta_log[k, :] = theta
-        if dc_log.shape[0] > 0:
-            dc_log[k, :] = dc
-        if gamma_log.shape[0] > 0:
-            for j in range(gamma_log.shape[1]):
-                gamma_log[k, j] = gamma[j, j]
-        if lambda_log.shape[0] > 0:
-            lambda_log[k] = clock[CLOCK_LAMBDA_MAX]
-    return STATUS_OK, stop
+def _no_log(params, state, out):
+    """The log of a controller that logs nothing."""
+
+
+@kernel(inline=True)
+def _record_log(recording, k, row):
+    """Store sample k's log row into the log buffer (see :meth:`Trace.allocate_log`)."""
+    log, sizes = recording.log, recording.log_sizes
+    if log.shape[0] == 0:
+        return
+    n = recording.t_s.shape[0]
+    block, at = 0, 0
+    for j in range(sizes.shape[0]):
+        size = sizes[j]
+        for i in range(size):
+            log[block + k * size + i] = row[at + i]
+        block += n * size
+        at += size
 
 
 @kernel
-def _run_pd_chunk(start, stop, plant, sensor, recording, sample, changes, params, u_v):
-    """Samples [start, stop) with the PD baseline; returns (status, sample index)."""
-    rows, position, velocity = recording.rows, sample.position, sample.velocity
+def _run_chunk(start, stop, plant, encoder, recording, sample, changes, params, state):
+    """Samples [start, stop): changes -> measure -> control -> record -> mj_step; returns (status, sample index).
+
+    ``controller_step`` and ``controller_log`` are the controller's kernels,
+    bound per controller by :func:`chunk_kernel` (compiled) or :func:`_python_chunk`.
+    """
+    plant, encoder, recording, sample, changes, params, state = borrowed(
+        (plant, encoder, recording, sample, changes, params, state)
+    )
+    t_s, rows, position, velocity = recording.t_s, recording.rows, sample.position, sample.velocity
     for k in range(start, stop):
-        _change_plant(plant.dof_index, changes, k)
-        if not _measure(plant, sensor, sample, changes, k):
+        apply_plant_changes(plant.dof_index, changes, k)
+        if not _measure(plant, encoder, sample, changes, k):
             return STATUS_BAD_MEASUREMENT, k
-        pd_step(params, position, velocity, rows[k], u_v)
-        if not _record_and_step(plant, recording, k, sample, u_v, changes):
+        controller_step(params, state, t_s[k], position, velocity, rows[k], sample.command)  # noqa: F821
+        if not _record_and_step(plant, recording, k, sample, changes):
             return STATUS_BAD_COMMAND, k
+        controller_log(params, state, sample.log_row)  # noqa: F821
+        _record_log(recording, k, sample.log_row)
     return STATUS_OK, stop
 
 
-#: The controllers the compiled backend runs (exact types: a subclass may override update()).
-COMPILED_CONTROLLERS = (DRC, DARC, DIARC, PD)
+_chunk_kernels: dict[CompiledStep, Callable[..., tuple[int, int]]] = {}
+
+
+def chunk_kernel(compiled: CompiledStep) -> Callable[..., tuple[int, int]]:
+    """The compiled chunk function for a controller's compiled step (created once, compiled on first call).
+
+    Its name carries a digest of the step's and log's source files, so an
+    edited plug-in compiles anew; numba caches it on disk like every kernel.
+    """
+    found = _chunk_kernels.get(compiled)
+    if found is None:
+        log = compiled.log or _no_log
+        py = getattr(compiled.step, "py_func", compiled.step)
+        name = re.sub(r"\W", "_", f"{py.__module__}_{py.__qualname__}_{source_digest(compiled.step, log)}")
+        step = kernel(py, inline=True)  # inlined: no per-sample call passing every array of the tuples
+        found = specialise(_run_chunk, name, {"controller_step": step, "controller_log": log}, compiled=True)
+        _chunk_kernels[compiled] = found
+    return found
 
 
 def loop_needs_compiling(controller: Controller) -> bool:
-    """True if simulate() with this controller will first compile the loop (about 25 s, once per machine)."""
-    if type(controller) not in COMPILED_CONTROLLERS or not compiled_available():
+    """True if simulate() with this controller will first compile its loop (once per machine and source version)."""
+    compiled = compiled_step_of(controller)
+    if compiled is None or not compiled_available():
         return False
-    return not is_cached(_run_pd_chunk if isinstance(controller, PD) else _run_arc_chunk)
+    return not is_cached(chunk_kernel(compiled))
 
 
 def compiled_available() -> bool:
@@ -339,8 +283,8 @@ def simulate(
 
     The plant starts at q_d(0) moving at q_d'(0): for an ``on_path`` timing
     law that is the paper's "already running" start; for ``rest``, standstill.
-    backend: ``auto`` (compiled for the built-in controllers drc, darc, diarc,
-    pd when MuJoCo's library is found, else reference), ``compiled`` or
+    backend: ``auto`` (compiled for a controller that offers a compiled step
+    when MuJoCo's library is found, else reference), ``compiled`` or
     ``reference``; both give the same trace (tests/test_backends.py).
     changes: faults applied to the plant and the sensor during the run
     (:mod:`gantry_twin.changes`), never shown to the controller; the trace
@@ -350,13 +294,13 @@ def simulate(
     """
     if backend not in ("auto", "compiled", "reference"):
         raise ValueError(f"backend must be 'auto', 'compiled' or 'reference', got {backend!r}")
-    builtin = type(controller) in COMPILED_CONTROLLERS
-    if backend == "compiled" and not builtin:
-        raise ValueError(f"backend 'compiled' runs only {', '.join(c.__name__ for c in COMPILED_CONTROLLERS)}; "
-                         f"got {type(controller).__name__}")  # fmt: skip
+    compiled_step = compiled_step_of(controller)
+    if backend == "compiled" and compiled_step is None:
+        raise ValueError(f"backend 'compiled' runs only controllers that offer a compiled step "
+                         f"(gantry_twin.controllers.base); {type(controller).__name__} does not")  # fmt: skip
     if backend == "compiled" and not compiled_available():
         raise RuntimeError("backend 'compiled': MuJoCo's shared library was not found next to the mujoco module")
-    compiled = backend == "compiled" or (backend == "auto" and builtin and compiled_available())
+    compiled = backend == "compiled" or (backend == "auto" and compiled_step is not None and compiled_available())
 
     sensing = sensing or SensingConfig()
     ts = plant.timestep_s
@@ -386,8 +330,10 @@ def simulate(
         for observer in observers:
             observer.on_start(info, trace)
         chunk = max(1, int(round(chunk_s / ts)))
-        run = _run_compiled if compiled else _run_reference
-        for start, stop in run(plant, encoder, controller, trace, rows, chunk, schedule):
+        loop = _Loop(plant, encoder, controller, trace, rows, schedule, compiled_step if compiled else None)
+        for start in range(0, n, chunk):
+            stop = min(n, start + chunk)
+            loop.run(start, stop)
             _finish_chunk(trace, ref, path, start, stop)
             for observer in observers:
                 observer.on_chunk(trace, start, stop)
@@ -406,93 +352,71 @@ def _bad_command(t_s: float, command: np.ndarray) -> SimulationError:
     return SimulationError(f"controller returned {command!r} at t = {t_s:.4f} s; expected 2 finite volts")
 
 
-def _run_reference(plant: Plant, encoder: Encoder, controller: Controller, trace: Trace, rows: np.ndarray, chunk: int,
-                   changes: ChangeSchedule):  # fmt: skip
-    """The Python loop, chunk by chunk: yields (start, stop) after filling samples [start, stop)."""
-    model, data = plant.model, plant.data
-    u_max = plant.ctrl_range_v[:, 1]
-    motors, dist_act = plant.motor_index, plant.disturbance_index
-    t, dist, n = trace.t_s, trace.disturbance_v, trace.t_s.size
-    change_plant, cogging_v = uncompiled(_change_plant), uncompiled(_cogging_v)
-    dof_index = np.ascontiguousarray(plant.dof_index, dtype=np.int64)
-    spikes, holds, noise = changes.offset_m, changes.hold, changes.velocity_noise_m_s
-    cogging = changes.cogging[:, 0] != 0.0
-    for start in range(0, n, chunk):
-        stop = min(n, start + chunk)
-        for k in range(start, stop):
-            change_plant(dof_index, changes, k)
-            q_true = plant.q_m.copy()
-            position, velocity = encoder.measure(q_true, plant.dq_m_s, spikes[k] if spikes.shape[0] else None,
-                                                 bool(holds[k]) if holds.shape[0] else False,
-                                                 noise[k] if noise.shape[0] else None)  # fmt: skip
-            if not (np.isfinite(position).all() and np.isfinite(velocity).all()):
-                raise _bad_measurement(t[k], position, velocity)
-            measurement = Measurement(float(t[k]), position, velocity)
-            if k == 0:
-                controller.reset(RunContext(plant.timestep_s, u_max.copy(), measurement))
-            command = np.asarray(controller.update(measurement, ReferenceSample.from_row(rows[k])), dtype=float)
-            if command.shape != (2,) or not np.isfinite(command).all():
-                raise _bad_command(t[k], command)
-            u = np.clip(command, -u_max, u_max)
-            trace.q_m[k] = q_true
-            trace.q_meas_m[k] = position
-            trace.u_v[k] = u
-            trace.record_state(k, controller.state_for_logging())
-            data.ctrl[motors] = u
-            data.ctrl[dist_act] = dist[k]
-            for i in np.flatnonzero(cogging):
-                data.ctrl[dist_act[i]] = dist[k, i] + cogging_v(changes, int(i), float(q_true[i]))
-            mujoco.mj_step(model, data)
-        yield start, stop
+class _Loop:
+    """One run's chunk function and its arguments: compiled (a compiled step) or the reference loop."""
 
+    def __init__(self, plant: Plant, encoder: Encoder, controller: Controller, trace: Trace, rows: np.ndarray,
+                 changes: ChangeSchedule, compiled: CompiledStep | None) -> None:  # fmt: skip
+        self.trace = trace
+        t = trace.t_s
+        u_max = np.ascontiguousarray(plant.ctrl_range_v[:, 1], dtype=float)
+        # The first measurement, for the controller's RunContext; the loop measures it again from here.
+        sensor = encoder.state._replace(previous_m=encoder.state.previous_m.copy())
+        position, velocity = np.zeros(2), np.zeros(2)
+        glitches = uncompiled(sensor_glitches)(changes, 0)
+        if not uncompiled(encoder_measure)(encoder.state, plant.q_m.copy(), plant.dq_m_s.copy(), *glitches, position,
+                                           velocity):  # fmt: skip
+            raise _bad_measurement(t[0], position, velocity)
+        controller.reset(RunContext(plant.timestep_s, u_max.copy(), Measurement(float(t[0]), position, velocity)))
 
-def _run_compiled(plant: Plant, encoder: Encoder, controller: Controller, trace: Trace, rows: np.ndarray, chunk: int,
-                  changes: ChangeSchedule):  # fmt: skip
-    """The compiled loop: one kernel call per chunk; yields (start, stop) like :func:`_run_reference`."""
-    t, n = trace.t_s, trace.t_s.size
-    u_max = np.ascontiguousarray(plant.ctrl_range_v[:, 1])
-    config = encoder.config
-    sensor = SensorState(bool(config.quantize), float(config.resolution_m), bool(config.velocity_by_difference),
-                         float(plant.timestep_s), encoder._previous_m.copy())  # fmt: skip
-    # The first measurement, for the controller's RunContext (the kernel measures it again).
-    spikes, holds, noise = changes.offset_m, changes.hold, changes.velocity_noise_m_s
-    position, velocity = encoder.measure(plant.q_m.copy(), plant.dq_m_s, spikes[0] if spikes.shape[0] else None,
-                                         bool(holds[0]) if holds.shape[0] else False,
-                                         noise[0] if noise.shape[0] else None)  # fmt: skip
-    if not (np.isfinite(position).all() and np.isfinite(velocity).all()):
-        raise _bad_measurement(t[0], position, velocity)
-    controller.reset(RunContext(plant.timestep_s, u_max.copy(), Measurement(float(t[0]), position, velocity)))
-    trace.allocate_state(controller.state_for_logging())
+        data = plant.data
+        self.plant = PlantIO(plant.model._address, data._address, data.qpos, data.qvel, data.ctrl,
+                             *(np.ascontiguousarray(i, dtype=np.int64) for i in (
+                                 plant.qpos_index, plant.dof_index, plant.motor_index, plant.disturbance_index)),
+                             u_max)  # fmt: skip
+        self.encoder, self.changes = sensor, changes
+        if compiled is not None:
+            self.params, self.state = controller.kernel_arguments()
+            log = trace.allocate_log(compiled.layout)
+            sizes = np.array([int(np.prod(shape)) for _, shape in compiled.layout], dtype=np.int64)
+            self.function = chunk_kernel(compiled)
+            log_row = np.zeros(compiled.log_size)
+        else:
+            self.params, self.state = None, None
+            log, sizes, log_row = np.zeros(0), np.zeros(0, dtype=np.int64), np.zeros(0)
+            self.function = _python_chunk(plant, controller, trace)
+        self.recording = Recording(t, rows, trace.disturbance_v, trace.q_m, trace.q_meas_m, trace.u_v, log, sizes)
+        self.sample = SampleWork(np.zeros(2), np.zeros(2), np.zeros(2), np.zeros(2), np.zeros(2), log_row)
 
-    data = plant.data
-    io = PlantIO(plant.model._address, data._address, data.qpos, data.qvel, data.ctrl,
-                 *(np.ascontiguousarray(i, dtype=np.int64) for i in (plant.qpos_index, plant.dof_index,
-                                                                     plant.motor_index, plant.disturbance_index)),
-                 u_max)  # fmt: skip
-    recording = Recording(rows, trace.disturbance_v, trace.q_m, trace.q_meas_m, trace.u_v)
-    sample = SampleWork(np.zeros(2), np.zeros(2), np.zeros(2), np.zeros(2))
-    if isinstance(controller, PD):
-        params, u_v = controller.kernel_arguments(), np.zeros(2)
-
-        def run_chunk(start: int, stop: int) -> tuple[int, int]:
-            return _run_pd_chunk(start, stop, io, sensor, recording, sample, changes, params, u_v)
-    else:
-        arc_params, state = controller.kernel_arguments()
-        logs = trace.controller_state
-        theta_log = logs.get("theta_hat", np.empty((0, 8)))
-        dc_log = logs.get("dc_hat", np.empty((0, 2)))
-        gamma_log = logs.get("gamma_diag", np.empty((0, 8)))
-        lambda_log = logs.get("gamma_lambda_max", np.empty(0))
-
-        def run_chunk(start: int, stop: int) -> tuple[int, int]:
-            return _run_arc_chunk(start, stop, io, sensor, recording, sample, changes, arc_params, state, theta_log,
-                                  dc_log, gamma_log, lambda_log)  # fmt: skip
-
-    for start in range(0, n, chunk):
-        stop = min(n, start + chunk)
-        status, k = run_chunk(start, stop)
+    def run(self, start: int, stop: int) -> None:
+        """Samples [start, stop); SimulationError on a non-finite measurement or command."""
+        status, k = self.function(start, stop, self.plant, self.encoder, self.recording, self.sample, self.changes,
+                                  self.params, self.state)  # fmt: skip
+        t = self.trace.t_s
         if status == STATUS_BAD_MEASUREMENT:
-            raise _bad_measurement(t[k], sample.position.copy(), sample.velocity.copy())
+            raise _bad_measurement(t[k], self.sample.position.copy(), self.sample.velocity.copy())
         if status == STATUS_BAD_COMMAND:
-            raise _bad_command(t[k], sample.command.copy())
-        yield start, stop
+            raise _bad_command(t[k], self.sample.command.copy())
+
+
+def _python_chunk(plant: Plant, controller: Controller, trace: Trace) -> Callable[..., tuple[int, int]]:
+    """The chunk function run by the interpreter: ``update()`` as the step, ``state_for_logging`` as the log."""
+
+    def step(params: None, state: None, t_s: float, q_m: np.ndarray, dq_m_s: np.ndarray, ref: np.ndarray,
+             u_v: np.ndarray) -> None:  # fmt: skip
+        measurement = Measurement(float(t_s), q_m.copy(), dq_m_s.copy())
+        command = np.asarray(controller.update(measurement, ReferenceSample.from_row(ref)), dtype=float)
+        if command.shape != (2,):
+            raise _bad_command(float(t_s), command)
+        u_v[:] = command
+
+    def record_log(recording: Recording, k: int, row: np.ndarray) -> None:
+        trace.record_state(k, controller.state_for_logging())
+
+    def python_mj_step(model_address: int, data_address: int) -> None:
+        mujoco.mj_step(plant.model, plant.data)
+
+    record_and_step = specialise(_record_and_step, "python", {"mj_step": python_mj_step}, compiled=False)
+    bindings = {"controller_step": step, "controller_log": lambda params, state, out: None,
+                "_record_log": record_log, "_record_and_step": record_and_step}  # fmt: skip
+    return specialise(_run_chunk, "python", bindings, compiled=False)

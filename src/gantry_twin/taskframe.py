@@ -105,3 +105,14 @@ def task_errors(alpha: np.ndarray, e: np.ndarray) -> np.ndarray:
     eps_n = -s * e[..., 0] + c * e[..., 1]
     eps_t = c * e[..., 0] + s * e[..., 1]
     return np.stack([eps_n, eps_t], axis=-1)
+
+
+@kernel
+def normal_errors(alpha, q_m, q_d_m, e_m, eps_n_m):
+    """e = q - q_d (n, 2) m and eps_n, the first row of eps = T e (n,) m, for n samples (into e_m, eps_n_m)."""
+    for k in range(alpha.shape[0]):
+        e0 = q_m[k, 0] - q_d_m[k, 0]
+        e1 = q_m[k, 1] - q_d_m[k, 1]
+        e_m[k, 0] = e0
+        e_m[k, 1] = e1
+        eps_n_m[k] = -math.sin(alpha[k]) * e0 + math.cos(alpha[k]) * e1

@@ -85,6 +85,22 @@ class Trace:
                 value = np.asarray(value, dtype=float)
                 self.controller_state[key] = np.full((n,) if value.size == 1 else (n, *value.shape), np.nan)
 
+    def allocate_log(self, layout: tuple[tuple[str, tuple[int, ...]], ...]) -> np.ndarray:
+        """One NaN buffer for a compiled controller's log; each key's array is a contiguous block of it.
+
+        ``layout``: ((name, shape), ...) (shape () for one number, stored (N,)).
+        The block of a key of size s starts at N times the sizes before it;
+        sample k's values are at block + k s. Returns the flat buffer (N * total,).
+        """
+        n = self.t_s.size
+        sizes = [int(np.prod(shape)) for _, shape in layout]
+        buffer = np.full(n * sum(sizes), np.nan)
+        at = 0
+        for (name, shape), size in zip(layout, sizes, strict=True):
+            self.controller_state[name] = buffer[at : at + n * size].reshape((n, *shape))
+            at += n * size
+        return buffer
+
     def record_state(self, k: int, state: dict[str, np.ndarray]) -> None:
         """Store one sample of the controller's logged state."""
         self.allocate_state(state)

@@ -12,9 +12,11 @@ in how theta^ (and for DIARC dc^) move after each sample:
 
 A controller's settings are an :class:`ArcParams` and its whole state an
 :class:`ArcState` of float64 arrays, both built by ``reset``. One sample is
-:func:`arc_step`, a numba kernel: ``update()`` runs its plain-Python
-reference version (the plug-in protocol), and the compiled loop of
-:mod:`gantry_twin.simulate` runs the compiled one on the same arrays.
+:func:`drc_step`, :func:`darc_step` or :func:`diarc_step`, numba kernels
+around the shared :func:`_law`: ``update()`` runs the plain-Python
+reference version, and each class offers the compiled one to the loop
+through the plug-in protocol (``compiled``, ``kernel_arguments``; see
+:mod:`gantry_twin.controllers.base`) like any other controller.
 """
 
 from __future__ import annotations
@@ -24,9 +26,16 @@ from typing import NamedTuple
 
 import numpy as np
 
-from gantry_twin import _jit
 from gantry_twin._jit import kernel
-from gantry_twin.controllers.base import Measurement, ReferenceSample, RunContext
+from gantry_twin._jit import reference as uncompiled
+from gantry_twin.controllers.base import (
+    U_MAX_V,
+    CompiledStep,
+    Measurement,
+    ReferenceSample,
+    RunContext,
+    log_values,
+)
 from gantry_twin.controllers.law import ArcGains, LawWork, Theta, arc_law, law_work
 from gantry_twin.estimation import (
     PAPER_FILTER_HZ,
@@ -53,8 +62,6 @@ DARC_GAMMA = (10.0, 10.0, 10.0, 10.0, 1.0, 1.0, 10000.0, 10000.0)
 #: Adaptation rates of theta^, one per parameter, >= 0.
 Rates = Vector(NonNegative, THETA_NAMES)
 
-#: ArcParams.kind: where theta^ comes from.
-KIND_DRC, KIND_DARC, KIND_DIARC = 0, 1, 2
 #: Entries of EstimatorState.clock.
 CLOCK_TIME_S, CLOCK_STARTED, CLOCK_LAMBDA_MAX = 0, 1, 2
 
@@ -84,9 +91,10 @@ class EstimatorSettings:
 #: The twin's recommended estimator: 50 Hz filters, which keep the encoder's
 #: 0.5 um quantisation noise out of x_f'' (control-spec section 7); forgetting
 #: kappa = 0.7 1/s (paper: 0.1), a memory of about 1.4 s, so that the estimates
-#: follow a changing machine (issue 7, docs/health.md); a fast compensation rate
-#: gamma_d = 3e4 (paper: 1e4), so that dc^ follows a cogging ripple. What each
-#: choice measured: docs/scenarios.md, "The recommended estimator".
+#: follow a changing machine (a payload pick-up, a friction drift) within the
+#: health monitor's targets; and a faster dc^ rate gamma_d = 3e4 (paper: 1e4),
+#: so that dc^ follows cogging ripple. The measurements behind each choice are
+#: in docs/health.md ("The recommended estimator").
 RECOMMENDED_ESTIMATOR = EstimatorSettings(
     filter_hz=(50.0, 50.0), least_squares=LeastSquaresSettings(kappa=0.7), gamma_d=(3.0e4, 3.0e4)
 )
@@ -136,13 +144,12 @@ class EstimatorState(NamedTuple):
 class ArcParams(NamedTuple):
     """Everything fixed during a run of DRC, DARC or DIARC (float64 arrays, SI/volts).
 
-    kind: KIND_DRC, KIND_DARC or KIND_DIARC; lam (2,) 1/s and ks (2,)
+    lam (2,) 1/s and ks (2,)
     V/(m/s): diagonals of Lambda and Ks; lower, upper (8,): theta bounds;
     u_max_v (2,); darc_gamma (8,): DARC's rates; gamma_d (2,), dc_max_v (2,):
     DIARC's dc^ law; estimator: DIARC's (placeholders for the others).
     """
 
-    kind: int
     sample_period_s: float
     lam: np.ndarray
     ks: np.ndarray
@@ -182,7 +189,7 @@ def estimator_start(params, est, q_m, dq_m_s, u_v):
     clock[CLOCK_STARTED] = 1.0
 
 
-@kernel
+@kernel(inline=True)
 def estimator_regression(params, est, q_m, dq_m_s, u_previous_v):
     """Advance the filters to this sample (eq. 25); fill est.regression (gamma_f) and est.u_f.
 
@@ -209,7 +216,7 @@ def estimator_regression(params, est, q_m, dq_m_s, u_previous_v):
         previous_q_m[axis] = q_m[axis]
 
 
-@kernel
+@kernel(inline=True)
 def estimator_update(params, theta, est, q_m, dq_m_s, u_previous_v):
     """One sample of the indirect estimator: filter, then least squares on theta (in place)."""
     estimator_regression(params, est, q_m, dq_m_s, u_previous_v)
@@ -224,35 +231,71 @@ def estimator_update(params, theta, est, q_m, dq_m_s, u_previous_v):
     )  # fmt: skip
 
 
-@kernel
-def arc_step(params, state, q_m, dq_m_s, ref):
-    """One 0.2 ms sample of DRC/DARC/DIARC; the command (volts) is left in state.law.u_v.
+@kernel(inline=True)
+def _law(params, state, q_m, dq_m_s, ref, u_v):
+    """The shared law (eq. 13-14, 17, 21) with this controller's theta^ and dc^; the command into u_v (2,) V."""
+    law = state.law
+    arc_law(q_m, dq_m_s, ref, state.theta, state.dc, params.lam, params.ks, params.friction_slope_s_m, params.u_max_v,
+            law)  # fmt: skip
+    u_v[0] = law.u_v[0]
+    u_v[1] = law.u_v[1]
 
-    DIARC first updates theta^ from the data up to this sample; then the
-    shared law (eq. 13-14, 17, 21); then DARC's gradient step (eq. 8-9) or
-    DIARC's dc^ step (eq. 21-22), both driven by this sample's s_c.
+
+@kernel
+def drc_step(params, state, t_s, q_m, dq_m_s, ref, u_v):
+    """One 0.2 ms sample of DRC: the law with theta^ fixed; the command (volts) into u_v (2,)."""
+    _law(params, state, q_m, dq_m_s, ref, u_v)
+
+
+@kernel
+def darc_step(params, state, t_s, q_m, dq_m_s, ref, u_v):
+    """One 0.2 ms sample of DARC: the law, then the gradient step (eq. 8-9) driven by this sample's s_c."""
+    _law(params, state, q_m, dq_m_s, ref, u_v)
+    theta, law, rates = state.theta, state.law, params.darc_gamma
+    phi, s_c, ts = law.phi, law.s_c, params.sample_period_s
+    for j in range(8):
+        phi_s = phi[0, j] * s_c[0] + phi[1, j] * s_c[1]
+        theta[j] = theta[j] - ts * rates[j] * phi_s
+    project_box(theta, params.lower, params.upper, theta)
+
+
+@kernel
+def diarc_step(params, state, t_s, q_m, dq_m_s, ref, u_v):
+    """One 0.2 ms sample of DIARC: theta^ from the data up to this sample (eq. 25-28), the law, then dc^ (eq. 21-22).
+
+    The first sample starts the estimator's filters instead of updating theta^.
     """
     theta, dc, u_previous_v, est, law = state
     started = est.clock[CLOCK_STARTED] > 0.0
-    if params.kind == KIND_DIARC and started:
+    if started:
         estimator_update(params, theta, est, q_m, dq_m_s, u_previous_v)
-    arc_law(q_m, dq_m_s, ref, theta, dc, params.lam, params.ks, params.friction_slope_s_m, params.u_max_v, law)
-    ts = params.sample_period_s
-    phi, s_c, u_v = law.phi, law.s_c, law.u_v
-    if params.kind == KIND_DARC:
-        rates = params.darc_gamma
-        for j in range(8):
-            phi_s = phi[0, j] * s_c[0] + phi[1, j] * s_c[1]
-            theta[j] = theta[j] - ts * rates[j] * phi_s
-        project_box(theta, params.lower, params.upper, theta)
-    elif params.kind == KIND_DIARC:
-        if not started:
-            estimator_start(params, est, q_m, dq_m_s, u_v)
-        gamma_d, dc_max = params.gamma_d, params.dc_max_v
-        for i in range(2):
-            u_previous_v[i] = u_v[i]
-            dc[i] = clip(dc[i] + ts * gamma_d[i] * s_c[i], -dc_max[i], dc_max[i])
+    _law(params, state, q_m, dq_m_s, ref, u_v)
+    if not started:
+        estimator_start(params, est, q_m, dq_m_s, u_v)
+    s_c, ts, gamma_d, dc_max = law.s_c, params.sample_period_s, params.gamma_d, params.dc_max_v
+    for i in range(2):
+        u_previous_v[i] = u_v[i]
+        dc[i] = clip(dc[i] + ts * gamma_d[i] * s_c[i], -dc_max[i], dc_max[i])
 
+
+@kernel
+def log_theta(params, state, out):
+    """DARC's log: theta_hat (8,)."""
+    theta = state.theta
+    for j in range(8):
+        out[j] = theta[j]
+
+
+@kernel
+def log_diarc(params, state, out):
+    """DIARC's log: theta_hat (8,), dc_hat (2,), gamma_diag (8,), gamma_lambda_max."""
+    theta, dc, gamma = state.theta, state.dc, state.estimator.gamma
+    for j in range(8):
+        out[j] = theta[j]
+        out[10 + j] = gamma[j, j]
+    out[8] = dc[0]
+    out[9] = dc[1]
+    out[18] = state.estimator.clock[CLOCK_LAMBDA_MAX]
 
 class IndirectEstimator:
     """Filtered regression (eq. 25) and least squares (eq. 27-28) for both axes.
@@ -293,45 +336,13 @@ class IndirectEstimator:
 
     @property
     def gamma(self) -> np.ndarray:
+        """Gamma (8, 8), the adaptation gain (the state array itself)."""
         return self.state.gamma
 
     @property
-    def z(self) -> np.ndarray:
-        return self.state.z
-
-    @property
-    def previous_q_m(self) -> np.ndarray:
-        return self.state.previous_q_m
-
-    @property
-    def time_s(self) -> float:
-        return float(self.state.clock[CLOCK_TIME_S])
-
-    @property
-    def started(self) -> bool:
-        return bool(self.state.clock[CLOCK_STARTED])
-
-    @property
     def lambda_max(self) -> float:
+        """lambda_max(Gamma) after the last update."""
         return float(self.state.clock[CLOCK_LAMBDA_MAX])
-
-    def _arc_params(self) -> ArcParams:
-        return _arc_params(KIND_DIARC, self.gains, self.sample_period_s, np.full(2, 10.0), estimator=self.params)
-
-    def start(self, q_m: np.ndarray, dq_m_s: np.ndarray, u_v: np.ndarray) -> None:
-        """Put each filter in steady state for the first sample's inputs."""
-        estimator_start(self._arc_params(), self.state, _vec(q_m), _vec(dq_m_s), _vec(u_v))
-
-    def regression(
-        self, q_m: np.ndarray, dq_m_s: np.ndarray, u_previous_v: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Advance the filters to this sample; return (gamma_f 8 x 2, u_f 2)."""
-        estimator_regression(self._arc_params(), self.state, _vec(q_m), _vec(dq_m_s), _vec(u_previous_v))
-        return self.state.regression.copy(), self.state.u_f.copy()
-
-    def update(self, theta: np.ndarray, q_m: np.ndarray, dq_m_s: np.ndarray, u_previous_v: np.ndarray) -> None:
-        """One sample: filter, then least squares on theta (in place)."""
-        estimator_update(self._arc_params(), theta, self.state, _vec(q_m), _vec(dq_m_s), _vec(u_previous_v))
 
 
 def _vec(x: np.ndarray) -> np.ndarray:
@@ -345,7 +356,6 @@ def _placeholder_estimator() -> EstimatorParams:
 
 
 def _arc_params(
-    kind: int,
     gains: ArcGains,
     sample_period_s: float,
     u_max_v: np.ndarray,
@@ -354,7 +364,6 @@ def _arc_params(
     estimator: EstimatorParams | None = None,
 ) -> ArcParams:
     return ArcParams(
-        kind,
         float(sample_period_s),
         gains.lam.copy(),
         gains.ks.copy(),
@@ -372,12 +381,10 @@ def _arc_params(
 class ArcController:
     """The shared DRC/DARC/DIARC machinery; subclasses say where theta^ and dc^ come from."""
 
-    kind = KIND_DRC
-
     def __init__(self, gains: ArcGains | None = None) -> None:
         self.gains = gains or ArcGains()
         self.sample_period_s = 0.0
-        self.u_max_v = np.full(2, 10.0)
+        self.u_max_v = np.array(U_MAX_V)
         self.params: ArcParams | None = None
         self.state = self._fresh_state(None)
 
@@ -391,7 +398,7 @@ class ArcController:
         return ArcState(np.array(self.gains.theta0, dtype=float), np.zeros(2), np.zeros(2), est, law_work())
 
     def _make_params(self) -> ArcParams:
-        return _arc_params(self.kind, self.gains, self.sample_period_s, self.u_max_v)
+        return _arc_params(self.gains, self.sample_period_s, self.u_max_v)
 
     def reset(self, context: RunContext) -> None:
         self.sample_period_s = float(context.sample_period_s)
@@ -409,23 +416,20 @@ class ArcController:
         self.state.theta[:] = value
 
     def kernel_arguments(self) -> tuple[ArcParams, ArcState]:
-        """(params, state) for :func:`arc_step`; valid after ``reset``."""
+        """(params, state) for the compiled step; valid after ``reset``."""
         assert self.params is not None, "reset() must be called before update()"
         return self.params, self.state
 
     def update(self, measurement: Measurement, reference: ReferenceSample) -> np.ndarray:
         params, state = self.kernel_arguments()
-        row = np.concatenate([reference.q_d, reference.dq_d, reference.ddq_d,
-                              [reference.alpha, reference.dalpha, reference.ddalpha]]).astype(float)  # fmt: skip
-        _reference_arc_step()(params, state, _vec(measurement.q_m), _vec(measurement.dq_m_s), row)
-        return state.law.u_v.copy()
+        u_v = np.zeros(2)
+        uncompiled(type(self).compiled.step)(params, state, float(measurement.t_s), _vec(measurement.q_m),
+                                                 _vec(measurement.dq_m_s), reference.row(), u_v)  # fmt: skip
+        return u_v
 
     def state_for_logging(self) -> dict[str, np.ndarray]:
-        return {"theta_hat": self.theta.copy()}
-
-
-def _reference_arc_step():  # noqa: ANN202
-    return _jit.reference(arc_step)
+        params, state = self.kernel_arguments()
+        return log_values(type(self).compiled, params, state)
 
 
 class DRC(ArcController):
@@ -435,34 +439,33 @@ class DRC(ArcController):
     feed-forward); nothing is estimated, so nothing is logged.
     """
 
-    kind = KIND_DRC
+    compiled = CompiledStep(drc_step)
 
     def __init__(self, gains: ArcGains | None = None, theta: Theta | None = None) -> None:
         if theta is not None:
             gains = ArcGains(**{**_gain_fields(gains or ArcGains()), "theta0": tuple(theta)})
         super().__init__(gains)
 
-    def state_for_logging(self) -> dict[str, np.ndarray]:
-        return {}
-
 
 class DARC(ArcController):
     """Direct adaptive robust control (C1): gradient adaptation, eq. (8)-(9)."""
 
-    kind = KIND_DARC
+    compiled = CompiledStep(darc_step, log_theta, (("theta_hat", (8,)),))
 
     def __init__(self, gains: ArcGains | None = None, gamma: Rates = DARC_GAMMA) -> None:
         super().__init__(gains)
         self.gamma = np.asarray(gamma, dtype=float)
 
     def _make_params(self) -> ArcParams:
-        return _arc_params(self.kind, self.gains, self.sample_period_s, self.u_max_v, darc_gamma=self.gamma)
+        return _arc_params(self.gains, self.sample_period_s, self.u_max_v, darc_gamma=self.gamma)
 
 
 class DIARC(ArcController):
     """Integrated direct/indirect adaptive robust control (C2), section 4."""
 
-    kind = KIND_DIARC
+    compiled = CompiledStep(
+        diarc_step, log_diarc, (("theta_hat", (8,)), ("dc_hat", (2,)), ("gamma_diag", (8,)), ("gamma_lambda_max", ()))
+    )
 
     def __init__(self, gains: ArcGains | None = None, estimator: EstimatorChoice | None = None) -> None:
         super().__init__(gains)
@@ -474,7 +477,7 @@ class DIARC(ArcController):
         self.u_max_v = np.asarray(context.u_max_v, dtype=float)
         self.estimator = IndirectEstimator(self.estimator_settings, self.gains, self.sample_period_s)
         self.state = self._fresh_state(self.estimator)
-        self.params = _arc_params(self.kind, self.gains, self.sample_period_s, self.u_max_v,
+        self.params = _arc_params(self.gains, self.sample_period_s, self.u_max_v,
                                   settings=self.estimator_settings, estimator=self.estimator.params)  # fmt: skip
 
     @property
@@ -486,14 +489,6 @@ class DIARC(ArcController):
     def u_previous_v(self) -> np.ndarray:
         return self.state.u_previous_v
 
-    def state_for_logging(self) -> dict[str, np.ndarray]:
-        assert self.estimator is not None, "reset() must be called before update()"
-        return {
-            "theta_hat": self.theta.copy(),
-            "dc_hat": self.dc.copy(),
-            "gamma_diag": np.diag(self.estimator.gamma).copy(),
-            "gamma_lambda_max": np.array([self.estimator.lambda_max]),
-        }
 
 
 def _gain_fields(gains: ArcGains) -> dict[str, object]:

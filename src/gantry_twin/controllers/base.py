@@ -19,6 +19,29 @@ through the entry-point group ``gantry_twin.controllers``:
 
     [project.entry-points."gantry_twin.controllers"]
     my_ctrl = "my_pkg.module:MyController"
+
+A controller runs in the Python loop, ``update()`` every sample. It may also
+offer a compiled step, and then runs in the compiled loop with no Python per
+sample (docs/plugins.md has a worked example); the built-in controllers
+offer theirs through this same door:
+
+* a class attribute ``compiled = CompiledStep(step, log, layout)``: ``step``
+  a numba kernel ``step(params, state, t_s, q_m, dq_m_s, ref, u_v)`` that
+  does what ``update()`` does, writing the two commands (volts) into
+  ``u_v`` (2,); ``ref`` is one row of :meth:`ReferenceSample.row`
+  (columns :data:`REF_Q` ...). ``log(params, state, out)`` (or None) fills
+  ``out`` with the logged values in the order of ``layout``, ((name,
+  shape), ...), the keys and shapes ``state_for_logging`` returns (shape
+  ``()``: one number, logged as (1,)).
+* a method ``kernel_arguments() -> (params, state)``, valid after
+  ``reset``: tuples (NamedTuples) of float64 arrays and numbers that the
+  step reads and updates in place, so that after a compiled run the object
+  is where ``update()`` would have left it.
+
+The loop uses the compiled step only if the class offering it also defines
+``update`` and ``state_for_logging`` or inherits them from its own bases: a
+subclass overriding either runs in the Python loop. :func:`log_values` gives
+``state_for_logging`` from the log kernel, so the two cannot disagree.
 """
 
 from __future__ import annotations
@@ -26,11 +49,20 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 from importlib.metadata import entry_points
-from typing import Any, Protocol, runtime_checkable
+from typing import Any, NamedTuple, Protocol, runtime_checkable
 
 import numpy as np
 
+from gantry_twin._jit import reference
+
 ENTRY_POINT_GROUP = "gantry_twin.controllers"
+
+#: The DS1103 DAC range (X, Y), volts: a controller's limits until ``reset`` gives it the plant's (RunContext.u_max_v).
+U_MAX_V = (10.0, 10.0)
+
+#: Columns of a reference row (:meth:`ReferenceSample.row`, :meth:`gantry_twin.paths.Reference.packed`):
+#: q_d (2,) m, q_d' (2,) m/s, q_d'' (2,) m/s^2, alpha rad, alpha' rad/s, alpha'' rad/s^2.
+REF_Q, REF_DQ, REF_DDQ, REF_ALPHA, REF_DALPHA, REF_DDALPHA = 0, 2, 4, 6, 7, 8
 
 
 @dataclass(frozen=True)
@@ -62,6 +94,10 @@ class ReferenceSample:
         """From a row of :meth:`gantry_twin.paths.Reference.packed`."""
         return cls(row[0:2], row[2:4], row[4:6], float(row[6]), float(row[7]), float(row[8]))
 
+    def row(self) -> np.ndarray:
+        """The packed row (9,) a compiled step reads (columns REF_Q ... REF_DDALPHA)."""
+        return np.concatenate([self.q_d, self.dq_d, self.ddq_d, [self.alpha, self.dalpha, self.ddalpha]]).astype(float)
+
 
 @dataclass(frozen=True)
 class RunContext:
@@ -85,6 +121,50 @@ class Controller(Protocol):
     def update(self, measurement: Measurement, reference: ReferenceSample) -> np.ndarray: ...
 
     def state_for_logging(self) -> dict[str, np.ndarray]: ...
+
+
+#: A compiled controller's log layout: ((name, shape), ...), shape () for one number.
+LogLayout = tuple[tuple[str, tuple[int, ...]], ...]
+
+
+class CompiledStep(NamedTuple):
+    """A controller's compiled form (see the module docstring): step and log kernels, log layout."""
+
+    step: Callable[..., Any]
+    log: Callable[..., Any] | None = None
+    layout: LogLayout = ()
+
+    @property
+    def log_size(self) -> int:
+        """How many numbers one sample of the log holds."""
+        return sum(int(np.prod(shape)) for _, shape in self.layout)
+
+
+def compiled_step_of(controller: object) -> CompiledStep | None:
+    """The controller's :class:`CompiledStep` if the compiled loop may run it, else None."""
+    mro = type(controller).__mro__
+    owner = next((c for c in mro if isinstance(c.__dict__.get("compiled"), CompiledStep)), None)
+    if owner is None or not callable(getattr(controller, "kernel_arguments", None)):
+        return None
+    for method in ("update", "state_for_logging"):
+        defined = next((c for c in mro if method in c.__dict__), None)
+        if defined is not None and defined is not owner and issubclass(defined, owner):
+            return None  # overridden below the class that offers the compiled step
+    return owner.__dict__["compiled"]
+
+
+def log_values(compiled: CompiledStep, params: tuple, state: tuple) -> dict[str, np.ndarray]:
+    """``state_for_logging`` of a compiled controller: its log kernel (uncompiled) split by its layout."""
+    if compiled.log is None:
+        return {}
+    out = np.zeros(compiled.log_size)
+    reference(compiled.log)(params, state, out)
+    values, at = {}, 0
+    for name, shape in compiled.layout:
+        size = int(np.prod(shape))
+        values[name] = out[at : at + size].reshape(shape or (1,)).copy()
+        at += size
+    return values
 
 
 ControllerFactory = Callable[..., Controller]

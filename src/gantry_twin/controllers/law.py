@@ -18,6 +18,7 @@ from typing import NamedTuple
 import numpy as np
 
 from gantry_twin._jit import kernel
+from gantry_twin.controllers.base import REF_ALPHA, REF_DALPHA, REF_DDALPHA, REF_DDQ, REF_DQ, REF_Q
 from gantry_twin.estimation import FRICTION_SLOPE_S_M, clip, friction_shape
 from gantry_twin.plant import THETA_NAMES
 from gantry_twin.ranges import Number, Positive, Real, Vector, rule, settings
@@ -28,9 +29,6 @@ THETA0 = (0.1, 0.55, 0.35, 0.5, 0.1, 0.15, 0.0, 0.0)
 #: Parameter bounds of eq. (7), section 5.
 THETA_MIN = (0.05, 0.45, 0.35, 0.5, 0.05, 0.08, -0.5, -1.0)
 THETA_MAX = (0.20, 0.60, 0.55, 0.8, 0.15, 0.25, 0.5, 1.0)
-
-#: Columns of one row of :meth:`gantry_twin.paths.Reference.packed`.
-REF_Q, REF_DQ, REF_DDQ, REF_ALPHA, REF_DALPHA, REF_DDALPHA = 0, 2, 4, 6, 7, 8
 
 
 #: theta-shaped settings: eight finite numbers, volt units, named as THETA_NAMES.

@@ -17,10 +17,18 @@ from typing import NamedTuple
 
 import numpy as np
 
-from gantry_twin import _jit
 from gantry_twin._jit import kernel
-from gantry_twin.controllers.base import Measurement, ReferenceSample, RunContext
-from gantry_twin.controllers.law import REF_DDQ, REF_DQ, REF_Q
+from gantry_twin._jit import reference as uncompiled
+from gantry_twin.controllers.base import (
+    REF_DDQ,
+    REF_DQ,
+    REF_Q,
+    U_MAX_V,
+    CompiledStep,
+    Measurement,
+    ReferenceSample,
+    RunContext,
+)
 from gantry_twin.estimation import clip
 from gantry_twin.plant import AXES
 from gantry_twin.ranges import NonNegative, Vector
@@ -50,6 +58,12 @@ def pd_step(params, q_m, dq_m_s, ref, u_v):
         u_v[i] = clip(u, -u_max[i], u_max[i])
 
 
+@kernel
+def pd_command(params, state, t_s, q_m, dq_m_s, ref, u_v):
+    """The compiled-controller step (controllers.base): :func:`pd_step`; PD has no state."""
+    pd_step(params, q_m, dq_m_s, ref, u_v)
+
+
 @dataclass
 class PD:
     """Per-axis PD + feed-forward; all gains per axis (X, Y)."""
@@ -59,27 +73,28 @@ class PD:
     kv_v_s_m: Gains = (0.5, 0.7)
     ka_v_s2_m: Gains = (0.12, 0.5)
 
-    def __post_init__(self) -> None:
-        self._u_max_v = np.full(2, 10.0)
+    compiled = CompiledStep(pd_command)
 
-    def kernel_arguments(self) -> PDParams:
-        """The parameters :func:`pd_step` needs (after ``reset``)."""
+    def __post_init__(self) -> None:
+        self._u_max_v = np.array(U_MAX_V)
+
+    def kernel_arguments(self) -> tuple[PDParams, tuple[()]]:
+        """(params, state) for :func:`pd_command` (after ``reset``); PD has no state."""
 
         def arr(x: tuple[float, float]) -> np.ndarray:
             return np.asarray(x, dtype=float).copy()
 
         return PDParams(arr(self.kp_v_m), arr(self.kd_v_s_m), arr(self.kv_v_s_m), arr(self.ka_v_s2_m),
-                        self._u_max_v.copy())  # fmt: skip
+                        self._u_max_v.copy()), ()  # fmt: skip
 
     def reset(self, context: RunContext) -> None:
         self._u_max_v = np.asarray(context.u_max_v, dtype=float)
 
     def update(self, measurement: Measurement, reference: ReferenceSample) -> np.ndarray:
-        r = reference
-        row = np.concatenate([r.q_d, r.dq_d, r.ddq_d, [r.alpha, r.dalpha, r.ddalpha]]).astype(float)
         u = np.zeros(2)
-        _jit.reference(pd_step)(self.kernel_arguments(), np.asarray(measurement.q_m, dtype=float),
-                           np.asarray(measurement.dq_m_s, dtype=float), row, u)  # fmt: skip
+        params, _ = self.kernel_arguments()
+        uncompiled(pd_step)(params, np.asarray(measurement.q_m, dtype=float),
+                                np.asarray(measurement.dq_m_s, dtype=float), reference.row(), u)  # fmt: skip
         return u
 
     def state_for_logging(self) -> dict[str, np.ndarray]:
