@@ -147,3 +147,20 @@ BEING_SPLIT: dict[str, str] = {}
 def test_no_module_over_the_line_limit(name):
     lines = len(module_names()[name].read_text(encoding="utf-8").splitlines())
     assert lines <= MAX_LINES, f"{name}: {lines} lines (limit {MAX_LINES}; about 500 unless its docstring says why)"
+
+
+LOOP = f"{PACKAGE}.simulate"
+#: The loop runs any controller through the plug-in protocol; these belong to particular controllers.
+CONTROLLER_WORDS = ("DRC", "DARC", "DIARC", "PD", "drc", "darc", "diarc", "theta_hat", "dc_hat", "gamma_diag")
+
+
+def test_the_loop_names_no_controller(graph):
+    controllers = {name for name in module_names() if name.startswith(f"{PACKAGE}.controllers.")}
+    assert graph[LOOP] & controllers <= {f"{PACKAGE}.controllers.base"}
+    words = set()
+    for node in ast.walk(ast.parse(module_names()[LOOP].read_text(encoding="utf-8"))):
+        if isinstance(node, ast.Name | ast.alias | ast.Attribute):
+            words.add(getattr(node, "id", None) or getattr(node, "attr", None) or node.asname or node.name)
+        elif isinstance(node, ast.Constant) and isinstance(node.value, str):
+            words.update(node.value.replace(",", " ").replace(".", " ").split())
+    assert not words & set(CONTROLLER_WORDS)
