@@ -113,10 +113,14 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as cache:
         cold = _child(_FIRST_USE.format(names=builtin), cache)
         warm = _child(_FIRST_USE.format(names=builtin), cache)
-    print(f"numba, first use with an empty cache (compile all kernels): {cold['first_runs_s']:.1f} s "
-          f"(import {cold['import_s']:.2f} s)")
-    print(f"numba, later processes (load from cache):                  {warm['first_runs_s']:.2f} s "
-          f"(import {warm['import_s']:.2f} s)")
+    print(
+        f"numba, first use with an empty cache (compile all kernels): {cold['first_runs_s']:.1f} s "
+        f"(import {cold['import_s']:.2f} s)"
+    )
+    print(
+        f"numba, later processes (load from cache):                  {warm['first_runs_s']:.2f} s "
+        f"(import {warm['import_s']:.2f} s)"
+    )
 
     _example_plugin()
     for name in CONTROLLERS:  # load (or compile) every kernel before timing
@@ -132,26 +136,34 @@ def main() -> None:
     results["diarc (reference)"] = [loop("diarc", ref_seconds, "reference")]
     steps = {key: (int(round(ref_seconds / ts)) if "reference" in key else n) for key in results}
 
-    best = {key: (min(w for w, _ in v) / steps[key] * 1e6, min(c for _, c in v) / steps[key] * 1e6)
-            for key, v in results.items()}  # fmt: skip
+    best = {
+        key: (min(w for w, _ in v) / steps[key] * 1e6, min(c for _, c in v) / steps[key] * 1e6)
+        for key, v in results.items()
+    }
     bare_wall, bare_cpu = best[bare_key]
-    print(f"\nloops of {args.seconds:g} s simulated ({n} steps), best of {args.repeats}; "
-          f"simulate() with recording to memory and the derived errors, circle, default sensing")
+    print(
+        f"\nloops of {args.seconds:g} s simulated ({n} steps), best of {args.repeats}; "
+        f"simulate() with recording to memory and the derived errors, circle, default sensing"
+    )
     print(f"{'loop':<24}{'us/step':>9}{'x C loop':>10}{'RT factor':>11}{'CPU us/step':>13}{'x C loop':>10}")
     for key, (wall, cpu) in best.items():
         label = key if key == bare_key or "reference" in key else f"{key} (compiled)"
         print(f"{label:<24}{wall:9.2f}{wall / bare_wall:10.2f}{200.0 / wall:11.1f}{cpu:13.2f}{cpu / bare_cpu:10.2f}")
     (pd_wall, pd_cpu), (ex_wall, ex_cpu) = best["pd"], best["example_pd"]
-    print(f"\nDIARC / C loop: {best['diarc'][0] / bare_wall:.2f}x wall, {best['diarc'][1] / bare_cpu:.2f}x CPU "
-          f"(target 1.4x); example plug-in / built-in pd: {ex_wall / pd_wall:.2f}x wall, {ex_cpu / pd_cpu:.2f}x CPU "
-          f"(target 1.15x)")
+    print(
+        f"\nDIARC / C loop: {best['diarc'][0] / bare_wall:.2f}x wall, {best['diarc'][1] / bare_cpu:.2f}x CPU "
+        f"(target 1.4x); example plug-in / built-in pd: {ex_wall / pd_wall:.2f}x wall, {ex_cpu / pd_cpu:.2f}x CPU "
+        f"(target 1.15x)"
+    )
 
     if not args.skip_memory:
         mem = _child(_MEMORY)
         before, after = mem["rss_before_kb"] / 1e3, mem["rss_after_kb"] / 1e3
-        print(f"\n60 s DIARC run, full 5 kHz recording ({mem['samples']} samples): trace arrays "
-              f"{mem['trace_bytes'] / 1e6:.1f} MB; process peak RSS {before:.0f} MB before the run, "
-              f"{after:.0f} MB after (+{after - before:.0f} MB)")
+        print(
+            f"\n60 s DIARC run, full 5 kHz recording ({mem['samples']} samples): trace arrays "
+            f"{mem['trace_bytes'] / 1e6:.1f} MB; process peak RSS {before:.0f} MB before the run, "
+            f"{after:.0f} MB after (+{after - before:.0f} MB)"
+        )
 
 
 if __name__ == "__main__":

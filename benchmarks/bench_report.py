@@ -71,9 +71,11 @@ def main() -> None:
         label = f"{c.controller} {c.contour} set {c.set_id}"
         print(f"{label:<28}{r['rms_um']:8.2f}{r['max_um']:8.2f}{r['import_s']:15.2f}{r['run_s']:8.2f}")
     total_run = sum(r["run_s"] for r in results)
-    print(f"\n{len(cases)} runs of {args.duration:g} s on {args.processes} processes: wall {wall:.1f} s "
-          f"({'empty numba cache: compiling included' if args.cold else 'compiled kernels loaded from the cache'}); "
-          f"sum of run times {total_run:.1f} s, {len(cases) * args.duration / wall:.0f}x real time overall")
+    print(
+        f"\n{len(cases)} runs of {args.duration:g} s on {args.processes} processes: wall {wall:.1f} s "
+        f"({'empty numba cache: compiling included' if args.cold else 'compiled kernels loaded from the cache'}); "
+        f"sum of run times {total_run:.1f} s, {len(cases) * args.duration / wall:.0f}x real time overall"
+    )
 
 
 if __name__ == "__main__":

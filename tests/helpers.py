@@ -70,13 +70,30 @@ def step_on_y(value_v: float = 0.6, start_s: float = 1.86, end_s: float = 4.86):
     return disturbance
 
 
-def run(name: str, contour_name: str = "circle", duration_s: float = 7.0, payload_kg: float = 0.0,
-        sensing: SensingConfig | None = None, disturbance=None, observers=(), controller=None, **options):  # fmt: skip
+def run(
+    name: str,
+    contour_name: str = "circle",
+    duration_s: float = 7.0,
+    payload_kg: float = 0.0,
+    sensing: SensingConfig | None = None,
+    disturbance=None,
+    observers=(),
+    controller=None,
+    **options,
+):
     """Simulate one paper-style run of controller ``name`` (or of ``controller``); returns (trace, period s)."""
     path, timing, period = contour(contour_name)
     controller = controller if controller is not None else create(name, **options)
-    trace = simulate(Plant(Payload(payload_kg)), path, timing, controller, duration_s, sensing=sensing,
-                     disturbance=disturbance, observers=observers)  # fmt: skip
+    trace = simulate(
+        Plant(Payload(payload_kg)),
+        path,
+        timing,
+        controller,
+        duration_s,
+        sensing=sensing,
+        disturbance=disturbance,
+        observers=observers,
+    )
     return trace, period
 
 

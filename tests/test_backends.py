@@ -78,8 +78,9 @@ def test_ideal_sensing_and_disturbance_agree():
         d[(t >= 0.1) & (t < 0.3), 1] = 0.6
         return d
 
-    (a, _), (b, _) = run_both(lambda: DIARC(estimator=RECOMMENDED_ESTIMATOR), 0.4, sensing=SensingConfig.ideal(),
-                              disturbance=step)  # fmt: skip
+    (a, _), (b, _) = run_both(
+        lambda: DIARC(estimator=RECOMMENDED_ESTIMATOR), 0.4, sensing=SensingConfig.ideal(), disturbance=step
+    )
     assert_same_trace(a, b)
 
 
@@ -92,8 +93,10 @@ def test_plant_alone_matches_a_plain_mj_step_loop():
 
     zero = dict(kp_v_m=(0.0, 0.0), kd_v_s_m=(0.0, 0.0), kv_v_s_m=(0.0, 0.0), ka_v_s2_m=(0.0, 0.0))
     inputs = disturbance(np.zeros(1500))
-    traces = {b: simulate(Plant(), circle(), TimingLaw(2.0), PD(**zero), 0.3, disturbance=lambda t: inputs, backend=b)
-              for b in ("compiled", "reference")}  # fmt: skip
+    traces = {
+        b: simulate(Plant(), circle(), TimingLaw(2.0), PD(**zero), 0.3, disturbance=lambda t: inputs, backend=b)
+        for b in ("compiled", "reference")
+    }
     np.testing.assert_array_equal(traces["compiled"].q_m, traces["reference"].q_m)
     assert np.all(traces["compiled"].u_v == 0.0)
     # Independent loop: same start, the same inputs, mujoco.mj_step from Python.
@@ -130,8 +133,9 @@ class _Poison:
 def test_nan_measurement_stops_both_backends(backend):
     plant = Plant()
     with pytest.raises(SimulationError, match=r"non-finite measurement at t = 0\.0100 s"):
-        simulate(plant, circle(), TimingLaw(2.0), DIARC(), 0.05, observers=[_Poison(plant)], chunk_s=0.01,
-                 backend=backend)  # fmt: skip
+        simulate(
+            plant, circle(), TimingLaw(2.0), DIARC(), 0.05, observers=[_Poison(plant)], chunk_s=0.01, backend=backend
+        )
 
 
 @pytest.mark.parametrize("backend", ["compiled", "reference"])
@@ -244,8 +248,15 @@ def test_plant_changes_compiled_equals_reference_and_restore_the_model():
     for backend in ("compiled", "reference"):
         plant = Plant(payload_body=True)
         before = (plant.model.dof_damping.copy(), plant.model.body_mass.copy())
-        out[backend] = simulate(plant, circle(), TimingLaw(2.0), DIARC(estimator=RECOMMENDED_ESTIMATOR), 0.4,
-                                backend=backend, changes=changes)  # fmt: skip
+        out[backend] = simulate(
+            plant,
+            circle(),
+            TimingLaw(2.0),
+            DIARC(estimator=RECOMMENDED_ESTIMATOR),
+            0.4,
+            backend=backend,
+            changes=changes,
+        )
         np.testing.assert_array_equal(plant.model.dof_damping, before[0])
         np.testing.assert_array_equal(plant.model.body_mass, before[1])
     a, b = out["compiled"], out["reference"]

@@ -41,8 +41,9 @@ def test_viscous_drift_schedule_is_the_hand_ramp(plant):
 def test_coulomb_drift_from_a_given_start_value(plant):
     changes = PlantChanges(friction_drift=(FrictionDrift("x", 1.0, 3.0, coulomb_from_v=0.2, coulomb_to_v=0.4),))
     t = np.array([0.0, 1.0, 2.0, 2.5, 3.0, 4.0])
-    np.testing.assert_allclose(changes.frictionloss_n(plant, t)[:, 0],
-                               np.array([0.2, 0.2, 0.3, 0.35, 0.4, 0.4]) * 69.0, rtol=1e-12)
+    np.testing.assert_allclose(
+        changes.frictionloss_n(plant, t)[:, 0], np.array([0.2, 0.2, 0.3, 0.35, 0.4, 0.4]) * 69.0, rtol=1e-12
+    )
     np.testing.assert_allclose(changes.damping_n_s_m(plant, t), np.tile([34.5, 48.3], (t.size, 1)), rtol=1e-12)
 
 
@@ -81,10 +82,12 @@ def test_no_changes_give_the_plant_itself(plant):
 
 
 def test_glitch_schedules():
-    changes = PlantChanges(encoder_glitch=(
-        EncoderGlitch("spike", 0.0010, axis="y", offset_m=50e-6),
-        EncoderGlitch("hold", 0.0020, samples=3),
-    ))
+    changes = PlantChanges(
+        encoder_glitch=(
+            EncoderGlitch("spike", 0.0010, axis="y", offset_m=50e-6),
+            EncoderGlitch("hold", 0.0020, samples=3),
+        )
+    )
     t = times(0.003)  # 15 samples, 0 .. 2.8 ms
     offset = changes.position_offset_m(t)
     expected = np.zeros((15, 2))
@@ -120,27 +123,38 @@ def test_cogging_force_by_hand():
     np.testing.assert_allclose(changes.cogging_force_v(np.array([0.004, 0.0])), [0.05, 0.02 * np.sin(0.5)])
 
 
-@pytest.mark.parametrize(("build", "field"), [
-    (lambda: FrictionDrift("z", 0.0, 1.0, viscous_to_v_s_m=1.0), "friction_drift.axis"),
-    (lambda: FrictionDrift("y", 5.0, 5.0, viscous_to_v_s_m=1.0), "friction_drift.end_s"),
-    (lambda: FrictionDrift("y", 0.0, 1.0, viscous_to_v_s_m=-0.1), "friction_drift.viscous_to_v_s_m"),
-    (lambda: FrictionDrift("y", 0.0, 1.0), "friction_drift.viscous_to_v_s_m"),
-    (lambda: FrictionDrift("y", 0.0, 1.0, coulomb_to_v=float("nan")), "friction_drift.coulomb_to_v"),
-    (lambda: PayloadChange(1.0, 25.0), "payload_change.mass_kg"),
-    (lambda: PayloadChange(-1.0, 2.0), "payload_change.time_s"),
-    (lambda: CoggingRipple("x", 0.05, 1e-4), "cogging.pitch_m"),
-    (lambda: CoggingRipple("x", 3.0, 0.016), "cogging.amplitude_v"),
-    (lambda: EncoderGlitch("spike", 1.0, offset_m=0.0), "encoder_glitch.offset_m"),
-    (lambda: EncoderGlitch("drop", 1.0), "encoder_glitch.kind"),
-    (lambda: EncoderGlitch("hold", 1.0, samples=0), "encoder_glitch.samples"),
-    (lambda: VelocityNoise((0.01, 2.0)), "velocity_noise.std_m_s.y"),
-    (lambda: VelocityNoise((0.01, 0.01), seed=-1), "velocity_noise.seed"),
-    (lambda: PlantChanges(cogging=(CoggingRipple("x", 0.05, 0.016), CoggingRipple("x", 0.01, 0.016))),
-     "cogging.axis"),
-    (lambda: PlantChanges(friction_drift=(FrictionDrift("y", 0.0, 1.0, viscous_to_v_s_m=1.0),
-                                          FrictionDrift("y", 2.0, 3.0, viscous_to_v_s_m=1.2))),
-     "friction_drift[1].axis"),
-])
+@pytest.mark.parametrize(
+    ("build", "field"),
+    [
+        (lambda: FrictionDrift("z", 0.0, 1.0, viscous_to_v_s_m=1.0), "friction_drift.axis"),
+        (lambda: FrictionDrift("y", 5.0, 5.0, viscous_to_v_s_m=1.0), "friction_drift.end_s"),
+        (lambda: FrictionDrift("y", 0.0, 1.0, viscous_to_v_s_m=-0.1), "friction_drift.viscous_to_v_s_m"),
+        (lambda: FrictionDrift("y", 0.0, 1.0), "friction_drift.viscous_to_v_s_m"),
+        (lambda: FrictionDrift("y", 0.0, 1.0, coulomb_to_v=float("nan")), "friction_drift.coulomb_to_v"),
+        (lambda: PayloadChange(1.0, 25.0), "payload_change.mass_kg"),
+        (lambda: PayloadChange(-1.0, 2.0), "payload_change.time_s"),
+        (lambda: CoggingRipple("x", 0.05, 1e-4), "cogging.pitch_m"),
+        (lambda: CoggingRipple("x", 3.0, 0.016), "cogging.amplitude_v"),
+        (lambda: EncoderGlitch("spike", 1.0, offset_m=0.0), "encoder_glitch.offset_m"),
+        (lambda: EncoderGlitch("drop", 1.0), "encoder_glitch.kind"),
+        (lambda: EncoderGlitch("hold", 1.0, samples=0), "encoder_glitch.samples"),
+        (lambda: VelocityNoise((0.01, 2.0)), "velocity_noise.std_m_s.y"),
+        (lambda: VelocityNoise((0.01, 0.01), seed=-1), "velocity_noise.seed"),
+        (
+            lambda: PlantChanges(cogging=(CoggingRipple("x", 0.05, 0.016), CoggingRipple("x", 0.01, 0.016))),
+            "cogging.axis",
+        ),
+        (
+            lambda: PlantChanges(
+                friction_drift=(
+                    FrictionDrift("y", 0.0, 1.0, viscous_to_v_s_m=1.0),
+                    FrictionDrift("y", 2.0, 3.0, viscous_to_v_s_m=1.2),
+                )
+            ),
+            "friction_drift[1].axis",
+        ),
+    ],
+)
 def test_validation_names_the_field_and_range(build, field):
     with pytest.raises(ValueError) as info:
         build()

@@ -33,15 +33,25 @@ def test_payload_from_t0_behaves_like_a_compiled_5kg_payload():
 
 def test_payload_change_needs_a_payload_body():
     with pytest.raises(ValueError, match="payload_body=True"):
-        simulate(Plant(), circle(), TimingLaw(2.0), DIARC(), 0.01,
-                 changes=PlantChanges(payload_change=(PayloadChange(0.0, 5.0),)))  # fmt: skip
+        simulate(
+            Plant(),
+            circle(),
+            TimingLaw(2.0),
+            DIARC(),
+            0.01,
+            changes=PlantChanges(payload_change=(PayloadChange(0.0, 5.0),)),
+        )
 
 
 def test_friction_drift_equals_an_edited_model_after_the_drift():
     """A drift completed at once (1 ms) leaves the plant as a model built with the new damping and friction."""
-    changes = PlantChanges(friction_drift=(FrictionDrift("y", 0.0, 1e-3, viscous_from_v_s_m=0.91,
-                                                         viscous_to_v_s_m=0.91, coulomb_from_v=0.2,
-                                                         coulomb_to_v=0.2),))  # fmt: skip
+    changes = PlantChanges(
+        friction_drift=(
+            FrictionDrift(
+                "y", 0.0, 1e-3, viscous_from_v_s_m=0.91, viscous_to_v_s_m=0.91, coulomb_from_v=0.2, coulomb_to_v=0.2
+            ),
+        )
+    )
     a = simulate(Plant(), circle(), TimingLaw(2.0), DIARC(), 0.3, changes=changes)
     plant = Plant()
     plant.model.dof_damping[plant.dof_index[1]] = 0.91 * 69.0

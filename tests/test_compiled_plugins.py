@@ -65,8 +65,9 @@ class PI:
     def update(self, measurement, reference):  # noqa: ANN001, ANN201
         self.updates += 1
         u_v = np.zeros(2)
-        pi_step.py_func(self.params, self.state, measurement.t_s, measurement.q_m, measurement.dq_m_s,
-                        reference.row(), u_v)  # fmt: skip
+        pi_step.py_func(
+            self.params, self.state, measurement.t_s, measurement.q_m, measurement.dq_m_s, reference.row(), u_v
+        )
         return u_v
 
     def state_for_logging(self):  # noqa: ANN201

@@ -60,13 +60,15 @@ def test_controller_from_an_installed_package_entry_point(tmp_path, monkeypatch)
     """A controller shipped by another package is found through the entry-point group."""
     pkg = tmp_path / "acme_ctrl"
     pkg.mkdir()
-    (pkg / "__init__.py").write_text(textwrap.dedent("""
+    (pkg / "__init__.py").write_text(
+        textwrap.dedent("""
         import numpy as np
         class Zero:
             def reset(self, context): pass
             def update(self, measurement, reference): return np.zeros(2)
             def state_for_logging(self): return {}
-    """))
+    """)
+    )
     dist = tmp_path / "acme_ctrl-1.0.dist-info"
     dist.mkdir()
     (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: acme-ctrl\nVersion: 1.0\n")

@@ -135,8 +135,16 @@ def test_single_encoder_spike_is_survived():
 @pytest.mark.slow
 @pytest.mark.parametrize(("overrides", "code"), [((), EXIT_ALARM), (("changes.payload_change=[]",), EXIT_OK)])
 def test_monitor_fail_on_alarm_exit_status(tmp_path, capsys, overrides, code):
-    args = ["monitor", str(shipped("payload_pickup_circle")), "--out", str(tmp_path), "--fail-on-alarm",
-            "--set", "duration_s=24", *[x for o in overrides for x in ("--set", o)]]  # fmt: skip
+    args = [
+        "monitor",
+        str(shipped("payload_pickup_circle")),
+        "--out",
+        str(tmp_path),
+        "--fail-on-alarm",
+        "--set",
+        "duration_s=24",
+        *[x for o in overrides for x in ("--set", o)],
+    ]
     assert main(args) == code
     printed = capsys.readouterr().out
     if code == EXIT_ALARM:

@@ -35,9 +35,20 @@ def synthetic_trace(duration_s: float, theta_of_t, moving: bool = True, rate_rad
         q = np.tile([0.01, -0.02], (t.size, 1))
     q = np.round(q / 0.5e-6) * 0.5e-6  # the encoder
     nan = np.full((t.size, 2), np.nan)
-    return Trace(t_s=t, q_m=q, q_meas_m=q, q_d_m=q, e_m=nan, eps_n_m=nan[:, 0], eps_c_m=nan[:, 0], u_v=nan,
-                 disturbance_v=np.zeros((t.size, 2)), true_theta=np.array(BASE),
-                 controller_state={"theta_hat": theta_of_t(t)}, filled=t.size)
+    return Trace(
+        t_s=t,
+        q_m=q,
+        q_meas_m=q,
+        q_d_m=q,
+        e_m=nan,
+        eps_n_m=nan[:, 0],
+        eps_c_m=nan[:, 0],
+        u_v=nan,
+        disturbance_v=np.zeros((t.size, 2)),
+        true_theta=np.array(BASE),
+        controller_state={"theta_hat": theta_of_t(t)},
+        filled=t.size,
+    )
 
 
 def constant(theta=BASE):
@@ -97,8 +108,16 @@ def test_information_is_the_integral_of_the_filtered_regressor():
 
 
 def closed_loop(duration_s: float, chunk_s: float, observers=()):
-    return simulate(Plant(), circle(), TimingLaw(2.0), create("diarc"), duration_s, sensing=SensingConfig(),
-                    observers=observers, chunk_s=chunk_s)
+    return simulate(
+        Plant(),
+        circle(),
+        TimingLaw(2.0),
+        create("diarc"),
+        duration_s,
+        sensing=SensingConfig(),
+        observers=observers,
+        chunk_s=chunk_s,
+    )
 
 
 @pytest.fixture(scope="module")
@@ -121,8 +140,18 @@ def test_excitation_positive_on_a_real_circle_run(short_run):
 def test_incremental_equals_offline(short_run):
     trace, live, settings, health = short_run
     offline = monitor_trace(trace, settings, health)
-    for name in ("t_s", "information", "level_v", "parameter_v", "moving", "excited", "estimate", "deviation",
-                 "cusum", "status"):
+    for name in (
+        "t_s",
+        "information",
+        "level_v",
+        "parameter_v",
+        "moving",
+        "excited",
+        "estimate",
+        "deviation",
+        "cusum",
+        "status",
+    ):
         np.testing.assert_array_equal(getattr(live, name), getattr(offline, name), err_msg=name)
     assert live.baseline == offline.baseline
     assert live.alarms == offline.alarms
@@ -190,6 +219,7 @@ def test_ramp_alarm_time_is_the_crossing_plus_the_cusum_delay():
 def test_step_on_nominal_disturbance_is_judged_in_volts():
     """dN2 steps to 0.6 V at 5 s: y = 6 tolerances, so S+ grows 5 per second and passes h = 0.2
     after 0.04 s."""
+
     def theta(t):
         out = np.tile(BASE, (t.size, 1))
         out[:, 7] = np.where(t >= 5.0, 0.6, 0.0)

@@ -25,8 +25,7 @@ DIGESTS = Path(__file__).parent / "data" / "trace_digests.json"
 CONTROLLERS = ("diarc", "darc", "drc", "pd")
 DURATION_S = 2.0
 #: Windows inside the 2 s run; neither changes the trace.
-OVERRIDES = [f"duration_s={DURATION_S}", "window_s=[0.5, 2.0]", "estimates_window_s=[1.0, 2.0]",
-             "monitor.enable=false"]  # fmt: skip
+OVERRIDES = [f"duration_s={DURATION_S}", "window_s=[0.5, 2.0]", "estimates_window_s=[1.0, 2.0]", "monitor.enable=false"]
 FIELDS = ("q_m", "q_meas_m", "q_d_m", "e_m", "eps_n_m", "eps_c_m", "u_v", "disturbance_v", "true_theta")
 
 
@@ -38,8 +37,17 @@ def trace_digests(scenario: str, controller: str, backend: str) -> dict[str, str
     """Per-array sha256 prefixes of a 2 s run's trace."""
     path = next(p for p in shipped_scenarios() if p.stem == scenario)
     built = build(load_scenario(path, OVERRIDES, controller), str(path))
-    trace = simulate(built.plant, built.path, built.timing, built.controller, DURATION_S, sensing=built.sensing,
-                     disturbance=built.disturbance, changes=built.changes, backend=backend)  # fmt: skip
+    trace = simulate(
+        built.plant,
+        built.path,
+        built.timing,
+        built.controller,
+        DURATION_S,
+        sensing=built.sensing,
+        disturbance=built.disturbance,
+        changes=built.changes,
+        backend=backend,
+    )
     out = {name: _digest(getattr(trace, name)) for name in FIELDS}
     out.update({f"state.{key}": _digest(value) for key, value in sorted(trace.controller_state.items())})
     return out
@@ -50,9 +58,9 @@ CASES = [(p.stem, c) for p in shipped_scenarios() for c in CONTROLLERS]
 #: on each scenario that exercises another per-sample concern of the loop (disturbance input, payload
 #: change, friction drift, cogging). The others, and the whole reference half, are marked slow.
 REPRESENTATIVE = {("no_load_circle", c) for c in CONTROLLERS} | {
-    (s, "diarc") for s in ("step_disturbance_circle", "payload_pickup_circle", "friction_drift_circle",
-                           "cogging_circle")
-}  # fmt: skip
+    (s, "diarc")
+    for s in ("step_disturbance_circle", "payload_pickup_circle", "friction_drift_circle", "cogging_circle")
+}
 
 
 def _recorded() -> dict[str, dict[str, str]]:
@@ -60,9 +68,9 @@ def _recorded() -> dict[str, dict[str, str]]:
 
 
 @pytest.mark.parametrize(
-    ("scenario", "controller"), [pytest.param(*case, marks=() if case in REPRESENTATIVE else pytest.mark.slow)
-                                 for case in CASES]
-)  # fmt: skip
+    ("scenario", "controller"),
+    [pytest.param(*case, marks=() if case in REPRESENTATIVE else pytest.mark.slow) for case in CASES],
+)
 def test_compiled_trace_is_pinned(scenario, controller):
     assert trace_digests(scenario, controller, "compiled") == _recorded()[f"{scenario}/{controller}"]
 

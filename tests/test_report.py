@@ -49,8 +49,12 @@ def _independent_numbers(tmp_path, capsys) -> dict[str, dict]:
         eps_um = np.abs(table.column("eps_c_m").to_numpy()[(t >= 0.02) & (t < 0.1)]) * 1e6
         in_estimates_window = (t >= 0.05) & (t < 0.1)
         estimates = [table.column(f"theta_hat_{n}").to_numpy()[in_estimates_window].mean() for n in THETA_NAMES]
-        numbers[key] = {"steps": t.size, "rms_um": math.sqrt(np.mean(eps_um**2)), "max_um": eps_um.max(),
-                        "estimates": np.array(estimates)}  # fmt: skip
+        numbers[key] = {
+            "steps": t.size,
+            "rms_um": math.sqrt(np.mean(eps_um**2)),
+            "max_um": eps_um.max(),
+            "estimates": np.array(estimates),
+        }
     return numbers
 
 
@@ -104,8 +108,11 @@ def test_report_on_a_tiny_matrix(tmp_path, capsys):
         cells = [f"**{expected[key][f'{what}_um']:.2f}**" if key else "**-**" for key in columns]
         assert _row_cells(_section(text, "## Table 1:"), f"| **{what} twin (um)** |") == cells
     # Table 3 (Set 1): each estimate with its deviation from the spec's value.
-    for name, key in (("DIARC paper settings", "set1_circle_C2"), ("DIARC recommended", "set1_circle_C2r"),
-                      ("DARC", "set1_circle_C1")):  # fmt: skip
+    for name, key in (
+        ("DIARC paper settings", "set1_circle_C2"),
+        ("DIARC recommended", "set1_circle_C2r"),
+        ("DARC", "set1_circle_C1"),
+    ):
         estimates = expected[key]["estimates"]
         cells = [f"{estimates[i]:.4f} ({deviation_pct(estimates[i], truth[i]):+.1f} %)" for i in range(6)]
         assert _row_cells(_section(text, "## Table 3:"), f"| {name}: circle |") == cells, name

@@ -371,8 +371,19 @@ def test_health_alarms_are_events_on_the_timeline(tmp_path):
 
     rrd = tmp_path / "pickup.rrd"
     out = tmp_path / "out"
-    code = cli.main(["monitor", "payload_pickup_circle", "--set", "duration_s=24", "--out", str(out), "--save",
-                     str(rrd), "--no-progress"])
+    code = cli.main(
+        [
+            "monitor",
+            "payload_pickup_circle",
+            "--set",
+            "duration_s=24",
+            "--out",
+            str(out),
+            "--save",
+            str(rrd),
+            "--no-progress",
+        ]
+    )
     assert code == 0
     alarms = json.loads((out / "summary.json").read_text())["health"]["alarms"]
     assert alarms, "the pick-up must raise an alarm"
@@ -392,8 +403,15 @@ def test_true_value_line_follows_plant_changes(tmp_path):
     path = tmp_path / "pickup.rrd"
     changes = PlantChanges(payload_change=(PayloadChange(time_s=0.5, mass_kg=5.0),))
     with RerunObserver.to_file(path) as observer:
-        trace = simulate(Plant(payload_body=True), circle(), TimingLaw(2.0), create("diarc"), 1.0,
-                         observers=[observer], changes=changes)
+        trace = simulate(
+            Plant(payload_body=True),
+            circle(),
+            TimingLaw(2.0),
+            create("diarc"),
+            1.0,
+            observers=[observer],
+            changes=changes,
+        )
     data = read_rrd(path)
     entity = next(e for e in data if e.startswith("estimates/M1") and e.endswith("/true"))
     true = scalars(data, entity)[:, 0]

@@ -41,6 +41,7 @@ from numba.extending import intrinsic, overload
 
 F = TypeVar("F", bound=Callable[..., Any])
 
+
 def kernel_sources(package: Path | None = None) -> list[Path]:
     """The package's modules that define kernels, and the package modules they import from.
 

@@ -142,8 +142,10 @@ class EncoderGlitch:
 
     def __post_init__(self) -> None:
         if self.kind == "spike" and self.offset_m == 0.0:
-            raise rule("offset_m", f"a spike must be nonzero, in [-{fmt(SPIKE_OFFSET_MAX_M)}, "
-                                   f"{fmt(SPIKE_OFFSET_MAX_M)}] m, got 0")  # fmt: skip
+            raise rule(
+                "offset_m",
+                f"a spike must be nonzero, in [-{fmt(SPIKE_OFFSET_MAX_M)}, {fmt(SPIKE_OFFSET_MAX_M)}] m, got 0",
+            )
 
 
 @settings("velocity_noise")
@@ -184,8 +186,11 @@ class PlantChanges:
                 if moved is None:
                     continue
                 if (drift.axis, quantity) in seen:
-                    raise rule(f"friction_drift[{i}].axis", f"{quantity} friction of axis {drift.axis} already "
-                               "drifts in an earlier entry (one drift per axis and quantity)")  # fmt: skip
+                    raise rule(
+                        f"friction_drift[{i}].axis",
+                        f"{quantity} friction of axis {drift.axis} already "
+                        "drifts in an earlier entry (one drift per axis and quantity)",
+                    )
                 seen.add((drift.axis, quantity))
         times = [c.time_s for c in self.payload_change]
         if len(set(times)) != len(times):
@@ -196,8 +201,9 @@ class PlantChanges:
 
     @property
     def empty(self) -> bool:
-        return not (self.friction_drift or self.payload_change or self.cogging or self.encoder_glitch
-                    or self.velocity_noise)
+        return not (
+            self.friction_drift or self.payload_change or self.cogging or self.encoder_glitch or self.velocity_noise
+        )
 
     # ---- schedules over the run's sample times t (N,) -------------------------------------
 
@@ -290,13 +296,14 @@ class PlantChanges:
         gear = plant.gear_n_per_v
         bare_kg = moving_masses_kg(plant.model, plant.dof_index) - plant.payload.mass_kg
         mass_v = (bare_kg[None, :] + self.payload_mass_kg(plant, t)[:, None]) / gear
-        return np.column_stack([
-            mass_v,
-            self._friction_v(plant, t, coulomb=False),
-            self._friction_v(plant, t, coulomb=True),
-            np.zeros((t.size, 2)),
-        ])
-
+        return np.column_stack(
+            [
+                mass_v,
+                self._friction_v(plant, t, coulomb=False),
+                self._friction_v(plant, t, coulomb=True),
+                np.zeros((t.size, 2)),
+            ]
+        )
 
 
 # ---- what the loop applies each sample (both backends) -------------------------------------
@@ -342,22 +349,28 @@ def change_schedule(plant: Plant, changes: PlantChanges | None, t: np.ndarray) -
     body = -1
     if changes.payload_change:
         if plant.payload_body_id is None:
-            raise ValueError("changes.payload_change: the plant has no payload body to change; build it with "
-                             "Plant(payload, payload_body=True)")
+            raise ValueError(
+                "changes.payload_change: the plant has no payload body to change; build it with "
+                "Plant(payload, payload_body=True)"
+            )
         body = plant.payload_body_id
     glitches = changes.encoder_glitch
     return ChangeSchedule(
-        model.dof_damping, model.dof_frictionloss, model.body_mass, body,
+        model.dof_damping,
+        model.dof_frictionloss,
+        model.body_mass,
+        body,
         np.ascontiguousarray(changes.damping_n_s_m(plant, t)) if changes.friction_drift else none2,
         np.ascontiguousarray(changes.frictionloss_n(plant, t)) if changes.friction_drift else none2,
         np.ascontiguousarray(changes.payload_mass_kg(plant, t)) if changes.payload_change else none1,
         changes.cogging_table(),
         np.ascontiguousarray(changes.position_offset_m(t)) if any(g.kind == "spike" for g in glitches) else none2,
-        np.ascontiguousarray(changes.hold_mask(t)) if any(g.kind == "hold" for g in glitches) else
-        np.empty(0, dtype=np.bool_),
+        np.ascontiguousarray(changes.hold_mask(t))
+        if any(g.kind == "hold" for g in glitches)
+        else np.empty(0, dtype=np.bool_),
         np.ascontiguousarray(changes.velocity_noise_m_s(t)) if changes.velocity_noise is not None else none2,
         none1,
-    )  # fmt: skip
+    )
 
 
 @kernel(inline=True)
@@ -385,6 +398,7 @@ def sensor_glitches(changes, k):
     noise = changes.velocity_noise_m_s[k] if changes.velocity_noise_m_s.shape[0] > 0 else changes.none
     hold = changes.hold.shape[0] > 0 and changes.hold[k]
     return offset, hold, noise
+
 
 __all__ = [
     "CoggingRipple",

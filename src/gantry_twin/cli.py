@@ -123,8 +123,9 @@ def build_parser() -> argparse.ArgumentParser:
     _add_controller(monitor)
     _add_set(monitor)
     _add_out(monitor)
-    monitor.add_argument("--fail-on-alarm", action="store_true",
-                         help=f"exit with status {EXIT_ALARM} if the monitor raised any alarm")
+    monitor.add_argument(
+        "--fail-on-alarm", action="store_true", help=f"exit with status {EXIT_ALARM} if the monitor raised any alarm"
+    )
     _add_progress(monitor)
     add_telemetry_arguments(monitor)
 
@@ -280,16 +281,21 @@ def format_summary(data: dict[str, Any], wall_time_s: float, out: Path | None = 
 def format_health(health: dict[str, Any]) -> list[str]:
     """The health monitor's alarms and per-parameter status, for the printed summary."""
     alarms = health["alarms"]
-    lines = [f"health: {len(alarms)} alarm{'' if len(alarms) == 1 else 's'}"
-             + (f" (baseline: {health['baseline']['source']})" if "baseline" in health else "")]  # fmt: skip
+    lines = [
+        f"health: {len(alarms)} alarm{'' if len(alarms) == 1 else 's'}"
+        + (f" (baseline: {health['baseline']['source']})" if "baseline" in health else "")
+    ]
     for a in alarms:  # summary.json's alarms hold exactly an Alarm's fields
         cleared = "" if a["cleared_s"] is None else f", cleared at {a['cleared_s']:.2f} s"
         lines.append(f"  ALARM {Alarm(**a).describe()}{cleared}")
     status = health["status"]
     if status:
         lines.append("  status at the end: " + ", ".join(f"{n} {s}" for n, s in status.items()))
-    ex = ", ".join(f"{axis} {e['level_v_final']:.3g} V" for axis, e in health["excitation"].items()
-                   if e["level_v_final"] is not None)
+    ex = ", ".join(
+        f"{axis} {e['level_v_final']:.3g} V"
+        for axis, e in health["excitation"].items()
+        if e["level_v_final"] is not None
+    )
     if ex:
         lines.append(f"  excitation level at the end (sqrt lambda_min, eq. 29): {ex}")
     return lines

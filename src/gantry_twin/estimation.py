@@ -156,9 +156,15 @@ class ProjectionWork(NamedTuple):
 def projection_work(p: int) -> ProjectionWork:
     """Preallocated scratch for :func:`project_metric_into`."""
     return ProjectionWork(
-        np.zeros(p), np.zeros(p), np.zeros(p, dtype=np.int64), np.zeros(p, dtype=np.int64),
-        np.zeros((p, p)), np.zeros(p), np.zeros(p), np.zeros((p, p)),
-    )  # fmt: skip
+        np.zeros(p),
+        np.zeros(p),
+        np.zeros(p, dtype=np.int64),
+        np.zeros(p, dtype=np.int64),
+        np.zeros((p, p)),
+        np.zeros(p),
+        np.zeros(p),
+        np.zeros((p, p)),
+    )
 
 
 @kernel
@@ -295,10 +301,22 @@ def least_squares_work(p: int, m: int, gamma: np.ndarray | None = None) -> Least
     eigvecs = np.zeros((2, p))
     eigvecs[0, order[0]] = eigvecs[1, order[1]] = 1.0
     return LeastSquaresWork(
-        np.zeros((p, m)), np.zeros(m), np.zeros(p), np.zeros(p), np.zeros((m, m)), np.zeros(m), np.zeros((m, p)),
-        np.array([np.inf]), eigvecs, np.zeros((2, p)), np.zeros((p, p)), np.zeros(p), np.zeros(p), np.zeros(p),
+        np.zeros((p, m)),
+        np.zeros(m),
+        np.zeros(p),
+        np.zeros(p),
+        np.zeros((m, m)),
+        np.zeros(m),
+        np.zeros((m, p)),
+        np.array([np.inf]),
+        eigvecs,
+        np.zeros((2, p)),
+        np.zeros((p, p)),
+        np.zeros(p),
+        np.zeros(p),
+        np.zeros(p),
         projection_work(p),
-    )  # fmt: skip
+    )
 
 
 @kernel(inline=True)
@@ -320,8 +338,23 @@ def least_squares_update(theta, gamma, g, target, nu, kappa, rho_max, lower, upp
     accuracy EIGENVALUE_TOLERANCE, certified).
     """
     p, m = g.shape
-    gamma_g, zeta, tau, y, inner, column, solved, lambda_bound, eigvecs, eig_scratch, tridiagonal, diag, off, scratch, \
-        projection = work
+    (
+        gamma_g,
+        zeta,
+        tau,
+        y,
+        inner,
+        column,
+        solved,
+        lambda_bound,
+        eigvecs,
+        eig_scratch,
+        tridiagonal,
+        diag,
+        off,
+        scratch,
+        projection,
+    ) = work
     trace = 0.0
     for i in range(p):
         for j in range(m):
@@ -397,7 +430,15 @@ def least_squares_step(
     g = np.ascontiguousarray(regressor, dtype=float)
     work = least_squares_work(g.shape[0], g.shape[1], gamma)
     return least_squares_update(
-        theta, gamma, g, np.asarray(target, dtype=float), float(settings.nu), float(settings.kappa),
-        float(settings.rho_max), np.asarray(lower, dtype=float), np.asarray(upper, dtype=float),
-        float(sample_period_s), work,
-    )  # fmt: skip
+        theta,
+        gamma,
+        g,
+        np.asarray(target, dtype=float),
+        float(settings.nu),
+        float(settings.kappa),
+        float(settings.rho_max),
+        np.asarray(lower, dtype=float),
+        np.asarray(upper, dtype=float),
+        float(sample_period_s),
+        work,
+    )

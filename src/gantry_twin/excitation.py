@@ -91,8 +91,9 @@ class FilteredRegressors:
     def __init__(self, settings: FilterSettings, sample_period_s: float) -> None:
         self.ts = sample_period_s
         self.slope = settings.friction_slope_s_m
-        self.discs = [discretise_filter(2.0 * np.pi * hz, settings.filter_zeta, sample_period_s)
-                      for hz in settings.filter_hz]
+        self.discs = [
+            discretise_filter(2.0 * np.pi * hz, settings.filter_zeta, sample_period_s) for hz in settings.filter_hz
+        ]
         self.z = np.zeros((2, 2, 3))  # axis, state [w_f, w_f'], signal (q, Sf, 1)
         self.previous_q = np.zeros(2)
         self.seen = 0

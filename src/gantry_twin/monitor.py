@@ -167,7 +167,6 @@ class Baseline:
         return dict(zip(THETA_NAMES, self.theta, strict=True))
 
 
-
 # ---------------------------------------------------------------------------------------------
 # Results
 # ---------------------------------------------------------------------------------------------
@@ -189,8 +188,10 @@ class Alarm:
 
     def describe(self) -> str:
         pct = "" if self.change_pct is None else f" ({self.change_pct:+.1f} %)"
-        return (f"t = {self.time_s:.2f} s: {self.parameter} {self.direction} {self.change:+.4g} {self.unit}{pct}: "
-                f"estimate {self.estimate:.4g}, baseline {self.baseline:.4g}")
+        return (
+            f"t = {self.time_s:.2f} s: {self.parameter} {self.direction} {self.change:+.4g} {self.unit}{pct}: "
+            f"estimate {self.estimate:.4g}, baseline {self.baseline:.4g}"
+        )
 
 
 @dataclass
@@ -228,8 +229,10 @@ class MonitorReport:
         """Seconds each parameter spent in each status."""
         if self.status is None:
             return {}
-        return {n: {s: float(np.sum(self.status[:, j] == c) * period_s) for c, s in enumerate(STATUS_NAMES)}
-                for j, n in enumerate(THETA_NAMES)}
+        return {
+            n: {s: float(np.sum(self.status[:, j] == c) * period_s) for c, s in enumerate(STATUS_NAMES)}
+            for j, n in enumerate(THETA_NAMES)
+        }
 
 
 # ---------------------------------------------------------------------------------------------
@@ -245,8 +248,12 @@ class MachineMonitor:
     monitor period (``period_s``), not per sample.
     """
 
-    def __init__(self, excitation: ExcitationSettings | None = None, health: HealthSettings | None = None,
-                 baseline: Baseline | None = None) -> None:
+    def __init__(
+        self,
+        excitation: ExcitationSettings | None = None,
+        health: HealthSettings | None = None,
+        baseline: Baseline | None = None,
+    ) -> None:
         self.excitation = excitation or ExcitationSettings()
         self.health = health or HealthSettings()
         self.given_baseline = baseline
@@ -280,8 +287,14 @@ class MachineMonitor:
             infos[i] = self._window_information()
         level, param = normalised_excitation(infos, self._scale, self._window_s)
         for i, end in enumerate(ends):
-            self._close_period(float(trace.t_s[end]), infos[i], level[i], param[i], block_moving[i],
-                               None if theta is None else theta[end])
+            self._close_period(
+                float(trace.t_s[end]),
+                infos[i],
+                level[i],
+                param[i],
+                block_moving[i],
+                None if theta is None else theta[end],
+            )
 
     def on_end(self, trace) -> None:
         """Nothing to flush: a last, incomplete period is not reported."""
@@ -307,9 +320,14 @@ class MachineMonitor:
             return np.array(h[key], dtype=float).reshape((-1, *shape))
 
         report = MonitorReport(
-            t_s=np.array(h["t"]), information=stack("info", (2, 4, 4)), level_v=stack("level", (2,)),
-            parameter_v=stack("param", (8,)), moving=stack("moving", (2,)),
-            excited=stack("excited", (8,)).astype(bool), alarms=list(self._alarms), baseline=self._baseline,
+            t_s=np.array(h["t"]),
+            information=stack("info", (2, 4, 4)),
+            level_v=stack("level", (2,)),
+            parameter_v=stack("param", (8,)),
+            moving=stack("moving", (2,)),
+            excited=stack("excited", (8,)).astype(bool),
+            alarms=list(self._alarms),
+            baseline=self._baseline,
         )
         if h["estimate"]:
             report.estimate = stack("estimate", (8,))
@@ -341,8 +359,10 @@ class MachineMonitor:
         self._alarmed = np.zeros(8, dtype=bool)
         self._alarms: list[Alarm] = []
         self._open_alarm: dict[int, int] = {}
-        self._hist: dict[str, list] = {k: [] for k in ("t", "info", "level", "param", "moving", "excited",
-                                                       "estimate", "deviation", "cusum", "status")}
+        self._hist: dict[str, list] = {
+            k: []
+            for k in ("t", "info", "level", "param", "moving", "excited", "estimate", "deviation", "cusum", "status")
+        }
         self._ready = True
 
     def _window_information(self) -> np.ndarray:
@@ -351,8 +371,15 @@ class MachineMonitor:
         order = (self._ring_at - count + np.arange(count)) % self._n_window
         return self._ring[order].sum(axis=0)
 
-    def _close_period(self, t: float, info: np.ndarray, level: np.ndarray, param: np.ndarray, moving: np.ndarray,
-                      theta: np.ndarray | None) -> None:
+    def _close_period(
+        self,
+        t: float,
+        info: np.ndarray,
+        level: np.ndarray,
+        param: np.ndarray,
+        moving: np.ndarray,
+        theta: np.ndarray | None,
+    ) -> None:
         ex = self.excitation
         excited = (param >= ex.min_parameter_v) & (moving[AXIS_OF] >= ex.min_moving_fraction)
         h = self._hist
@@ -374,8 +401,10 @@ class MachineMonitor:
                 self._baseline_sum += theta
                 self._baseline_count += 1
             elif t >= b - half and self._baseline_count:
-                self._baseline = Baseline(tuple(float(x) for x in self._baseline_sum / self._baseline_count),
-                                          f"this run, mean over {a:g}-{b:g} s")
+                self._baseline = Baseline(
+                    tuple(float(x) for x in self._baseline_sum / self._baseline_count),
+                    f"this run, mean over {a:g}-{b:g} s",
+                )
         status = np.full(8, BASELINE, dtype=np.int8)
         deviation = np.zeros(8)
         judging = self._baseline is not None and t >= hs.judge_start_s - half
@@ -423,16 +452,20 @@ class MachineMonitor:
         change = float(estimate - base)
         pct = None if j in ABSOLUTE_PARAMETERS else 100.0 * change / base
         self._open_alarm[j] = len(self._alarms)
-        self._alarms.append(Alarm(THETA_NAMES[j], t, "up" if side == 0 else "down", float(estimate), base,
-                                  change, pct, THETA_UNITS[j]))
+        self._alarms.append(
+            Alarm(THETA_NAMES[j], t, "up" if side == 0 else "down", float(estimate), base, change, pct, THETA_UNITS[j])
+        )
 
 
-def monitor_trace(trace, excitation: ExcitationSettings | None = None, health: HealthSettings | None = None,
-                  baseline: Baseline | None = None) -> MonitorReport:
+def monitor_trace(
+    trace,
+    excitation: ExcitationSettings | None = None,
+    health: HealthSettings | None = None,
+    baseline: Baseline | None = None,
+) -> MonitorReport:
     """Run the monitor offline over a finished trace (same result as the Observer)."""
     monitor = MachineMonitor(excitation, health, baseline)
     monitor.on_start(None, trace)
     monitor.on_chunk(trace, 0, trace.filled or trace.t_s.size)
     monitor.on_end(trace)
     return monitor.report()
-

@@ -198,9 +198,19 @@ def contour_error(
     guess = np.ascontiguousarray(phi_guess, dtype=float)
     if isinstance(path, Ellipse) and q.ndim == 2:
         eps, phi = np.empty(guess.shape[0]), np.empty(guess.shape[0])
-        ellipse_contour_error(float(path.semi_x_m), float(path.semi_y_m), float(path.centre_m[0]),
-                              float(path.centre_m[1]), q, guess, 0.25 * path.period_rad, int(iterations),
-                              float(tolerance_rad), eps, phi)  # fmt: skip
+        ellipse_contour_error(
+            float(path.semi_x_m),
+            float(path.semi_y_m),
+            float(path.centre_m[0]),
+            float(path.centre_m[1]),
+            q,
+            guess,
+            0.25 * path.period_rad,
+            int(iterations),
+            float(tolerance_rad),
+            eps,
+            phi,
+        )
         return eps, phi
     phi = guess.copy()
     limit = 0.25 * path.period_rad
@@ -223,8 +233,9 @@ def contour_error(
 
 
 @kernel
-def ellipse_contour_error(semi_x, semi_y, centre_x, centre_y, q, phi_guess, limit, iterations, tolerance_rad, eps_c,
-                          phi):  # fmt: skip
+def ellipse_contour_error(
+    semi_x, semi_y, centre_x, centre_y, q, phi_guess, limit, iterations, tolerance_rad, eps_c, phi
+):
     """:func:`contour_error` for the ellipse p = centre + [a sin phi, -b cos phi], samples q (n, 2) m.
 
     Each Newton iteration updates every sample, and the search stops when

@@ -62,8 +62,9 @@ class Payload:
     offset_m: PayloadOffset = (0.0, 0.0, 0.05)
 
 
-def build_spec(payload: Payload | None = None, model_path: Path | None = None,
-               payload_body: bool = False) -> mujoco.MjSpec:
+def build_spec(
+    payload: Payload | None = None, model_path: Path | None = None, payload_body: bool = False
+) -> mujoco.MjSpec:
     """The gantry as an editable MjSpec, with a payload body if one is given.
 
     payload_body: add the body even for a 0 kg payload (MuJoCo accepts a
@@ -97,8 +98,9 @@ def build_spec(payload: Payload | None = None, model_path: Path | None = None,
 class Plant:
     """The compiled gantry: model, data and the named indices the twin needs."""
 
-    def __init__(self, payload: Payload | None = None, model_path: Path | None = None,
-                 payload_body: bool = False) -> None:
+    def __init__(
+        self, payload: Payload | None = None, model_path: Path | None = None, payload_body: bool = False
+    ) -> None:
         """payload_body: always build the payload body (even at 0 kg) so its mass can change during a run."""
         self.payload = payload or Payload()
         self.spec = build_spec(self.payload, model_path, payload_body)

@@ -66,10 +66,14 @@ def _type_error(value: Any, kind: str, allowed: str = "", article: str = "a") ->
     """A ``kind`` (e.g. "number") in ``allowed`` was expected, and ``value`` is none."""
     where = f" in {allowed}" if allowed else ""
     if isinstance(value, bool):
-        return PydanticCustomError("range", "must be {kind}, not a boolean{where}",
-                                   {"kind": f"{article} {kind}", "where": f"; allowed: {allowed}" if allowed else ""})
-    return PydanticCustomError("range", "must be a valid {kind}{where}, got {value}",
-                               {"kind": kind, "where": where, "value": repr(value)})
+        return PydanticCustomError(
+            "range",
+            "must be {kind}, not a boolean{where}",
+            {"kind": f"{article} {kind}", "where": f"; allowed: {allowed}" if allowed else ""},
+        )
+    return PydanticCustomError(
+        "range", "must be a valid {kind}{where}, got {value}", {"kind": kind, "where": where, "value": repr(value)}
+    )
 
 
 def Range(lo: float | None, hi: float | None, unit: str = "", *, lo_open: bool = False) -> Any:  # noqa: N802
@@ -98,8 +102,9 @@ def Count(lo: int, hi: int) -> Any:  # noqa: N802
         if isinstance(value, bool) or not whole:
             raise _type_error(value, "integer", f"[{lo}, {hi}]", "an")
         if not lo <= int(value) <= hi:
-            raise PydanticCustomError("range", "must be an integer in [{lo}, {hi}], got {value}",
-                                      {"lo": lo, "hi": hi, "value": int(value)})  # fmt: skip
+            raise PydanticCustomError(
+                "range", "must be an integer in [{lo}, {hi}], got {value}", {"lo": lo, "hi": hi, "value": int(value)}
+            )
         return int(value)
 
     return Annotated[int, BeforeValidator(check)]
@@ -121,16 +126,18 @@ def Vector(component: Any, names: Sequence[str]) -> Any:  # noqa: N802
             raise PydanticCustomError("range", "must be {count}, got {value}", {"count": count, "value": repr(value)})
         if len(value) != len(names):
             few = "too few items" if len(value) < len(names) else "too many items"
-            raise PydanticCustomError("range", "{few}: must be {count}, got {n}",
-                                      {"few": few, "count": count, "n": len(value)})  # fmt: skip
+            raise PydanticCustomError(
+                "range", "{few}: must be {count}, got {n}", {"few": few, "count": count, "n": len(value)}
+            )
         out = []
         for i, x in enumerate(value):
             try:
                 out.append(adapters[i].validate_python(x))
             except ValidationError as exc:
                 error = exc.errors()[0]
-                raise PydanticCustomError(error["type"], "{message}",
-                                          {"message": error["msg"], "component": i, "name": names[i]}) from None
+                raise PydanticCustomError(
+                    error["type"], "{message}", {"message": error["msg"], "component": i, "name": names[i]}
+                ) from None
         return tuple(out)
 
     return Annotated[tuple[Any, ...], BeforeValidator(check)]
@@ -189,12 +196,16 @@ T = TypeVar("T")
 def known_keys(cls: type, data: Any) -> Any:
     """Unknown keys of a mapping are an error that lists the allowed keys."""
     if isinstance(data, dict):
-        allowed = [f.name for f in fields(cls) if f.init] if hasattr(cls, "__dataclass_fields__") else list(
-            cls.model_fields)  # fmt: skip
+        allowed = (
+            [f.name for f in fields(cls) if f.init] if hasattr(cls, "__dataclass_fields__") else list(cls.model_fields)
+        )
         for key in data:
             if key not in allowed:
-                raise PydanticCustomError("unknown_key", "unknown key '{key}'; allowed: {allowed}",
-                                          {"key": key, "allowed": ", ".join(allowed)})  # fmt: skip
+                raise PydanticCustomError(
+                    "unknown_key",
+                    "unknown key '{key}'; allowed: {allowed}",
+                    {"key": key, "allowed": ", ".join(allowed)},
+                )
     return data
 
 

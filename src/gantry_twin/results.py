@@ -113,11 +113,19 @@ def health_summary(report: Any) -> dict[str, Any]:
     """The ``health`` section: alarms, status per parameter, excitation per axis (docs/health.md)."""
     period = float(report.t_s[1] - report.t_s[0]) if report.t_s.size > 1 else 0.0
     alarms = [
-        {"parameter": a.parameter, "time_s": a.time_s, "direction": a.direction, "change_pct": a.change_pct,
-         "change": a.change, "unit": a.unit, "estimate": a.estimate, "baseline": a.baseline,
-         "cleared_s": a.cleared_s}
+        {
+            "parameter": a.parameter,
+            "time_s": a.time_s,
+            "direction": a.direction,
+            "change_pct": a.change_pct,
+            "change": a.change,
+            "unit": a.unit,
+            "estimate": a.estimate,
+            "baseline": a.baseline,
+            "cleared_s": a.cleared_s,
+        }
         for a in report.alarms
-    ]  # fmt: skip
+    ]
     excitation = {}
     for i, axis in enumerate(AXES):
         level = report.level_v[:, i] if report.level_v.size else np.zeros(0)
@@ -125,7 +133,8 @@ def health_summary(report: Any) -> dict[str, Any]:
             "level_v_final": float(level[-1]) if level.size else None,
             "level_v_min": float(level.min()) if level.size else None,
             "excited_fraction": float(report.excited[:, [j for j in range(8) if j % 2 == i]].all(axis=1).mean())
-            if level.size else 0.0,
+            if level.size
+            else 0.0,
         }
     out: dict[str, Any] = {
         "alarms": alarms,

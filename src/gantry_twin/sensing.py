@@ -116,20 +116,38 @@ class Encoder:
     def __init__(self, config: SensingConfig, sample_period_s: float) -> None:
         self.config = config
         self.sample_period_s = sample_period_s
-        self.state = EncoderState(bool(config.quantize), float(config.resolution_m),
-                                  bool(config.velocity_by_difference), float(sample_period_s), np.zeros(2))  # fmt: skip
+        self.state = EncoderState(
+            bool(config.quantize),
+            float(config.resolution_m),
+            bool(config.velocity_by_difference),
+            float(sample_period_s),
+            np.zeros(2),
+        )
 
     def reset(self, q_m: np.ndarray, dq_m_s: np.ndarray) -> None:
         """Start as if the machine had been moving at dq before t = 0."""
         reference(encoder_reset)(self.state, _vec(q_m), _vec(dq_m_s))
 
-    def measure(self, q_m: np.ndarray, dq_m_s: np.ndarray, offset_m: np.ndarray | None = None, hold: bool = False,
-                velocity_noise_m_s: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def measure(
+        self,
+        q_m: np.ndarray,
+        dq_m_s: np.ndarray,
+        offset_m: np.ndarray | None = None,
+        hold: bool = False,
+        velocity_noise_m_s: np.ndarray | None = None,
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Measured (position m, velocity m/s) from the true joint state (see :func:`encoder_measure`)."""
         position, velocity = np.zeros(2), np.zeros(2)
-        reference(encoder_measure)(self.state, _vec(q_m), _vec(dq_m_s), _NONE if offset_m is None else _vec(offset_m),
-                                   bool(hold), _NONE if velocity_noise_m_s is None else _vec(velocity_noise_m_s),
-                                   position, velocity)  # fmt: skip
+        reference(encoder_measure)(
+            self.state,
+            _vec(q_m),
+            _vec(dq_m_s),
+            _NONE if offset_m is None else _vec(offset_m),
+            bool(hold),
+            _NONE if velocity_noise_m_s is None else _vec(velocity_noise_m_s),
+            position,
+            velocity,
+        )
         return position, velocity
 
 

@@ -70,8 +70,13 @@ Disturbance = Callable[[np.ndarray], np.ndarray]
 
 def _finish_chunk(trace: Trace, ref: Reference, path: Path, start: int, stop: int) -> None:
     """Derived errors for samples [start, stop): e, eps_n and the true eps_c."""
-    normal_errors(ref.alpha[start:stop], trace.q_m[start:stop], ref.q_d[start:stop], trace.e_m[start:stop],
-                  trace.eps_n_m[start:stop])  # fmt: skip
+    normal_errors(
+        ref.alpha[start:stop],
+        trace.q_m[start:stop],
+        ref.q_d[start:stop],
+        trace.e_m[start:stop],
+        trace.eps_n_m[start:stop],
+    )
     trace.eps_c_m[start:stop], _ = contour_error(path, trace.q_m[start:stop], ref.phi[start:stop])
     trace.filled = stop
 
@@ -296,8 +301,10 @@ def simulate(
         raise ValueError(f"backend must be 'auto', 'compiled' or 'reference', got {backend!r}")
     compiled_step = compiled_step_of(controller)
     if backend == "compiled" and compiled_step is None:
-        raise ValueError(f"backend 'compiled' runs only controllers that offer a compiled step "
-                         f"(gantry_twin.controllers.base); {type(controller).__name__} does not")  # fmt: skip
+        raise ValueError(
+            f"backend 'compiled' runs only controllers that offer a compiled step "
+            f"(gantry_twin.controllers.base); {type(controller).__name__} does not"
+        )
     if backend == "compiled" and not compiled_available():
         raise RuntimeError("backend 'compiled': MuJoCo's shared library was not found next to the mujoco module")
     compiled = backend == "compiled" or (backend == "auto" and compiled_step is not None and compiled_available())
@@ -355,8 +362,16 @@ def _bad_command(t_s: float, command: np.ndarray) -> SimulationError:
 class _Loop:
     """One run's chunk function and its arguments: compiled (a compiled step) or the reference loop."""
 
-    def __init__(self, plant: Plant, encoder: Encoder, controller: Controller, trace: Trace, rows: np.ndarray,
-                 changes: ChangeSchedule, compiled: CompiledStep | None) -> None:  # fmt: skip
+    def __init__(
+        self,
+        plant: Plant,
+        encoder: Encoder,
+        controller: Controller,
+        trace: Trace,
+        rows: np.ndarray,
+        changes: ChangeSchedule,
+        compiled: CompiledStep | None,
+    ) -> None:
         self.trace = trace
         t = trace.t_s
         u_max = np.ascontiguousarray(plant.ctrl_range_v[:, 1], dtype=float)
@@ -364,16 +379,25 @@ class _Loop:
         sensor = encoder.state._replace(previous_m=encoder.state.previous_m.copy())
         position, velocity = np.zeros(2), np.zeros(2)
         glitches = uncompiled(sensor_glitches)(changes, 0)
-        if not uncompiled(encoder_measure)(encoder.state, plant.q_m.copy(), plant.dq_m_s.copy(), *glitches, position,
-                                           velocity):  # fmt: skip
+        if not uncompiled(encoder_measure)(
+            encoder.state, plant.q_m.copy(), plant.dq_m_s.copy(), *glitches, position, velocity
+        ):
             raise _bad_measurement(t[0], position, velocity)
         controller.reset(RunContext(plant.timestep_s, u_max.copy(), Measurement(float(t[0]), position, velocity)))
 
         data = plant.data
-        self.plant = PlantIO(plant.model._address, data._address, data.qpos, data.qvel, data.ctrl,
-                             *(np.ascontiguousarray(i, dtype=np.int64) for i in (
-                                 plant.qpos_index, plant.dof_index, plant.motor_index, plant.disturbance_index)),
-                             u_max)  # fmt: skip
+        self.plant = PlantIO(
+            plant.model._address,
+            data._address,
+            data.qpos,
+            data.qvel,
+            data.ctrl,
+            *(
+                np.ascontiguousarray(i, dtype=np.int64)
+                for i in (plant.qpos_index, plant.dof_index, plant.motor_index, plant.disturbance_index)
+            ),
+            u_max,
+        )
         self.encoder, self.changes = sensor, changes
         if compiled is not None:
             self.params, self.state = controller.kernel_arguments()
@@ -390,8 +414,9 @@ class _Loop:
 
     def run(self, start: int, stop: int) -> None:
         """Samples [start, stop); SimulationError on a non-finite measurement or command."""
-        status, k = self.function(start, stop, self.plant, self.encoder, self.recording, self.sample, self.changes,
-                                  self.params, self.state)  # fmt: skip
+        status, k = self.function(
+            start, stop, self.plant, self.encoder, self.recording, self.sample, self.changes, self.params, self.state
+        )
         t = self.trace.t_s
         if status == STATUS_BAD_MEASUREMENT:
             raise _bad_measurement(t[k], self.sample.position.copy(), self.sample.velocity.copy())
@@ -402,8 +427,9 @@ class _Loop:
 def _python_chunk(plant: Plant, controller: Controller, trace: Trace) -> Callable[..., tuple[int, int]]:
     """The chunk function run by the interpreter: ``update()`` as the step, ``state_for_logging`` as the log."""
 
-    def step(params: None, state: None, t_s: float, q_m: np.ndarray, dq_m_s: np.ndarray, ref: np.ndarray,
-             u_v: np.ndarray) -> None:  # fmt: skip
+    def step(
+        params: None, state: None, t_s: float, q_m: np.ndarray, dq_m_s: np.ndarray, ref: np.ndarray, u_v: np.ndarray
+    ) -> None:
         measurement = Measurement(float(t_s), q_m.copy(), dq_m_s.copy())
         command = np.asarray(controller.update(measurement, ReferenceSample.from_row(ref)), dtype=float)
         if command.shape != (2,):
@@ -417,6 +443,10 @@ def _python_chunk(plant: Plant, controller: Controller, trace: Trace) -> Callabl
         mujoco.mj_step(plant.model, plant.data)
 
     record_and_step = specialise(_record_and_step, "python", {"mj_step": python_mj_step}, compiled=False)
-    bindings = {"controller_step": step, "controller_log": lambda params, state, out: None,
-                "_record_log": record_log, "_record_and_step": record_and_step}  # fmt: skip
+    bindings = {
+        "controller_step": step,
+        "controller_log": lambda params, state, out: None,
+        "_record_log": record_log,
+        "_record_and_step": record_and_step,
+    }
     return specialise(_run_chunk, "python", bindings, compiled=False)

@@ -17,6 +17,10 @@ around the shared :func:`_law`: ``update()`` runs the plain-Python
 reference version, and each class offers the compiled one to the loop
 through the plug-in protocol (``compiled``, ``kernel_arguments``; see
 :mod:`gantry_twin.controllers.base`) like any other controller.
+
+The module runs past 500 lines because the three controllers' settings,
+state and steps share the law and DIARC's estimator kernels: splitting them
+would put the paper's section 4 in two files.
 """
 
 from __future__ import annotations
@@ -226,17 +230,27 @@ def estimator_update(params, theta, est, q_m, dq_m_s, u_previous_v):
     if clock[CLOCK_TIME_S] < ep.settle_s:
         return
     clock[CLOCK_LAMBDA_MAX] = least_squares_update(
-        theta, est.gamma, est.regression, est.u_f, ep.nu, ep.kappa, ep.rho_max,
-        params.lower, params.upper, params.sample_period_s, est.work,
-    )  # fmt: skip
+        theta,
+        est.gamma,
+        est.regression,
+        est.u_f,
+        ep.nu,
+        ep.kappa,
+        ep.rho_max,
+        params.lower,
+        params.upper,
+        params.sample_period_s,
+        est.work,
+    )
 
 
 @kernel(inline=True)
 def _law(params, state, q_m, dq_m_s, ref, u_v):
     """The shared law (eq. 13-14, 17, 21) with this controller's theta^ and dc^; the command into u_v (2,) V."""
     law = state.law
-    arc_law(q_m, dq_m_s, ref, state.theta, state.dc, params.lam, params.ks, params.friction_slope_s_m, params.u_max_v,
-            law)  # fmt: skip
+    arc_law(
+        q_m, dq_m_s, ref, state.theta, state.dc, params.lam, params.ks, params.friction_slope_s_m, params.u_max_v, law
+    )
     u_v[0] = law.u_v[0]
     u_v[1] = law.u_v[1]
 
@@ -297,6 +311,7 @@ def log_diarc(params, state, out):
     out[9] = dc[1]
     out[18] = state.estimator.clock[CLOCK_LAMBDA_MAX]
 
+
 class IndirectEstimator:
     """Filtered regression (eq. 25) and least squares (eq. 27-28) for both axes.
 
@@ -330,9 +345,14 @@ class IndirectEstimator:
         gamma = np.diag(np.asarray(ls.gamma0_diag, dtype=float))
         clock = np.array([0.0, 0.0, float(np.max(ls.gamma0_diag))])
         self.state = EstimatorState(
-            gamma, np.zeros((2, 2, 4)), np.zeros(2), clock, np.zeros((8, 2)), np.zeros(2),
+            gamma,
+            np.zeros((2, 2, 4)),
+            np.zeros(2),
+            clock,
+            np.zeros((8, 2)),
+            np.zeros(2),
             least_squares_work(8, 2, gamma),
-        )  # fmt: skip
+        )
 
     @property
     def gamma(self) -> np.ndarray:
@@ -391,8 +411,15 @@ class ArcController:
     def _fresh_state(self, estimator: IndirectEstimator | None) -> ArcState:
         if estimator is None:
             gamma = np.zeros((8, 8))
-            est = EstimatorState(gamma, np.zeros((2, 2, 4)), np.zeros(2), np.zeros(3), np.zeros((8, 2)), np.zeros(2),
-                                 least_squares_work(8, 2))  # fmt: skip
+            est = EstimatorState(
+                gamma,
+                np.zeros((2, 2, 4)),
+                np.zeros(2),
+                np.zeros(3),
+                np.zeros((8, 2)),
+                np.zeros(2),
+                least_squares_work(8, 2),
+            )
         else:
             est = estimator.state
         return ArcState(np.array(self.gains.theta0, dtype=float), np.zeros(2), np.zeros(2), est, law_work())
@@ -423,8 +450,9 @@ class ArcController:
     def update(self, measurement: Measurement, reference: ReferenceSample) -> np.ndarray:
         params, state = self.kernel_arguments()
         u_v = np.zeros(2)
-        uncompiled(type(self).compiled.step)(params, state, float(measurement.t_s), _vec(measurement.q_m),
-                                                 _vec(measurement.dq_m_s), reference.row(), u_v)  # fmt: skip
+        uncompiled(type(self).compiled.step)(
+            params, state, float(measurement.t_s), _vec(measurement.q_m), _vec(measurement.dq_m_s), reference.row(), u_v
+        )
         return u_v
 
     def state_for_logging(self) -> dict[str, np.ndarray]:
@@ -477,8 +505,13 @@ class DIARC(ArcController):
         self.u_max_v = np.asarray(context.u_max_v, dtype=float)
         self.estimator = IndirectEstimator(self.estimator_settings, self.gains, self.sample_period_s)
         self.state = self._fresh_state(self.estimator)
-        self.params = _arc_params(self.gains, self.sample_period_s, self.u_max_v,
-                                  settings=self.estimator_settings, estimator=self.estimator.params)  # fmt: skip
+        self.params = _arc_params(
+            self.gains,
+            self.sample_period_s,
+            self.u_max_v,
+            settings=self.estimator_settings,
+            estimator=self.estimator.params,
+        )
 
     @property
     def dc(self) -> np.ndarray:
@@ -488,7 +521,6 @@ class DIARC(ArcController):
     @property
     def u_previous_v(self) -> np.ndarray:
         return self.state.u_previous_v
-
 
 
 def _gain_fields(gains: ArcGains) -> dict[str, object]:

@@ -109,8 +109,17 @@ class LawWork(NamedTuple):
 def law_work() -> LawWork:
     """A zeroed :class:`LawWork`."""
     z2 = np.zeros(2)
-    return LawWork(np.zeros((2, 2)), np.zeros((2, 2)), np.zeros((2, 2)), z2.copy(), z2.copy(), z2.copy(), z2.copy(),
-                   np.zeros((2, 8)), z2.copy())  # fmt: skip
+    return LawWork(
+        np.zeros((2, 2)),
+        np.zeros((2, 2)),
+        np.zeros((2, 2)),
+        z2.copy(),
+        z2.copy(),
+        z2.copy(),
+        z2.copy(),
+        np.zeros((2, 8)),
+        z2.copy(),
+    )
 
 
 @kernel

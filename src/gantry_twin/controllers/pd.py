@@ -84,8 +84,9 @@ class PD:
         def arr(x: tuple[float, float]) -> np.ndarray:
             return np.asarray(x, dtype=float).copy()
 
-        return PDParams(arr(self.kp_v_m), arr(self.kd_v_s_m), arr(self.kv_v_s_m), arr(self.ka_v_s2_m),
-                        self._u_max_v.copy()), ()  # fmt: skip
+        return PDParams(
+            arr(self.kp_v_m), arr(self.kd_v_s_m), arr(self.kv_v_s_m), arr(self.ka_v_s2_m), self._u_max_v.copy()
+        ), ()
 
     def reset(self, context: RunContext) -> None:
         self._u_max_v = np.asarray(context.u_max_v, dtype=float)
@@ -93,8 +94,13 @@ class PD:
     def update(self, measurement: Measurement, reference: ReferenceSample) -> np.ndarray:
         u = np.zeros(2)
         params, _ = self.kernel_arguments()
-        uncompiled(pd_step)(params, np.asarray(measurement.q_m, dtype=float),
-                                np.asarray(measurement.dq_m_s, dtype=float), reference.row(), u)  # fmt: skip
+        uncompiled(pd_step)(
+            params,
+            np.asarray(measurement.q_m, dtype=float),
+            np.asarray(measurement.dq_m_s, dtype=float),
+            reference.row(),
+            u,
+        )
         return u
 
     def state_for_logging(self) -> dict[str, np.ndarray]:

@@ -61,8 +61,9 @@ def build(scenario: Scenario, source: str = "<scenario>") -> BuiltRun:
         raise ScenarioError(source, "controller.options", f"rejected by {name!r}: {first}") from None
     disturbance = None if scenario.disturbance.empty else scenario.disturbance.function()
     monitor = make_monitor(scenario, controller, source) if scenario.monitor.enable else None
-    return BuiltRun(scenario, plant, path, scenario.timing_law(), controller, scenario.sensing, disturbance, changes,
-                    monitor)  # fmt: skip
+    return BuiltRun(
+        scenario, plant, path, scenario.timing_law(), controller, scenario.sensing, disturbance, changes, monitor
+    )
 
 
 def make_monitor(scenario: Scenario, controller: Controller, source: str = "<scenario>") -> MachineMonitor:
@@ -72,8 +73,9 @@ def make_monitor(scenario: Scenario, controller: Controller, source: str = "<sce
     if filter_hz is None:
         settings = getattr(controller, "estimator_settings", None) or EstimatorSettings()
         filter_hz = settings.filter_hz
-    excitation = ExcitationSettings(window_s=m.excitation_window_s, filter_hz=tuple(filter_hz),
-                                    min_parameter_v=m.min_parameter_v)  # fmt: skip
+    excitation = ExcitationSettings(
+        window_s=m.excitation_window_s, filter_hz=tuple(filter_hz), min_parameter_v=m.min_parameter_v
+    )
     tolerance = tuple([m.tolerance_pct / 100.0] * 6 + [m.tolerance_dn_v] * 2)
     health = HealthSettings(tolerance, m.decision_interval_s, tuple(m.baseline_window_s), m.judge_from_s)
     baseline = None

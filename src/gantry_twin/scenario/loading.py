@@ -140,9 +140,12 @@ def _check_monitor(scenario: Scenario, source: str) -> None:
     m, d = scenario.monitor, scenario.duration_s
     if m.enable and m.baseline_summary is None and m.baseline_window_s[1] > d + 1e-9:
         a, b = m.baseline_window_s
-        raise ScenarioError(source, "monitor.baseline_window_s",
-                            f"must lie inside [0, duration_s = {fmt(d)}] s, got [{fmt(a)}, {fmt(b)}] s "
-                            "(or give monitor.baseline_summary)")  # fmt: skip
+        raise ScenarioError(
+            source,
+            "monitor.baseline_window_s",
+            f"must lie inside [0, duration_s = {fmt(d)}] s, got [{fmt(a)}, {fmt(b)}] s "
+            "(or give monitor.baseline_summary)",
+        )
 
 
 def _check_windows(scenario: Scenario, source: str) -> None:
@@ -202,8 +205,9 @@ def controller_options(scenario: Scenario, source: str = "<scenario>") -> dict[s
     kwargs = {name: getattr(typed, name) for name in given}
     for name, value in kwargs.items():
         if isinstance(value, ArcGains) and not value.theta0_in_bounds():
-            raise ScenarioError(source, f"controller.options.{name}",
-                                "need theta_min <= theta0 <= theta_max element-wise")  # fmt: skip
+            raise ScenarioError(
+                source, f"controller.options.{name}", "need theta_min <= theta0 <= theta_max element-wise"
+            )
     return kwargs
 
 

@@ -160,4 +160,3 @@ def dashboard_blueprint(
         rrb.SelectionPanel(state="collapsed"),
         rrb.TimePanel(state="collapsed"),
     )
-

@@ -122,7 +122,6 @@ def _scalar_column(values: np.ndarray) -> rr.ComponentColumn:
     return rr.ComponentColumn(_SCALARS, _ArrowBatch(pa.array(values.reshape(-1))), offsets=offsets)
 
 
-
 # ---------------------------------------------------------------------------------------------
 # The observer
 
@@ -343,8 +342,12 @@ class RerunObserver:
                 rows = np.array([start, stop - 1])
                 true = np.broadcast_to(trace.true_theta, (2, trace.true_theta.size))
             else:  # plant changes move it: at the 3D marker rate, and the last sample
-                rows = np.unique(np.append(np.arange(-(-start // self._marker_stride) * self._marker_stride, stop,
-                                                     self._marker_stride), stop - 1))
+                rows = np.unique(
+                    np.append(
+                        np.arange(-(-start // self._marker_stride) * self._marker_stride, stop, self._marker_stride),
+                        stop - 1,
+                    )
+                )
                 true = trace.true_theta_t[rows]
             true_times = [_TimeIndex(trace.t_s[rows])]
             for entity, i in self._estimates:
@@ -409,4 +412,3 @@ class RerunObserver:
                     indexes=marker_times,
                     columns=rr.Transform3D.columns(translation=body.translations_m(q)),
                 )
-

@@ -25,9 +25,9 @@ from gantry_twin.trace import RunInfo, Trace
 #: Every server and viewer this module starts listens on the loopback interface only.
 LOCALHOST = "127.0.0.1"
 
+
 class TelemetryError(RuntimeError):
     """Telemetry cannot start; the message is one line, meant for the user."""
-
 
 
 # ---------------------------------------------------------------------------------------------
@@ -174,4 +174,3 @@ class WebViewerServer:
                 self.process.kill()
                 self.process.wait()
         atexit.unregister(self.stop)
-

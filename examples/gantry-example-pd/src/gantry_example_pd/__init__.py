@@ -69,15 +69,17 @@ class ExamplePD:
 
     compiled = CompiledStep(step, log, (("peak_error_m", (2,)),))
 
-    def __init__(self, kp_v_m=(10000.0, 10000.0), kd_v_s_m=(100.0, 100.0), kv_v_s_m=(0.5, 0.7),
-                 ka_v_s2_m=(0.12, 0.5)) -> None:  # fmt: skip
+    def __init__(
+        self, kp_v_m=(10000.0, 10000.0), kd_v_s_m=(100.0, 100.0), kv_v_s_m=(0.5, 0.7), ka_v_s2_m=(0.12, 0.5)
+    ) -> None:
         self.gains = (kp_v_m, kd_v_s_m, kv_v_s_m, ka_v_s2_m)
         self.params = Gains(*(np.asarray(g, dtype=float) for g in self.gains), np.array(U_MAX_V))
         self.state = Memory(np.zeros(2))
 
     def reset(self, context: RunContext) -> None:
-        self.params = Gains(*(np.asarray(g, dtype=float) for g in self.gains),
-                            np.asarray(context.u_max_v, dtype=float).copy())  # fmt: skip
+        self.params = Gains(
+            *(np.asarray(g, dtype=float) for g in self.gains), np.asarray(context.u_max_v, dtype=float).copy()
+        )
         self.state = Memory(np.zeros(2))
 
     def kernel_arguments(self) -> tuple[Gains, Memory]:
@@ -85,8 +87,15 @@ class ExamplePD:
 
     def update(self, measurement: Measurement, reference: ReferenceSample) -> np.ndarray:
         u_v = np.zeros(2)
-        step.py_func(self.params, self.state, measurement.t_s, np.asarray(measurement.q_m, dtype=float),
-                     np.asarray(measurement.dq_m_s, dtype=float), reference.row(), u_v)  # fmt: skip
+        step.py_func(
+            self.params,
+            self.state,
+            measurement.t_s,
+            np.asarray(measurement.q_m, dtype=float),
+            np.asarray(measurement.dq_m_s, dtype=float),
+            reference.row(),
+            u_v,
+        )
         return u_v
 
     def state_for_logging(self) -> dict[str, np.ndarray]:
