@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -50,9 +51,11 @@ print(json.dumps({
 
 @pytest.fixture(scope="module")
 def installed(tmp_path_factory) -> Path:
-    """The example package installed by pip into a temporary directory."""
+    """The example package installed by pip into a temporary directory (built from a copy: setuptools
+    leaves build/ and *.egg-info in the tree it builds)."""
     target = tmp_path_factory.mktemp("site")
-    pip = [sys.executable, "-m", "pip", "install", "--quiet", "--no-deps", "--target", str(target), str(EXAMPLE)]
+    source = shutil.copytree(EXAMPLE, tmp_path_factory.mktemp("example") / EXAMPLE.name)
+    pip = [sys.executable, "-m", "pip", "install", "--quiet", "--no-deps", "--target", str(target), str(source)]
     subprocess.run(pip, check=True, capture_output=True)
     return target
 
