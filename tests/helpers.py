@@ -30,6 +30,8 @@ THETA_MIN = np.array([0.05, 0.45, 0.35, 0.5, 0.05, 0.08, -0.5, -1.0])
 THETA_MAX = np.array([0.20, 0.60, 0.55, 0.8, 0.15, 0.25, 0.5, 1.0])
 #: The DS1103's DAC range, volts (control-spec section 1).
 DAC_LIMIT_V = 10.0
+#: The travel: 510 mm per axis about its centre (control-spec section 1), so each end is this far out, m.
+TRAVEL_END_M = 0.255
 for _constant in (MASS_NO_LOAD_KG, DAMPING_N_S_PER_M, FRICTION_N, THETA_MIN, THETA_MAX):
     _constant.flags.writeable = False  # shared by every test: no test may change them
 
@@ -41,6 +43,21 @@ def spec_theta(payload_kg: float = 0.0) -> np.ndarray:
     """
     si = np.concatenate([MASS_NO_LOAD_KG + payload_kg, DAMPING_N_S_PER_M, FRICTION_N])
     return np.concatenate([si / GEAR_N_PER_V, np.zeros(2)])
+
+
+def pushed_from_rest_m(t_s: np.ndarray, axis: int, volts: float, payload_kg: float = 0.0) -> np.ndarray:
+    """Displacement (m) of a carriage starting at rest under a constant command, before it meets anything.
+
+    The spec's machine: m x'' = kf u - B x' - Fc sign(x'), with |kf u| > Fc, so the
+    carriage moves off at once in the direction of u and x' keeps that sign:
+    x' = v_inf (1 - exp(-t / tau)), v_inf = (kf |u| - Fc) / B, tau = m / B.
+    """
+    mass = MASS_NO_LOAD_KG[axis] + payload_kg
+    damping = DAMPING_N_S_PER_M[axis]
+    v_inf = (GEAR_N_PER_V * abs(volts) - FRICTION_N[axis]) / damping
+    tau = mass / damping
+    t = np.asarray(t_s, dtype=float)
+    return np.sign(volts) * v_inf * (t - tau * (1.0 - np.exp(-t / tau)))
 
 
 def deviation_pct(estimate: np.ndarray | float, true: np.ndarray | float) -> np.ndarray | float:

@@ -28,6 +28,9 @@ SUMMARY_KEYS = {
     "contour_error_um",
     "estimates_window_s",
     "estimates",
+    "events",
+    "end_stop_contacts",
+    "saturation",
 }
 
 # (id, file text, field named in the message, what is allowed)

@@ -3,7 +3,8 @@
 Exit codes: 0 success; 2 bad input (one line on stderr naming the file, the
 field and what is allowed; nothing written); 1 the run itself failed;
 3 ``monitor --fail-on-alarm`` and the health monitor raised an alarm;
-130 interrupted (Ctrl-C).
+4 ``--strict`` (run, monitor) and a carriage touched an end stop (the files are
+written; checked before 3); 130 interrupted (Ctrl-C).
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, NoReturn
 
+from gantry_twin.events import touched_end_stop, travel_warnings
 from gantry_twin.monitor import Alarm
 from gantry_twin.run import RUN_FILES, execute, write_run
 from gantry_twin.scenario import (
@@ -39,6 +41,7 @@ EXIT_OK = 0
 EXIT_RUN_FAILED = 1
 EXIT_BAD_INPUT = 2
 EXIT_ALARM = 3
+EXIT_END_STOP = 4
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, as shells report it
 
 
@@ -115,6 +118,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_controller(run)
     _add_set(run)
     _add_out(run)
+    _add_strict(run)
     _add_progress(run)
     add_telemetry_arguments(run)
 
@@ -126,6 +130,7 @@ def build_parser() -> argparse.ArgumentParser:
     monitor.add_argument(
         "--fail-on-alarm", action="store_true", help=f"exit with status {EXIT_ALARM} if the monitor raised any alarm"
     )
+    _add_strict(monitor)
     _add_progress(monitor)
     add_telemetry_arguments(monitor)
 
@@ -163,6 +168,12 @@ def _add_controller(parser: argparse.ArgumentParser) -> None:
 def _add_out(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--out", metavar="DIR", type=Path, help=f"output directory (default: {RUNS_DIR}/<scenario name>/)"
+    )
+
+
+def _add_strict(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--strict", action="store_true", help=f"exit with status {EXIT_END_STOP} if a carriage touched an end stop"
     )
 
 
@@ -251,6 +262,10 @@ def _run(args: argparse.Namespace) -> int:
         except Exception as exc:  # the run or the writing failed: not the user's input
             return _failed("run", exc)
         print(format_summary(summary, wall_time_s, out), flush=True)
+    for line in travel_warnings(summary):
+        print(f"{PROG}: warning: {line}", file=sys.stderr)
+    if args.strict and touched_end_stop(summary):
+        return EXIT_END_STOP
     if getattr(args, "fail_on_alarm", False) and summary.get("health", {}).get("alarms"):
         return EXIT_ALARM
     return EXIT_OK

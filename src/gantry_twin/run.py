@@ -9,6 +9,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from gantry_twin.events import travel_summary
 from gantry_twin.scenario import BuiltRun, dump_yaml
 from gantry_twin.simulate import simulate
 from gantry_twin.trace import Observer, Trace
@@ -55,6 +56,7 @@ def write_run(out: Path, built: BuiltRun, trace: Trace, wall_time_s: float) -> d
     scenario = built.scenario
     health = built.monitor.report() if built.monitor is not None else None
     data = summary(scenario, trace, scenario.controller.name, health)
+    data.update(travel_summary(built.plant, trace))  # events, end_stop_contacts, saturation (gantry_twin.events)
     out.mkdir(parents=True, exist_ok=True)
     (out / SUMMARY_FILE).unlink(missing_ok=True)
     if scenario.outputs.trace:
