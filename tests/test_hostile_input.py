@@ -104,7 +104,7 @@ CASES = [
     Case("unknown_key_of_1000_chars", {"s.yaml": "k" * 1000 + ": 1\n"}),
     # name and outputs.dir are labels, never paths (item 2).
     Case("name_parent_dir", {"s.yaml": "name: ../x\n"}, ("run", "s.yaml")),
-    Case("name_absolute_path", {"s.yaml": "name: /tmp/gantry-twin-hostile\n"}, ("run", "s.yaml")),
+    Case("name_absolute_path", {"s.yaml": "name: /dev/null/x\n"}, ("run", "s.yaml")),
     Case("name_dot_dot", {"s.yaml": "name: ..\n"}, ("run", "s.yaml")),
     Case("name_too_long", {"s.yaml": f"name: {'n' * 65}\n"}, ("run", "s.yaml")),
     Case("outputs_dir_path", {"s.yaml": "outputs: {dir: ../elsewhere}\n"}, ("run", "s.yaml")),
@@ -205,12 +205,22 @@ CHILDREN = Path(__file__).with_name("hostile_children.py")
 
 
 @pytest.fixture(scope="module")
-def outcomes(tmp_path_factory) -> dict[str, Outcome]:
+def hostile_root(tmp_path_factory) -> Path:
+    return tmp_path_factory.mktemp("hostile")
+
+
+@pytest.fixture(scope="module")
+def outcomes(hostile_root) -> dict[str, Outcome]:
     """Every case run once, each in its own forked child."""
-    root = tmp_path_factory.mktemp("hostile")
     for case in CASES:
-        _make(root / case.id, case.files)
-    return run_children(CASES, root, "fork")
+        _make(hostile_root / case.id, case.files)
+    return run_children(CASES, hostile_root, "fork")
+
+
+def test_nothing_written_beside_the_cases(hostile_root, outcomes):
+    """A case that wrote outside its own directory (``name: ../x``) would leave something here."""
+    expected = {name for c in CASES for name in (c.id, f"{c.id}.stdout", f"{c.id}.stderr")}
+    assert {p.name for p in hostile_root.iterdir()} == expected
 
 
 def documented_answers() -> dict[str, str]:
