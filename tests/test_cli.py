@@ -103,7 +103,7 @@ MALFORMED = [
         "bad_estimator_filter",
         "controller: {name: diarc, options: {estimator: {filter_hz: [0, 50]}}}\n",
         "controller.options.estimator.filter_hz[0]",
-        "(0, 2500] Hz",
+        "[5, 500] Hz",
     ),
     (
         "darc_gamma_short",
@@ -124,7 +124,7 @@ MALFORMED = [
     ("timing_rate_negative", "contour: {timing: {rate_rad_s: -2}}\n", "contour.timing.rate_rad_s", "(0, 20] rad/s"),
     ("centre_three_numbers", "contour: {centre_m: [0, 0, 0]}\n", "contour.centre_m", "at most 2 items"),
     ("sensing_bool", "sensing: {quantize: maybe}\n", "sensing.quantize", "valid boolean"),
-    ("sensing_resolution", "sensing: {resolution_m: 0.5}\n", "sensing.resolution_m", "(0, 0.001] m"),
+    ("sensing_resolution", "sensing: {resolution_m: 0.5}\n", "sensing.resolution_m", "[1e-09, 0.001] m"),
     ("trace_stride_zero", "outputs: {trace_stride: 0}\n", "outputs.trace_stride", "greater than or equal to 1"),
     ("name_not_text", "name: [1, 2]\n", "name", "valid string"),
     ("description_not_text", "description: {a: 1}\n", "description", "valid string"),

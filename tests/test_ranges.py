@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import math
+import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,7 +14,7 @@ from gantry_twin.controllers import DARC, DIARC, DRC, PD, ArcGains, EstimatorSet
 from gantry_twin.estimation import LeastSquaresSettings
 from gantry_twin.monitor import ExcitationSettings, HealthSettings
 from gantry_twin.plant import Payload
-from gantry_twin.ranges import Count, Range, Vector, settings
+from gantry_twin.ranges import QUOTE_MAX_CHARS, Count, Range, Vector, quote, settings
 from gantry_twin.scenario import ScenarioError, validate_data
 from gantry_twin.scenario.schema import typed_options
 from gantry_twin.sensing import SensingConfig
@@ -73,12 +75,12 @@ def test_settings_are_frozen_and_compare_by_value():
 # Each settings type of the twin, a bad value for one of its fields, and the field its error must name.
 BAD_PYTHON_VALUES = [
     (lambda: Payload(mass_kg=-1.0), "payload.mass_kg: must be in [0, 20] kg"),
-    (lambda: SensingConfig(resolution_m=0.5), "sensing.resolution_m: must be in (0, 0.001] m"),
-    (lambda: ArcGains(ks_v_s_m=(100.0, 0.0)), "gains.ks_v_s_m.tangential: must be in (0, inf]"),
+    (lambda: SensingConfig(resolution_m=0.5), "sensing.resolution_m: must be in [1e-09, 0.001] m"),
+    (lambda: ArcGains(ks_v_s_m=(100.0, 0.0)), "gains.ks_v_s_m.tangential: must be in [1, 1000] V/(m/s)"),
     (lambda: ArcGains(theta_min=(1.0,) * 8), "gains.theta_max: need theta_min <= theta_max"),
-    (lambda: EstimatorSettings(filter_hz=(0.0, 50.0)), "estimator.filter_hz.x: must be in (0, 2500] Hz"),
-    (lambda: EstimatorSettings(least_squares={"kappa": -1}), "estimator.least_squares.kappa: must be in [0, inf]"),
-    (lambda: LeastSquaresSettings(rho_max=0.0), "least_squares.rho_max: must be in (0, inf]"),
+    (lambda: EstimatorSettings(filter_hz=(0.0, 50.0)), "estimator.filter_hz.x: must be in [5, 500] Hz"),
+    (lambda: EstimatorSettings(least_squares={"kappa": -1}), "estimator.least_squares.kappa: must be in [0, 100] 1/s"),
+    (lambda: LeastSquaresSettings(rho_max=0.0), "least_squares.rho_max: must be in (0, 1e+08]"),
     (lambda: FrictionDrift("y", 0.0, 1.0, coulomb_to_v=6.0), "friction_drift.coulomb_to_v: must be in [0, 5] V"),
     (lambda: PayloadChange(1.0, 25.0), "payload_change.mass_kg: must be in [0, 20] kg"),
     (lambda: CoggingRipple("x", 0.05, 0.016, phase_rad=7.0), "cogging.phase_rad: must be in [-6.28319, 6.28319]"),
@@ -157,3 +159,122 @@ def test_plugin_options_are_not_typed():
         assert typed_options(Plugin) is None
     finally:
         unregister("test_ranges_plugin")
+
+
+# ---------------------------------------------------------------------------
+# Issue 12, item 7: physically meaningful bounds on the estimator and controller settings, each documented.
+
+DOCS = Path(__file__).resolve().parents[1] / "docs" / "scenarios.md"
+
+#: (field path in a scenario, controller, just below the lower bound, the bounds, just above the upper bound).
+BOUNDED = [
+    ("controller.options.estimator.filter_hz", "diarc", (4.99, 5.0, 500.0, 500.1), "[5, 500] Hz"),
+    ("controller.options.estimator.filter_zeta", "diarc", (0.099, 0.1, 5.0, 5.01), "[0.1, 5]"),
+    ("controller.options.estimator.least_squares.nu", "diarc", (-1e-9, 0.0, 1.0, 1.01), "[0, 1]"),
+    ("controller.options.estimator.least_squares.kappa", "diarc", (-1e-9, 0.0, 100.0, 100.1), "[0, 100] 1/s"),
+    ("controller.options.estimator.least_squares.rho_max", "diarc", (0.0, 1e-9, 1e8, 1.01e8), "(0, 1e+08]"),
+    ("controller.options.estimator.least_squares.gamma0_diag", "diarc", (0.099, 0.1, 1e8, 1.01e8), "[0.1, 1e+08]"),
+    ("controller.options.estimator.gamma_d", "diarc", (-1e-9, 0.0, 1e6, 1.01e6), "[0, 1e+06]"),
+    ("controller.options.estimator.dc_max_v", "diarc", (-1e-9, 0.0, 10.0, 10.01), "[0, 10] V"),
+    ("controller.options.estimator.settle_s", "diarc", (-1e-9, 0.0, 10.0, 10.01), "[0, 10] s"),
+    ("controller.options.gains.lambda_1_s", "drc", (0.99, 1.0, 5000.0, 5001.0), "[1, 5000] 1/s"),
+    ("controller.options.gains.ks_v_s_m", "darc", (0.99, 1.0, 1000.0, 1001.0), "[1, 1000] V/(m/s)"),
+    ("controller.options.gains.friction_slope_s_m", "diarc", (99.0, 100.0, 1e6, 1.01e6), "[100, 1e+06] s/m"),
+    ("controller.options.gamma", "darc", (-1e-9, 0.0, 1e8, 1.01e8), "[0, 1e+08]"),
+    ("controller.options.kp_v_m", "pd", (-1e-9, 0.0, 1e5, 1.01e5), "[0, 100000] V/m"),
+    ("controller.options.kd_v_s_m", "pd", (-1e-9, 0.0, 1000.0, 1001.0), "[0, 1000] V/(m/s)"),
+    ("controller.options.kv_v_s_m", "pd", (-1e-9, 0.0, 10.0, 10.01), "[0, 10] V/(m/s)"),
+    ("controller.options.ka_v_s2_m", "pd", (-1e-9, 0.0, 2.0, 2.01), "[0, 2] V/(m/s^2)"),
+    ("sensing.resolution_m", "diarc", (0.99e-9, 1e-9, 1e-3, 1.01e-3), "[1e-09, 0.001] m"),
+    ("monitor.filter_hz", "diarc", (4.99, 5.0, 500.0, 500.1), "[5, 500] Hz"),
+]
+#: How many numbers each vector field takes (the others take one).
+VECTOR_SIZE = {"filter_hz": 2, "gamma0_diag": 8, "gamma_d": 2, "dc_max_v": 2, "lambda_1_s": 2, "ks_v_s_m": 2}
+VECTOR_SIZE |= {"gamma": 8, "kp_v_m": 2, "kd_v_s_m": 2, "kv_v_s_m": 2, "ka_v_s2_m": 2}
+
+
+def _scenario(path: str, controller: str, value: float) -> dict:
+    leaf = path.rsplit(".", 1)[1]
+    data: dict = {"controller": {"name": controller}}
+    node = data
+    for part in path.split(".")[:-1]:
+        node = node.setdefault(part, {})
+    n = VECTOR_SIZE.get(leaf)
+    node[leaf] = [value] * n if n else value
+    return data
+
+
+@pytest.mark.parametrize(("path", "controller", "values", "allowed"), BOUNDED, ids=[b[0] for b in BOUNDED])
+def test_settings_have_physical_bounds_stated_and_documented(path, controller, values, allowed):
+    below, lo, hi, above = values
+    for inside in (lo, hi):
+        validate_data(_scenario(path, controller, inside), "f.yaml")
+    for outside in (below, above):
+        with pytest.raises(ScenarioError) as info:
+            validate_data(_scenario(path, controller, outside), "f.yaml")
+        assert info.value.field.startswith(path)
+        assert f"must be in {allowed}, got" in info.value.message
+    leaf = path.rsplit(".", 1)[1]
+    rows = [line for line in DOCS.read_text().split("## Why these ranges")[1].splitlines() if f"`{leaf}`" in line]
+    assert any(f"| {allowed} |" in row for row in rows), f"docs/scenarios.md: no row for `{leaf}` with {allowed}"
+
+
+def test_the_issue_filter_frequency_is_refused_from_python_and_from_a_scenario():
+    """Issue 12: ``estimator.filter_hz=[1e-300, 50]`` was accepted and froze the X estimates at theta0."""
+    with pytest.raises(ValueError, match=r"^estimator\.filter_hz\.x: must be in \[5, 500\] Hz, got 1e-300$"):
+        EstimatorSettings(filter_hz=(1e-300, 50.0))
+    with pytest.raises(ScenarioError, match=r"filter_hz\[0\]: must be in \[5, 500\] Hz"):
+        validate_data(_scenario("controller.options.estimator.filter_hz", "diarc", 1e-300), "f.yaml")
+
+
+def test_the_named_estimators_and_default_gains_are_inside_the_ranges():
+    from dataclasses import asdict
+
+    from gantry_twin.controllers.arc import NAMED_ESTIMATORS
+
+    for named in NAMED_ESTIMATORS.values():
+        assert EstimatorSettings(**asdict(named)) == named
+    assert ArcGains(**asdict(ArcGains())) == ArcGains()
+
+
+# ---------------------------------------------------------------------------
+# Issue 12, item 1: every value a message quotes is cut short, however big or deep it is.
+
+
+def _bomb(levels: int = 9) -> list:
+    value: list = list(range(9))
+    for _ in range(levels):
+        value = [value] * 9  # nine references to one list: 9**10 numbers if expanded
+    return value
+
+
+@pytest.mark.parametrize(
+    "value", ["x" * 1_000_000, _bomb(), 7**4000, {"k" * 100_000: 1}, b"\x00" * 100_000, (1.5,) * 10_000]
+)
+def test_quote_is_short_and_quick(value):
+    started = time.perf_counter()
+    text = quote(value)
+    assert len(text) <= QUOTE_MAX_CHARS
+    assert time.perf_counter() - started < 0.1
+
+
+@pytest.mark.parametrize(
+    "data",
+    [
+        {"x" * 1_000_000: 1},
+        {"duration_s": "x" * 1_000_000},
+        {"window_s": _bomb()},
+        {"name": "n" * 1_000_000},
+        {"controller": {"name": "c" * 1_000_000}},
+        {"contour": {"type": "s" * 1_000_000}},
+        {"payload": {"mass_kg": [1] * 1_000_000}},
+        {"contour": {"timing": {"start": "s" * 1_000_000}}},
+        {"controller": {"name": "diarc", "options": {"o" * 1_000_000: 1}}},
+    ],
+)
+def test_every_message_quotes_a_big_value_short(data):
+    started = time.perf_counter()
+    with pytest.raises(ScenarioError) as info:
+        validate_data(data, "f.yaml")
+    assert len(str(info.value)) < 300, str(info.value)[:500]
+    assert time.perf_counter() - started < 1.0

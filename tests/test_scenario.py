@@ -218,3 +218,61 @@ def test_validate_data_reports_the_first_problem_and_counts_the_rest():
     text = str(info.value)
     assert text.startswith("x.yaml: payload.mass_kg: must be in [0, 20] kg")
     assert "1 more problem" in text
+
+
+@pytest.mark.parametrize(
+    ("data", "message"),
+    [
+        ({}, "index '99' is out of range: disturbance.y has no items"),
+        ({"disturbance": {"y": []}}, "index '99' is out of range: disturbance.y has no items"),
+        (
+            {"disturbance": {"y": [{"type": "step", "value_v": 1}]}},
+            "index '99' is out of range: disturbance.y has 1 item (index 0..0)",
+        ),
+    ],
+)
+def test_set_index_out_of_range_says_so_and_the_valid_range(data, message):
+    """Issue 12: ``--set disturbance.y.99.value_v=1`` answered "input should be a valid list"."""
+    with pytest.raises(ScenarioError) as info:
+        apply_overrides(data, ["disturbance.y.99.value_v=1"], "f.yaml")
+    assert (info.value.field, info.value.message) == ("--set disturbance.y.99.value_v", message)
+
+
+# Item 2 of issue 12: ``name`` (and ``outputs.dir``) is a label that names one directory under runs/, never a path.
+NOT_LABELS = ["../x", "/some/dir", "a/b", "..", ".", ".hidden", "-rf", "", "n" * 65, "a b", "a\\b", "caf\u00e9", "x\n"]
+
+
+@pytest.mark.parametrize("label", NOT_LABELS)
+@pytest.mark.parametrize("field", ["name", "outputs.dir"])
+def test_name_and_outputs_dir_are_labels_not_paths(field, label):
+    head, _, tail = field.partition(".")
+    data = {head: {tail: label}} if tail else {head: label}
+    with pytest.raises(ScenarioError) as info:
+        validate_data(data, "f.yaml")
+    assert info.value.field == field
+    assert info.value.message.startswith("must be a label, not a path: 1 to 64 letters A-Z a-z, digits, '_', '-'")
+
+
+@pytest.mark.parametrize("label", ["no_load_circle", "run-1.v2", "_x", "3kg", "n" * 64])
+def test_labels_are_accepted(label):
+    s = validate_data({"name": label, "outputs": {"dir": label}}, "f.yaml")
+    assert s.name == s.outputs.dir == label
+
+
+@pytest.mark.parametrize(
+    ("file_name", "name"), [("my run.yaml", "my_run"), ("...yaml", "_.."), ("-x.yaml", "_-x"), ("ok.v2.yaml", "ok.v2")]
+)
+def test_a_name_taken_from_the_file_name_is_made_a_label(tmp_path, file_name, name):
+    assert load_scenario(write(tmp_path, "{}", file_name)).name == name
+
+
+def test_default_output_directories_stay_under_runs(tmp_path, monkeypatch):
+    """A run whose scenario says ``outputs.dir`` writes into runs/<dir>/ of the working directory and nowhere else."""
+    from gantry_twin import cli
+
+    monkeypatch.chdir(tmp_path)
+    path = write(tmp_path, "name: n\noutputs: {dir: here, trace: false}\nduration_s: 0.01\nwindow_s: [0, 0.01]\n")
+    code = cli.main(["run", str(path), "--controller", "pd", "--set", "estimates_window_s=[0, 0.01]", "--no-progress"])
+    assert code == 0
+    assert sorted(p.relative_to(tmp_path).as_posix() for p in tmp_path.glob("*")) == ["runs", "s.yaml"]
+    assert (tmp_path / "runs" / "here" / "summary.json").is_file()

@@ -19,6 +19,7 @@ from typing import Any, NoReturn
 
 from gantry_twin.events import touched_end_stop, travel_warnings
 from gantry_twin.monitor import Alarm
+from gantry_twin.ranges import shorten
 from gantry_twin.run import RUN_FILES, execute, write_run
 from gantry_twin.scenario import (
     Scenario,
@@ -53,7 +54,7 @@ class _Parser(argparse.ArgumentParser):
     """argparse with one-line errors (no usage dump) and exit code 2."""
 
     def error(self, message: str) -> NoReturn:
-        print(f"{self.prog}: error: {message} (see {self.prog} --help)", file=sys.stderr)
+        print(f"{self.prog}: error: {shorten(message, 200)} (see {self.prog} --help)", file=sys.stderr)
         raise SystemExit(EXIT_BAD_INPUT)
 
 
@@ -222,7 +223,7 @@ def _validate(args: argparse.Namespace) -> int:
 
 
 def _out_dir(args: argparse.Namespace, scenario: Scenario) -> Path:
-    out = args.out or (Path(scenario.outputs.dir) if scenario.outputs.dir else RUNS_DIR / str(scenario.name))
+    out = args.out or RUNS_DIR / (scenario.outputs.dir or str(scenario.name))  # labels (ranges.Label): under runs/
     return _checked_out(out)
 
 

@@ -35,13 +35,24 @@ from scipy.linalg import expm
 from gantry_twin._jit import kernel
 from gantry_twin.linalg import cholesky_factor, cholesky_solve, cholesky_substitute, largest_eigenvalue
 from gantry_twin.plant import AXES, THETA_NAMES
-from gantry_twin.ranges import Frequency, NonNegative, Positive, Range, Vector, settings
+from gantry_twin.ranges import Range, Vector, settings
 
 #: The slope of the paper's smooth Coulomb shape Sf(v) = (2/pi) atan(9000 v), s/m (section 5).
 FRICTION_SLOPE_S_M = 9000.0
-#: Natural frequencies of Hf per axis (X, Y), Hz, and its damping ratio.
-FilterHz = Vector(Frequency, AXES)
-FilterZeta = Range(0.0, 5.0, lo_open=True)
+
+# The ranges of the estimator's settings: each bound and its reason, with the runs that show it, is in
+# docs/scenarios.md ("Why these ranges").
+
+#: Sf(v)'s slope, s/m: from 100 (Sf within 2 % of sign(v) at the contour's 0.4 m/s, so Af is not confused
+#: with B) to 1e6 (Sf switches within 1 um/s, far below the encoder's velocity step).
+FrictionSlope = Range(100.0, 1.0e6, "s/m")
+#: Natural frequencies of Hf per axis (X, Y), Hz: above the fastest contour (rate_rad_s 20 = 3.2 Hz),
+#: so that Hf passes the motion it filters; at most a tenth of the 5 kHz sample rate, where x_f'' =
+#: wn^2 (x - x_f) - ... becomes mostly encoder quantisation.
+FilterHz = Vector(Range(5.0, 500.0, "Hz"), AXES)
+#: Hf's damping ratio: from 0.1 (below, Hf rings at wn with a gain over 5) to 5 (an overdamped
+#: filter whose slow pole is wn / (2 zeta): a lower filter frequency in disguise).
+FilterZeta = Range(0.1, 5.0)
 #: The paper's Hf (section 5): 250 Hz on X, 150 Hz on Y, damping 0.7.
 PAPER_FILTER_HZ = (250.0, 150.0)
 PAPER_FILTER_ZETA = 0.7
@@ -265,10 +276,14 @@ def project_metric(
 class LeastSquaresSettings:
     """Least squares with covariance limiting (eq. 27-28), paper values."""
 
-    nu: NonNegative = 0.1
-    kappa: NonNegative = 0.1
-    rho_max: Positive = 500.0
-    gamma0_diag: Vector(Positive, THETA_NAMES) = (10.0, 10.0, 10.0, 10.0, 10.0, 10.0, 5000.0, 5000.0)
+    #: n = 1 + nu tr(gamma_f^T Gamma gamma_f): a larger nu divides the step until the estimates freeze.
+    nu: Range(0.0, 1.0) = 0.1
+    #: Forgetting rate, 1/s: a memory 1/kappa of at least 10 ms (50 samples).
+    kappa: Range(0.0, 100.0, "1/s") = 0.1
+    #: Cap of lambda_max(Gamma): Gamma's spread stays well inside float64 in the eq. (28) downdate.
+    rho_max: Range(0.0, 1.0e8, lo_open=True) = 500.0
+    #: Gamma(0): from 0.1 (below, theta^ hardly leaves theta0) to rho_max's cap.
+    gamma0_diag: Vector(Range(0.1, 1.0e8), THETA_NAMES) = (10.0, 10.0, 10.0, 10.0, 10.0, 10.0, 5000.0, 5000.0)
 
 
 class LeastSquaresWork(NamedTuple):

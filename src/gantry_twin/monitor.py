@@ -58,10 +58,22 @@ from gantry_twin.estimation import (
     PAPER_FILTER_ZETA,
     FilterHz,
     FilterZeta,
+    FrictionSlope,
 )
 from gantry_twin.excitation import AXIS_OF, FilteredRegressors, accumulate_information, normalised_excitation
 from gantry_twin.plant import THETA_NAMES, THETA_UNITS
-from gantry_twin.ranges import VOLTS_MAX_V, NonNegative, Positive, Range, Seconds, Vector, Window, rule, settings
+from gantry_twin.ranges import (
+    VOLTS_MAX_V,
+    NonNegative,
+    Positive,
+    Range,
+    Seconds,
+    Vector,
+    Window,
+    quote,
+    rule,
+    settings,
+)
 
 #: Status codes of :attr:`MonitorReport.status` and their names.
 STATUS_NAMES: tuple[str, ...] = ("baseline", "not excited", "ok", "drifting", "alarm")
@@ -104,7 +116,7 @@ class ExcitationSettings:
     period_s: Range(0.0, 1.0, "s", lo_open=True) = 0.01
     filter_hz: FilterHz = PAPER_FILTER_HZ
     filter_zeta: FilterZeta = PAPER_FILTER_ZETA
-    friction_slope_s_m: Positive = FRICTION_SLOPE_S_M
+    friction_slope_s_m: FrictionSlope = FRICTION_SLOPE_S_M
     sliding_speed_m_s: NonNegative = 1.0e-3
     scale: Vector(Positive, THETA_NAMES) = (0.12, 0.50, 0.50, 0.70, 0.10, 0.15, 0.10, 0.10)
     min_parameter_v: MinParameterV = 0.01
@@ -150,7 +162,7 @@ class Baseline:
 
     def __post_init__(self) -> None:
         if len(self.theta) != 8 or not all(math.isfinite(x) for x in self.theta):
-            raise ValueError(f"baseline.theta: must be eight finite numbers, got {self.theta!r}")
+            raise ValueError(f"baseline.theta: must be eight finite numbers, got {quote(self.theta)}")
         for j, x in enumerate(self.theta):
             if j not in ABSOLUTE_PARAMETERS and x <= 0.0:
                 raise ValueError(f"baseline.{THETA_NAMES[j]}: must be > 0 (a physical parameter), got {x}")

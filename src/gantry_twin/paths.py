@@ -23,6 +23,7 @@ from typing import Literal, Protocol
 import numpy as np
 
 from gantry_twin._jit import kernel
+from gantry_twin.ranges import quote
 
 
 class Path(Protocol):
@@ -91,11 +92,11 @@ class TimingLaw:
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.rate_rad_s) and self.rate_rad_s > 0.0):
-            raise ValueError(f"timing.rate_rad_s: must be a finite number > 0 rad/s, got {self.rate_rad_s!r}")
+            raise ValueError(f"timing.rate_rad_s: must be a finite number > 0 rad/s, got {quote(self.rate_rad_s)}")
         if self.start not in ("on_path", "rest"):
-            raise ValueError(f"timing.start: must be 'on_path' or 'rest', got {self.start!r}")
+            raise ValueError(f"timing.start: must be 'on_path' or 'rest', got {quote(self.start)}")
         if self.start == "rest" and not (math.isfinite(self.ramp_s) and self.ramp_s > 0.0):
-            raise ValueError(f"timing.ramp_s: must be a finite number > 0 s, got {self.ramp_s!r}")
+            raise ValueError(f"timing.ramp_s: must be a finite number > 0 s, got {quote(self.ramp_s)}")
 
     def derivatives(self, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """phi, phi', phi'', phi''' at each time (rad, rad/s, rad/s^2, rad/s^3)."""

@@ -26,6 +26,7 @@ import functools
 import math
 import numbers
 import re
+import reprlib
 from collections.abc import Callable, Sequence
 from dataclasses import fields
 from typing import Annotated, Any, TypeVar, dataclass_transform
@@ -41,6 +42,40 @@ FREQUENCY_MAX_HZ = 2500.0
 VOLTS_MAX_V = 10.0
 
 _WORDS = {1: "one", 2: "two", 3: "three", 4: "four", 6: "six", 8: "eight"}
+
+#: Longest piece of a given value (or of the text around it) that an error message echoes, characters.
+QUOTE_MAX_CHARS = 40
+
+
+def _bounded_repr() -> reprlib.Repr:
+    """A repr that stops early in big or deep values: its work is bounded, not just its length."""
+    r = reprlib.Repr()
+    r.maxlevel, r.maxstring, r.maxlong, r.maxother = 2, QUOTE_MAX_CHARS + 2, QUOTE_MAX_CHARS, QUOTE_MAX_CHARS
+    r.maxlist = r.maxtuple = r.maxdict = r.maxset = r.maxfrozenset = r.maxdeque = r.maxarray = 4
+    return r
+
+
+_REPR = _bounded_repr()
+
+
+def shorten(text: str, limit: int = QUOTE_MAX_CHARS) -> str:
+    """``text`` cut to its first ``limit`` characters (``...`` marks the cut)."""
+    return text if len(text) <= limit else text[: max(limit - 3, 1)] + "..."
+
+
+def quote(value: Any) -> str:
+    """A given value as an error message echoes it: its repr, cut to a short prefix (:func:`shorten`).
+
+    Every message that shows what the user gave goes through here, so that
+    no input (a 50 MB string, a deeply nested list) makes a long message or a
+    long wait: the repr itself stops early (``reprlib``).
+    """
+    if isinstance(value, str):
+        return shorten(repr(value[: QUOTE_MAX_CHARS + 1]))
+    try:
+        return shorten(_REPR.repr(value))
+    except Exception:  # a plug-in's object whose __repr__ fails  # noqa: BLE001
+        return f"<{type(value).__name__}>"
 
 
 def fmt(x: float | None, none: str = "inf") -> str:
@@ -72,7 +107,7 @@ def _type_error(value: Any, kind: str, allowed: str = "", article: str = "a") ->
             {"kind": f"{article} {kind}", "where": f"; allowed: {allowed}" if allowed else ""},
         )
     return PydanticCustomError(
-        "range", "must be a valid {kind}{where}, got {value}", {"kind": kind, "where": where, "value": repr(value)}
+        "range", "must be a valid {kind}{where}, got {value}", {"kind": kind, "where": where, "value": quote(value)}
     )
 
 
@@ -83,15 +118,27 @@ def Range(lo: float | None, hi: float | None, unit: str = "", *, lo_open: bool =
     def check(value: Any) -> float:
         if not _is_number(value):
             raise _type_error(value, "number", allowed)
-        x = float(value)
+        x = _as_float(value)
         bad = not math.isfinite(x)
         bad |= lo is not None and (x <= lo if lo_open else x < lo)
         bad |= hi is not None and x > hi
         if bad:
-            raise PydanticCustomError("range", "must be in {allowed}, got {value}", {"allowed": allowed, "value": x})
+            raise PydanticCustomError(
+                "range",
+                "must be in {allowed}, got {value}",
+                {"allowed": allowed, "value": quote(x if math.isfinite(x) or isinstance(value, float) else value)},
+            )
         return x
 
     return Annotated[float, BeforeValidator(check)]
+
+
+def _as_float(value: Any) -> float:
+    """float(value); an integer too large for a float (YAML ``0xfff...``) is infinite, not an OverflowError."""
+    try:
+        return float(value)
+    except OverflowError:
+        return math.inf if value > 0 else -math.inf
 
 
 def Count(lo: int, hi: int) -> Any:  # noqa: N802
@@ -103,7 +150,7 @@ def Count(lo: int, hi: int) -> Any:  # noqa: N802
             raise _type_error(value, "integer", f"[{lo}, {hi}]", "an")
         if not lo <= int(value) <= hi:
             raise PydanticCustomError(
-                "range", "must be an integer in [{lo}, {hi}], got {value}", {"lo": lo, "hi": hi, "value": int(value)}
+                "range", "must be an integer in [{lo}, {hi}], got {value}", {"lo": lo, "hi": hi, "value": quote(value)}
             )
         return int(value)
 
@@ -123,7 +170,7 @@ def Vector(component: Any, names: Sequence[str]) -> Any:  # noqa: N802
 
     def check(value: Any) -> tuple[Any, ...]:
         if isinstance(value, str | bytes | dict) or not hasattr(value, "__len__") or not hasattr(value, "__iter__"):
-            raise PydanticCustomError("range", "must be {count}, got {value}", {"count": count, "value": repr(value)})
+            raise PydanticCustomError("range", "must be {count}, got {value}", {"count": count, "value": quote(value)})
         if len(value) != len(names):
             few = "too few items" if len(value) < len(names) else "too many items"
             raise PydanticCustomError(
@@ -167,7 +214,7 @@ def _ordered(window: tuple[float, float]) -> tuple[float, float]:
 def _any_number(value: Any) -> float:
     if not _is_number(value):
         raise _type_error(value, "number")
-    return float(value)
+    return _as_float(value)
 
 
 #: Any number (not a boolean), NaN and infinities included.
@@ -180,6 +227,36 @@ Seconds = Range(0.0, None, "s")
 Window = Annotated[Vector(Seconds, ("start", "end")), AfterValidator(_ordered)]
 #: A frequency of the sampled system, Hz.
 Frequency = Range(0.0, FREQUENCY_MAX_HZ, "Hz", lo_open=True)
+
+#: Longest label, characters.
+LABEL_MAX_CHARS = 64
+#: The characters of a label, in words (the error and docs/scenarios.md say them).
+LABEL_RULE = f"1 to {LABEL_MAX_CHARS} letters A-Z a-z, digits, '_', '-' or '.', starting with a letter, digit or '_'"
+_LABEL = re.compile(rf"[A-Za-z0-9_][A-Za-z0-9_.-]{{0,{LABEL_MAX_CHARS - 1}}}")
+
+
+def _label(value: Any) -> str:
+    if not isinstance(value, str):
+        raise _type_error(value, "string")
+    if not _LABEL.fullmatch(value):
+        raise PydanticCustomError(
+            "range",
+            "must be a label, not a path: {rule}; got {value}",
+            {"rule": LABEL_RULE, "value": quote(value)},
+        )
+    return value
+
+
+#: A name that becomes one directory name (``runs/<name>/``): never a path (no '/', '..', leading '.' or '-').
+Label = Annotated[str, BeforeValidator(_label)]
+
+
+def label_from(text: str) -> str:
+    """The nearest :data:`Label` to ``text`` (a file's stem): other characters become '_', cut to length."""
+    cleaned = re.sub(r"[^A-Za-z0-9_.-]", "_", text)
+    if cleaned[:1] in ("", ".", "-"):
+        cleaned = "_" + cleaned
+    return cleaned[:LABEL_MAX_CHARS]
 
 
 def rule(field: str, message: str) -> PydanticCustomError:
@@ -204,7 +281,7 @@ def known_keys(cls: type, data: Any) -> Any:
                 raise PydanticCustomError(
                     "unknown_key",
                     "unknown key '{key}'; allowed: {allowed}",
-                    {"key": key, "allowed": ", ".join(allowed)},
+                    {"key": shorten(str(key)), "allowed": ", ".join(allowed)},
                 )
     return data
 
@@ -280,7 +357,7 @@ def join(*parts: str) -> str:
 
 def loc_text(loc: Sequence[Any]) -> str:
     """``("disturbance", "y", 0, "value_v")`` -> ``disturbance.y[0].value_v``."""
-    return join(*(f"[{p}]" if isinstance(p, int) else str(p) for p in loc))
+    return join(*(f"[{p}]" if isinstance(p, int) else shorten(str(p)) for p in loc))
 
 
 def describe(error: dict[str, Any], component_names: bool = False, allowed: Sequence[str] = ()) -> tuple[str, str]:
@@ -308,7 +385,7 @@ def describe(error: dict[str, Any], component_names: bool = False, allowed: Sequ
     msg = re.sub(r" or (an )?instance of \w+", "", error["msg"]).removeprefix("Value error, ")
     if kind in _SAYS_GIVEN:
         return path, _lower_first(msg)
-    return path, f"{_lower_first(msg)}, got {error.get('input')!r}"
+    return path, f"{_lower_first(msg)}, got {quote(error.get('input'))}"
 
 
 def _lower_first(text: str) -> str:
@@ -320,6 +397,8 @@ __all__ = [
     "VOLTS_MAX_V",
     "Count",
     "Frequency",
+    "LABEL_RULE",
+    "Label",
     "NonNegative",
     "Number",
     "OrNamed",
@@ -332,6 +411,9 @@ __all__ = [
     "describe",
     "interval",
     "known_keys",
+    "label_from",
+    "quote",
     "rule",
     "settings",
+    "shorten",
 ]

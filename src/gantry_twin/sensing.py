@@ -30,7 +30,9 @@ class SensingConfig:
     """
 
     quantize: bool = True
-    resolution_m: Range(0.0, 1e-3, "m", lo_open=True) = ENCODER_RESOLUTION_M
+    #: From 1 nm (the finest linear encoders; smaller steps round nothing and q / resolution overflows
+    #: towards 1e-308) to 1 mm.
+    resolution_m: Range(1e-9, 1e-3, "m") = ENCODER_RESOLUTION_M
     velocity_by_difference: bool = True
 
     @classmethod

@@ -59,12 +59,13 @@ from gantry_twin.estimation import (
     project_box,
 )
 from gantry_twin.plant import AXES, THETA_NAMES
-from gantry_twin.ranges import NonNegative, OrNamed, Seconds, Vector, settings
+from gantry_twin.ranges import VOLTS_MAX_V, OrNamed, Range, Vector, settings
 
 #: DARC's adaptation rates (paper section 5).
 DARC_GAMMA = (10.0, 10.0, 10.0, 10.0, 1.0, 1.0, 10000.0, 10000.0)
-#: Adaptation rates of theta^, one per parameter, >= 0.
-Rates = Vector(NonNegative, THETA_NAMES)
+#: Adaptation rates of theta^, one per parameter: at most 1e8, where one sample's step (Ts gamma = 2e4)
+#: already crosses the whole theta box for a 0.1 mm/s sliding error: a relay, not an adaptation.
+Rates = Vector(Range(0.0, 1.0e8), THETA_NAMES)
 
 #: Entries of EstimatorState.clock.
 CLOCK_TIME_S, CLOCK_STARTED, CLOCK_LAMBDA_MAX = 0, 1, 2
@@ -87,9 +88,12 @@ class EstimatorSettings:
     filter_hz: FilterHz = PAPER_FILTER_HZ
     filter_zeta: FilterZeta = PAPER_FILTER_ZETA
     least_squares: LeastSquaresSettings = field(default_factory=LeastSquaresSettings)
-    gamma_d: Vector(NonNegative, AXES) = (1.0e4, 1.0e4)
-    dc_max_v: Vector(NonNegative, AXES) = (0.5, 1.5)
-    settle_s: Seconds = 0.02
+    #: dc^ rate: at most 1e6, where a 5 mm/s sliding error moves dc^ by 1 V in one sample (a relay).
+    gamma_d: Vector(Range(0.0, 1.0e6), AXES) = (1.0e4, 1.0e4)
+    #: |dc^| bound: within the DAC's +-10 V.
+    dc_max_v: Vector(Range(0.0, VOLTS_MAX_V, "V"), AXES) = (0.5, 1.5)
+    #: At most 10 s: a few time constants 1 / (zeta wn) of the slowest allowed filter (5 Hz, zeta 0.1).
+    settle_s: Range(0.0, 10.0, "s") = 0.02
 
 
 #: The twin's recommended estimator: 50 Hz filters, which keep the encoder's

@@ -54,6 +54,7 @@ from typing import Any, NamedTuple, Protocol, runtime_checkable
 import numpy as np
 
 from gantry_twin._jit import reference
+from gantry_twin.ranges import quote
 
 ENTRY_POINT_GROUP = "gantry_twin.controllers"
 
@@ -200,12 +201,12 @@ def factory_for(name: str) -> ControllerFactory:
     for ep in entry_points(group=ENTRY_POINT_GROUP):
         if ep.name == name:
             return ep.load()
-    raise KeyError(f"unknown controller {name!r}; available: {', '.join(available())}")
+    raise KeyError(f"unknown controller {quote(name)}; available: {', '.join(available())}")
 
 
 def create(name: str, **options: Any) -> Controller:
     """Instantiate the controller registered as ``name`` with keyword options."""
     controller = factory_for(name)(**options)
     if not isinstance(controller, Controller):
-        raise TypeError(f"controller {name!r} does not implement reset/update/state_for_logging")
+        raise TypeError(f"controller {quote(name)} does not implement reset/update/state_for_logging")
     return controller

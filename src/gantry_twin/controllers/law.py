@@ -19,9 +19,9 @@ import numpy as np
 
 from gantry_twin._jit import kernel
 from gantry_twin.controllers.base import REF_ALPHA, REF_DALPHA, REF_DDALPHA, REF_DDQ, REF_DQ, REF_Q
-from gantry_twin.estimation import FRICTION_SLOPE_S_M, clip, friction_shape
+from gantry_twin.estimation import FRICTION_SLOPE_S_M, FrictionSlope, clip, friction_shape
 from gantry_twin.plant import THETA_NAMES
-from gantry_twin.ranges import Number, Positive, Real, Vector, rule, settings
+from gantry_twin.ranges import Number, Range, Real, Vector, rule, settings
 from gantry_twin.taskframe import error_gains, sliding_variable
 
 #: The paper's initial estimates theta0 (section 5), volt units.
@@ -33,8 +33,14 @@ THETA_MAX = (0.20, 0.60, 0.55, 0.8, 0.15, 0.25, 0.5, 1.0)
 
 #: theta-shaped settings: eight finite numbers, volt units, named as THETA_NAMES.
 Theta = Vector(Real, THETA_NAMES)
-#: Task-frame gains (normal, tangential).
-TaskPair = Vector(Positive, ("normal", "tangential"))
+#: The task frame's (normal, tangential) components of a gain.
+TASK_AXES = ("normal", "tangential")
+#: Lambda, 1/s: from 1 (an error decays within a second) to 5000 (lambda Ts = 1: the sliding surface's
+#: dynamics still span a sample).
+Lambda = Vector(Range(1.0, 5000.0, "1/s"), TASK_AXES)
+#: Ks, V/(m/s): from 1 (below, the robust feedback hardly acts) to 1000, below the discrete velocity
+#: loop's stability limit Ks Ts / M1 < 2 on the lightest axis (M1 = 0.12 V s^2/m: Ks < 1200).
+Ks = Vector(Range(1.0, 1000.0, "V/(m/s)"), TASK_AXES)
 
 
 @settings("gains")
@@ -50,9 +56,9 @@ class ArcGains:
     requires :meth:`theta0_in_bounds`, the adaptive laws' starting point.
     """
 
-    lambda_1_s: TaskPair = (100.0, 30.0)
-    ks_v_s_m: TaskPair = (100.0, 60.0)
-    friction_slope_s_m: Positive = FRICTION_SLOPE_S_M
+    lambda_1_s: Lambda = (100.0, 30.0)
+    ks_v_s_m: Ks = (100.0, 60.0)
+    friction_slope_s_m: FrictionSlope = FRICTION_SLOPE_S_M
     theta0: Vector(Number, THETA_NAMES) = THETA0
     theta_min: Theta = THETA_MIN
     theta_max: Theta = THETA_MAX

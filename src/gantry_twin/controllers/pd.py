@@ -31,10 +31,16 @@ from gantry_twin.controllers.base import (
 )
 from gantry_twin.estimation import clip
 from gantry_twin.plant import AXES
-from gantry_twin.ranges import NonNegative, Vector
+from gantry_twin.ranges import Range, Vector
 
-#: A gain per axis (X, Y), >= 0; the types of PD's fields are what a scenario's options accept.
-Gains = Vector(NonNegative, AXES)
+# A gain per axis (X, Y); the types of PD's fields are what a scenario's options accept. Upper bounds:
+# kp and kd keep the discrete loop stable on the lightest axis (kd Ts / M1 < 2 with M1 = 0.12 V s^2/m:
+# kd < 1200); kv and ka stay within a few times the heaviest machine the twin models (B up to 10
+# V/(m/s) in `changes`, M2 = 0.79 V s^2/m with a 20 kg payload). Why: docs/scenarios.md.
+Kp = Vector(Range(0.0, 1.0e5, "V/m"), AXES)
+Kd = Vector(Range(0.0, 1000.0, "V/(m/s)"), AXES)
+Kv = Vector(Range(0.0, 10.0, "V/(m/s)"), AXES)
+Ka = Vector(Range(0.0, 2.0, "V/(m/s^2)"), AXES)
 
 
 class PDParams(NamedTuple):
@@ -68,10 +74,10 @@ def pd_command(params, state, t_s, q_m, dq_m_s, ref, u_v):
 class PD:
     """Per-axis PD + feed-forward; all gains per axis (X, Y)."""
 
-    kp_v_m: Gains = (10000.0, 10000.0)
-    kd_v_s_m: Gains = (100.0, 100.0)
-    kv_v_s_m: Gains = (0.5, 0.7)
-    ka_v_s2_m: Gains = (0.12, 0.5)
+    kp_v_m: Kp = (10000.0, 10000.0)
+    kd_v_s_m: Kd = (100.0, 100.0)
+    kv_v_s_m: Kv = (0.5, 0.7)
+    ka_v_s2_m: Ka = (0.12, 0.5)
 
     compiled = CompiledStep(pd_command)
 

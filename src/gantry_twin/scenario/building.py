@@ -19,8 +19,9 @@ from gantry_twin.controllers import Controller, EstimatorSettings, create
 from gantry_twin.monitor import Baseline, ExcitationSettings, HealthSettings, MachineMonitor
 from gantry_twin.paths import Ellipse, TimingLaw
 from gantry_twin.plant import AXES, Plant
+from gantry_twin.ranges import quote, shorten
 from gantry_twin.scenario.errors import ScenarioError
-from gantry_twin.scenario.loading import controller_options
+from gantry_twin.scenario.loading import InputFileError, controller_options, read_input_file
 from gantry_twin.scenario.schema import Scenario
 from gantry_twin.sensing import SensingConfig
 from gantry_twin.simulate import Disturbance
@@ -58,7 +59,7 @@ def build(scenario: Scenario, source: str = "<scenario>") -> BuiltRun:
     except (TypeError, ValueError) as exc:
         first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         name = scenario.controller.name
-        raise ScenarioError(source, "controller.options", f"rejected by {name!r}: {first}") from None
+        raise ScenarioError(source, "controller.options", f"rejected by {quote(name)}: {shorten(first, 120)}") from None
     disturbance = None if scenario.disturbance.empty else scenario.disturbance.function()
     monitor = make_monitor(scenario, controller, source) if scenario.monitor.enable else None
     return BuiltRun(
@@ -91,14 +92,18 @@ def _baseline_from_summary(given: str, source: str) -> Baseline:
         path = Path(source).parent / path
     field = "monitor.baseline_summary"
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
+        text = read_input_file(path, "a run's summary.json")
+    except InputFileError as exc:
+        raise ScenarioError(source, field, f"{quote(str(path))}: {exc}") from None
+    try:
+        data = json.loads(text)
         estimates = {name: float(e["estimate"]) for name, e in data["estimates"].items()}
         return Baseline.from_mapping(estimates, f"commissioning run {path}")
-    except OSError as exc:
-        raise ScenarioError(source, field, f"cannot read {path} ({exc.strerror}); give a run's summary.json") from None
-    except (ValueError, KeyError, TypeError, AttributeError) as exc:
-        why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise ScenarioError(source, field, f"{path} is not a DIARC run's summary.json with estimates ({why})") from None
+    except (ValueError, KeyError, TypeError, AttributeError, RecursionError) as exc:
+        why = shorten(str(exc).splitlines()[0] if str(exc) else type(exc).__name__, 120)
+        raise ScenarioError(
+            source, field, f"{quote(str(path))} is not a DIARC run's summary.json with estimates ({why})"
+        ) from None
 
 
 def _check_samples(scenario: Scenario, sample_period_s: float, source: str) -> None:

@@ -7,7 +7,7 @@ from typing import Any, NoReturn
 
 from pydantic import ValidationError
 
-from gantry_twin.ranges import best_errors, describe, loc_text, more
+from gantry_twin.ranges import best_errors, describe, loc_text, more, quote
 from gantry_twin.scenario.schema import CONTOUR_TYPES, EVENT_TYPES
 
 _UNION_TAGS = {*CONTOUR_TYPES, *EVENT_TYPES}
@@ -37,7 +37,7 @@ def raise_validation(exc: ValidationError, source: str, prefix: Sequence[Any] = 
     ctx = error.get("ctx") or {}
     if error["type"] == "union_tag_invalid":
         allowed = ctx["expected_tags"]
-        field, message = loc_text(error["loc"]) + ".type", f"unknown type {ctx['tag']!r}; allowed: {allowed}"
+        field, message = loc_text(error["loc"]) + ".type", f"unknown type {quote(ctx['tag'])}; allowed: {allowed}"
     elif error["type"] == "union_tag_not_found":  # only events have no default type
         field, message = loc_text(error["loc"]) + ".type", f"missing; allowed: {', '.join(EVENT_TYPES)}"
     else:

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import copy
+import os
+import stat
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
@@ -12,40 +14,130 @@ from pydantic import ValidationError
 
 from gantry_twin.controllers import ArcGains
 from gantry_twin.controllers.base import factory_for
-from gantry_twin.ranges import fmt
+from gantry_twin.ranges import QUOTE_MAX_CHARS, fmt, label_from, quote, shorten
 from gantry_twin.scenario.errors import ScenarioError, raise_validation
 from gantry_twin.scenario.schema import ControllerSpec, Scenario, typed_options
 
+#: Largest file read as YAML or JSON (a scenario file, ``monitor.baseline_summary``), bytes. A scenario
+#: is a few hundred bytes and a run's summary.json a few KiB; the cap bounds the time and memory of a parse.
+INPUT_MAX_BYTES = 256 * 1024
+#: Deepest nesting of mappings and lists in a YAML input (a scenario needs 5; ``--set`` paths alike).
+INPUT_MAX_DEPTH = 20
 
-class _UniqueKeyLoader(yaml.SafeLoader):
-    """safe_load that rejects a key given twice in one mapping."""
+_YAML_BASE: type = getattr(yaml, "CSafeLoader", yaml.SafeLoader)  # libyaml's parser when present (faster)
 
 
-def _mapping_unique(loader: _UniqueKeyLoader, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
+class InputFileError(ValueError):
+    """A file that is not read: one line saying why (no such file, a device, too large, not UTF-8)."""
+
+
+def read_input_file(path: str | Path, what: str) -> str:
+    """The UTF-8 text of a regular file of at most :data:`INPUT_MAX_BYTES`; else :class:`InputFileError`.
+
+    Checked before anything is read: a directory, device, FIFO or socket (also
+    behind a symlink, e.g. to /dev/zero) is refused without being opened, and
+    at most INPUT_MAX_BYTES + 1 bytes are ever read. ``what`` names what the
+    file should be ("a scenario YAML file").
+    """
+    try:
+        info = os.stat(path)
+    except FileNotFoundError:
+        raise InputFileError(f"no such file; give {what}") from None
+    except OSError as exc:
+        raise InputFileError(f"cannot read ({exc.strerror}); give {what}") from None
+    if stat.S_ISDIR(info.st_mode):
+        raise InputFileError(f"is a directory; give {what}")
+    if not stat.S_ISREG(info.st_mode):
+        raise InputFileError(f"is not a regular file (a device, FIFO or socket); give {what}")
+    too_large = f"is larger than {INPUT_MAX_BYTES // 1024} KiB, the limit for {what}"
+    if info.st_size > INPUT_MAX_BYTES:
+        raise InputFileError(too_large)
+    try:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0))
+        with os.fdopen(fd, "rb") as fh:
+            if not stat.S_ISREG(os.fstat(fh.fileno()).st_mode):  # replaced since the stat above
+                raise InputFileError(f"is not a regular file; give {what}")
+            data = fh.read(INPUT_MAX_BYTES + 1)
+    except OSError as exc:
+        raise InputFileError(f"cannot read ({exc.strerror}); give {what}") from None
+    if len(data) > INPUT_MAX_BYTES:
+        raise InputFileError(too_large)
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError:
+        raise InputFileError(f"not UTF-8 text; give {what}") from None
+
+
+class _Loader(_YAML_BASE):  # type: ignore[misc, valid-type]
+    """safe_load that rejects a key given twice in one mapping and an integer too long to convert."""
+
+
+def _mapping_unique(loader: _Loader, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
     seen: set[Any] = set()
     for key_node, _ in node.value:
         key = loader.construct_object(key_node, deep=deep)
         if key in seen:
             mark = key_node.start_mark
             raise yaml.constructor.ConstructorError(
-                None, None, f"duplicate key {key!r} at line {mark.line + 1}, column {mark.column + 1}", mark
+                None, None, f"duplicate key {quote(key)} at line {mark.line + 1}, column {mark.column + 1}", mark
             )
         seen.add(key)
     return loader.construct_mapping(node, deep=deep)
 
 
-_UniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _mapping_unique)
+def _integer(loader: _Loader, node: yaml.ScalarNode) -> int:
+    try:
+        return yaml.constructor.SafeConstructor.construct_yaml_int(loader, node)
+    except ValueError:  # more digits than int() converts (sys.get_int_max_str_digits)
+        raise yaml.constructor.ConstructorError(
+            None, None, f"integer of {len(node.value)} characters is too long", node.start_mark
+        ) from None
+
+
+_Loader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _mapping_unique)
+_Loader.add_constructor("tag:yaml.org,2002:int", _integer)
+
+
+def _check_events(text: str) -> None:
+    """Refuse aliases (no expansion, no alias bomb) and nesting deeper than INPUT_MAX_DEPTH, before composing."""
+    depth = 0
+    for event in yaml.parse(text, Loader=_YAML_BASE):
+        if isinstance(event, yaml.AliasEvent):
+            raise yaml.MarkedYAMLError(
+                problem=f"alias *{shorten(str(event.anchor))} refused: write the value out "
+                "(YAML anchors and aliases are not supported)",
+                problem_mark=event.start_mark,
+            )
+        if isinstance(event, yaml.CollectionStartEvent):
+            depth += 1
+            if depth > INPUT_MAX_DEPTH:
+                raise yaml.MarkedYAMLError(
+                    problem=f"nested deeper than {INPUT_MAX_DEPTH} levels", problem_mark=event.start_mark
+                )
+        elif isinstance(event, yaml.CollectionEndEvent):
+            depth -= 1
+
+
+def load_yaml(text: str) -> Any:
+    """Parse bounded YAML text (see :func:`_check_events`); yaml.YAMLError on any problem."""
+    _check_events(text)
+    return yaml.load(text, Loader=_Loader)  # noqa: S506 -- a SafeLoader (or CSafeLoader) subclass
+
+
+def _yaml_problem(exc: yaml.YAMLError) -> str:
+    """``line L, column C: YAML syntax error: problem`` (the problem cut short)."""
+    mark = getattr(exc, "problem_mark", None)
+    where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""
+    problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+    return f"{where}YAML syntax error: {shorten(problem, 3 * QUOTE_MAX_CHARS)}"
 
 
 def parse_yaml(text: str, source: str) -> dict[str, Any]:
     """The top-level mapping of a scenario file (empty mapping not allowed)."""
     try:
-        data = yaml.load(text, Loader=_UniqueKeyLoader)  # noqa: S506 -- a SafeLoader subclass
+        data = load_yaml(text)
     except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""
-        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
-        raise ScenarioError(source, "", f"{where}YAML syntax error: {problem}") from None
+        raise ScenarioError(source, "", _yaml_problem(exc)) from None
     if data is None:
         raise ScenarioError(
             source, "", "empty file; expected a YAML mapping of scenario fields (write {} for all defaults)"
@@ -60,66 +152,76 @@ def parse_yaml(text: str, source: str) -> dict[str, Any]:
 
 
 def read_scenario_file(path: str | Path) -> dict[str, Any]:
-    """Read and parse a scenario file; missing or unreadable files are ScenarioErrors."""
-    source = str(path)
-    p = Path(path)
+    """Read and parse a scenario file (:func:`read_input_file`); any problem is a ScenarioError."""
     try:
-        text = p.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ScenarioError(source, "", "no such file; give a scenario YAML file") from None
-    except IsADirectoryError:
-        raise ScenarioError(source, "", "is a directory; give a scenario YAML file") from None
-    except UnicodeDecodeError:
-        raise ScenarioError(source, "", "not UTF-8 text; give a scenario YAML file") from None
-    except OSError as exc:
-        raise ScenarioError(source, "", f"cannot read ({exc.strerror})") from None
-    return parse_yaml(text, source)
+        text = read_input_file(path, "a scenario YAML file")
+    except InputFileError as exc:
+        raise ScenarioError(str(path), "", str(exc)) from None
+    return parse_yaml(text, str(path))
 
 
 def apply_overrides(data: dict[str, Any], overrides: Iterable[str], source: str) -> dict[str, Any]:
-    """Apply ``key.path=value`` overrides (value parsed as YAML) to a copy of data."""
+    """Apply ``key.path=value`` overrides (value parsed as YAML) to a copy of data.
+
+    A missing mapping on the path is created; a list item is addressed by
+    its index, which must exist.
+    """
     out = copy.deepcopy(data)
     for item in overrides:
         key, sep, text = item.partition("=")
         parts = key.strip().split(".")
         if not sep or not key.strip() or any(not p for p in parts):
-            raise ScenarioError(source, "--set", f"{item!r}: expected key.path=value, e.g. payload.mass_kg=5")
+            raise ScenarioError(source, "--set", f"{quote(item)}: expected key.path=value, e.g. payload.mass_kg=5")
+        field = f"--set {shorten(key.strip())}"
+        if len(parts) > INPUT_MAX_DEPTH:
+            raise ScenarioError(source, field, f"a path of more than {INPUT_MAX_DEPTH} parts")
         try:
-            value = yaml.safe_load(text) if text.strip() else None
+            value = load_yaml(text) if text.strip() else None
         except yaml.YAMLError as exc:
-            raise ScenarioError(source, f"--set {key}", f"value {text!r} is not valid YAML ({exc.problem})") from None
+            why = _yaml_problem(exc).partition("YAML syntax error: ")[2]
+            raise ScenarioError(source, field, f"value {quote(text)} is not valid YAML ({why})") from None
         node: Any = out
-        for depth, part in enumerate(parts[:-1]):
-            here = ".".join(parts[: depth + 1])
+        for depth, part in enumerate(parts):
+            here = shorten(".".join(parts[:depth]))
+            last = depth == len(parts) - 1
             if isinstance(node, list):
-                node = _list_item(node, part, source, here)
-                continue
-            if not isinstance(node, dict):
-                raise ScenarioError(source, f"--set {key}", f"{here.rpartition('.')[0]} is not a mapping")
-            child = node.get(part)
-            if child is None:
-                child = node[part] = {}
-            node = child
-        last = parts[-1]
-        if isinstance(node, list):
-            index = _list_index(node, last, source, key)
-            node[index] = value
-        elif isinstance(node, dict):
-            node[last] = value
-        else:
-            parent = ".".join(parts[:-1])
-            raise ScenarioError(source, f"--set {key}", f"{parent} is a {type(node).__name__}, not a mapping")
+                index = _list_index(node, part, here)
+                if index is None:
+                    raise ScenarioError(source, field, f"index {quote(part)} is out of range: {_items(node, here)}")
+                if last:
+                    node[index] = value
+                node = node[index]
+            elif isinstance(node, dict):
+                if last:
+                    node[part] = value
+                elif node.get(part) is None:
+                    if _is_index(parts[depth + 1]):  # an index into a list that is not there
+                        what = shorten(".".join(parts[: depth + 1]))
+                        raise ScenarioError(
+                            source, field, f"index {quote(parts[depth + 1])} is out of range: {what} has no items"
+                        )
+                    node[part] = {}
+                node = node[part]
+            else:
+                raise ScenarioError(source, field, f"{here} is {quote(node)}, not a mapping")
     return out
 
 
-def _list_index(node: list[Any], part: str, source: str, key: str) -> int:
-    if not part.isdigit() or int(part) >= len(node):
-        raise ScenarioError(source, f"--set {key}", f"index {part!r} not in 0..{len(node) - 1}")
-    return int(part)
+def _is_index(part: str) -> bool:
+    return part.isascii() and part.isdigit()
 
 
-def _list_item(node: list[Any], part: str, source: str, key: str) -> Any:
-    return node[_list_index(node, part, source, key)]
+def _list_index(node: list[Any], part: str, here: str) -> int | None:
+    """The index ``part`` names in ``node``, or None if it names none."""
+    if _is_index(part) and len(part) <= 9 and int(part) < len(node):
+        return int(part)
+    return None
+
+
+def _items(node: list[Any], here: str) -> str:
+    """``<here> has N items (0..N-1)`` / ``has no items``."""
+    n = len(node)
+    return f"{here} has no items" if n == 0 else f"{here} has {n} item{'s' if n > 1 else ''} (index 0..{n - 1})"
 
 
 def validate_data(data: dict[str, Any], source: str, default_name: str | None = None) -> Scenario:
@@ -185,7 +287,7 @@ def load_scenario(path: str | Path, overrides: Sequence[str] = (), controller: s
             current = {}
         data["controller"] = {**current, "name": controller}
     data = apply_overrides(data, overrides, source)
-    return validate_data(data, source, default_name=Path(path).stem)
+    return validate_data(data, source, default_name=label_from(Path(path).stem))
 
 
 def controller_options(scenario: Scenario, source: str = "<scenario>") -> dict[str, Any]:

@@ -32,7 +32,7 @@ from gantry_twin.monitor import (
 )
 from gantry_twin.paths import Ellipse, TimingLaw
 from gantry_twin.plant import Payload
-from gantry_twin.ranges import VOLTS_MAX_V, Frequency, Range, Real, Seconds, Window, known_keys
+from gantry_twin.ranges import VOLTS_MAX_V, Frequency, Label, Range, Real, Seconds, Window, known_keys, quote
 from gantry_twin.sensing import SensingConfig
 from gantry_twin.simulate import Disturbance
 
@@ -207,8 +207,8 @@ class ControllerSpec(_Model):
         if self.name not in names:
             raise PydanticCustomError(
                 "unknown_controller",
-                "unknown controller '{name}'; available: {names}",
-                {"name": self.name, "names": ", ".join(names)},
+                "unknown controller {name}; available: {names}",
+                {"name": quote(self.name), "names": ", ".join(names)},
             )
         return self
 
@@ -238,9 +238,9 @@ class MonitorSpec(_Model):
 
 
 class OutputsSpec(_Model):
-    """Where and what ``gantry-twin run`` writes."""
+    """Where and what ``gantry-twin run`` writes: ``runs/<dir>/`` (default ``runs/<name>/``) unless ``--out``."""
 
-    dir: str | None = None
+    dir: Label | None = None
     trace: bool = True
     trace_stride: Annotated[int, Field(ge=1, le=100000)] = 1
 
@@ -252,7 +252,7 @@ class OutputsSpec(_Model):
 class Scenario(_Model):
     """A whole run. Every field has a default; see docs/scenarios.md."""
 
-    name: str | None = None
+    name: Label | None = None
     description: str = ""
     contour: ContourSpec = CircleSpec()
     payload: Payload = Payload()

@@ -14,6 +14,7 @@ from typing import TextIO
 
 import rerun as rr
 
+from gantry_twin.ranges import quote, shorten
 from gantry_twin.telemetry.observer import RerunObserver
 from gantry_twin.telemetry.sinks import (
     RealtimePacer,
@@ -32,7 +33,7 @@ def _realtime_factor(text: str) -> float:
     except ValueError:
         value = math.nan
     if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"FACTOR must be a number > 0 (1 = real time), got {text!r}")
+        raise argparse.ArgumentTypeError(f"FACTOR must be a number > 0 (1 = real time), got {quote(text)}")
     return value
 
 
@@ -117,9 +118,9 @@ def telemetry_observers(
     if save is not None:
         save = Path(save)
         if save.suffix != ".rrd":
-            raise TelemetryError(f"--save: FILE must end in .rrd, got {str(save)!r}")
+            raise TelemetryError(f"--save: FILE must end in .rrd, got {quote(str(save))}")
         if not save.parent.is_dir():
-            raise TelemetryError(f"--save: directory {str(save.parent)!r} does not exist")
+            raise TelemetryError(f"--save: directory {quote(str(save.parent))} does not exist")
     if connect is not None:
         check_grpc_url(connect)
     if viewer:
@@ -145,7 +146,7 @@ def telemetry_observers(
         except (RuntimeError, OSError) as error:
             if server is not None:
                 server.stop()
-            raise TelemetryError(f"--save: cannot write {str(save)!r}: {error}") from None
+            raise TelemetryError(f"--save: cannot write {quote(str(save))}: {shorten(str(error))}") from None
         rerun_observer = RerunObserver(recording)
         observers.append(rerun_observer)
     if realtime is not None:

@@ -20,6 +20,7 @@ from pathlib import Path
 
 import rerun as rr
 
+from gantry_twin.ranges import quote
 from gantry_twin.trace import RunInfo, Trace
 
 #: Every server and viewer this module starts listens on the loopback interface only.
@@ -39,7 +40,7 @@ class RealtimePacer:
 
     def __init__(self, factor: float = 1.0) -> None:
         if not (math.isfinite(factor) and factor > 0):
-            raise ValueError(f"realtime factor must be a number > 0, got {factor!r}")
+            raise ValueError(f"realtime factor must be a number > 0, got {quote(factor)}")
         self.factor = float(factor)
 
     def on_start(self, run: RunInfo, trace: Trace) -> None:
@@ -92,7 +93,7 @@ def check_grpc_url(url: str) -> str:
     """``url`` if it names a rerun gRPC endpoint (``rerun+http://HOST:PORT/proxy``), else TelemetryError."""
     parsed = urllib.parse.urlparse(url)
     if parsed.scheme not in ("rerun", "rerun+http", "rerun+https") or not parsed.netloc:
-        raise TelemetryError(f"--connect: URL must look like rerun+http://HOST:PORT/proxy, got {url!r}")
+        raise TelemetryError(f"--connect: URL must look like rerun+http://HOST:PORT/proxy, got {quote(url)}")
     return url
 
 
