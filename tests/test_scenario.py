@@ -276,3 +276,10 @@ def test_default_output_directories_stay_under_runs(tmp_path, monkeypatch):
     assert code == 0
     assert sorted(p.relative_to(tmp_path).as_posix() for p in tmp_path.glob("*")) == ["runs", "s.yaml"]
     assert (tmp_path / "runs" / "here" / "summary.json").is_file()
+
+
+def test_exponent_without_a_decimal_point_is_a_number():
+    """PyYAML (YAML 1.1) alone reads 1e-300 as a string; the scenario reader reads a number and range-checks it."""
+    from gantry_twin.scenario.loading import load_yaml
+
+    assert load_yaml("a: 1e-300\nb: [5e7, -2E-3, +1e2]\nc: e5") == {"a": 1e-300, "b": [5e7, -2e-3, 1e2], "c": "e5"}
