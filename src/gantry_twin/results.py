@@ -299,8 +299,12 @@ def trace_table(trace: Trace, stride: int = 1, start: int | None = None, stop: i
     return table.replace_schema_metadata({**(table.schema.metadata or {}), **meta})
 
 
+#: Parquet writer options: float columns rarely repeat a value, so dictionary pages would only add to the file.
+PARQUET_OPTIONS: dict[str, Any] = {"use_dictionary": False}
+
+
 def write_parquet(path: Path, table: pa.Table) -> None:
-    atomic_write(path, lambda fh: pq.write_table(table, fh))
+    atomic_write(path, lambda fh: pq.write_table(table, fh, **PARQUET_OPTIONS))
 
 
 class TraceWriter:
@@ -339,7 +343,7 @@ class TraceWriter:
     def _write(self, trace: Trace, stop: int) -> None:
         table = trace_table(trace, self.stride, self._written, stop)
         if self._writer is None:
-            self._writer = pq.ParquetWriter(self._fh, table.schema)
+            self._writer = pq.ParquetWriter(self._fh, table.schema, **PARQUET_OPTIONS)
         if table.num_rows:
             self._writer.write_table(table, row_group_size=table.num_rows)
         self._written = stop

@@ -41,7 +41,7 @@ import math
 import os
 import re
 from collections.abc import Callable, Sequence
-from typing import Literal, NamedTuple
+from typing import Literal, NamedTuple, TypeVar
 
 import mujoco
 import numpy as np
@@ -71,6 +71,8 @@ from gantry_twin.plant import Plant
 from gantry_twin.sensing import Encoder, SensingConfig, encoder_measure
 from gantry_twin.taskframe import normal_errors
 from gantry_twin.trace import Observer, RunInfo, SimulationError, Trace
+
+T = TypeVar("T")
 
 #: A disturbance timeline: times (N,) s -> input disturbance (N, 2) volts.
 Disturbance = Callable[[np.ndarray], np.ndarray]
@@ -357,7 +359,7 @@ def simulate(
                 raise ValueError(f"disturbance must give shape ({t.size}, 2) volts, got {dist.shape}")
             trace = Trace.allocate(ref, np.ascontiguousarray(dist), true_theta, first, ts)
             if moving:
-                trace.true_theta_t = changes.true_parameters_over_time(plant, t)
+                trace.true_theta_t = _as_before(model, saved, changes.true_parameters_over_time, plant, t)
                 if first == 0:
                     true_theta = trace.true_theta_t[0].copy()
                 trace.true_theta = true_theta
@@ -387,6 +389,17 @@ def simulate(
     finally:
         model.dof_damping[:], model.dof_frictionloss[:], model.body_mass[:] = saved
     return trace
+
+
+def _as_before(model: mujoco.MjModel, saved: tuple[np.ndarray, ...], function: Callable[..., T], *args: object) -> T:
+    """``function(*args)`` computed on the model as it was before the run (``saved``: its damping, friction
+    loss and masses; the loop writes the scheduled values into it)."""
+    during = (model.dof_damping.copy(), model.dof_frictionloss.copy(), model.body_mass.copy())
+    model.dof_damping[:], model.dof_frictionloss[:], model.body_mass[:] = saved
+    try:
+        return function(*args)
+    finally:
+        model.dof_damping[:], model.dof_frictionloss[:], model.body_mass[:] = during
 
 
 def _stopped_at(trace: Trace, k: int, what: str, detail: str = "") -> SimulationError:

@@ -100,6 +100,7 @@ class Trace:
             u_v=nan2.copy(),
             disturbance_v=disturbance_v,
             true_theta=true_theta,
+            filled=first,
             first=first,
             timestep_s=timestep_s,
         )
