@@ -289,7 +289,7 @@ def _announce_large_trace(built: Any) -> None:
         stride = size.stride_under()
         print(
             f"{PROG}: note: trace.parquet will take about {size.bytes / 1e9:.1f} GB ({size.rows} samples x "
-            f"{size.columns} columns); --set outputs.trace_stride={stride} keeps every {stride}th sample "
+            f"{size.columns} columns); --set outputs.trace_stride={stride} keeps one sample in {stride} "
             f"(about {size._replace(stride=stride).bytes / 1e9:.2f} GB), outputs.trace=false none",
             file=sys.stderr,
             flush=True,
@@ -348,7 +348,7 @@ def format_summary(data: dict[str, Any], wall_time_s: float, out: Path | None = 
     if "health" in data:
         lines.extend(format_health(data["health"]))
     if out is not None:
-        lines.append(f"results in {out}/ ({', '.join(files)})")
+        lines.append(f"results in {out}/" + (f" ({', '.join(files)})" if files else ""))
     return "\n".join(lines)
 
 

@@ -165,7 +165,8 @@ class Observer(Protocol):
     """Watches a run chunk by chunk; must not change the trace.
 
     ``on_chunk(trace, start, stop)``: samples [start, stop) of the run are
-    recorded, at ``trace.rows(start, stop)``. In a run held in pieces a
+    recorded, at ``trace.rows(start, stop)``. ``on_end``: after the last
+    sample, or after the samples before a fault (``trace.filled`` of them). In a run held in pieces a
     piece's samples are gone once its last chunk has been seen: an observer
     that batches must send what it holds back when ``stop`` reaches
     ``trace.first + trace.t_s.size``.
