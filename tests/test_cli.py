@@ -11,6 +11,7 @@ import pytest
 
 from gantry_twin import cli, results
 from gantry_twin.plant import THETA_NAMES
+from gantry_twin.run import execute
 from gantry_twin.scenario import shipped
 
 from .helpers import deviation_pct, read_rrd, run_main, scalars, spec_theta
@@ -25,6 +26,7 @@ SUMMARY_KEYS = {
     "duration_s",
     "sample_period_s",
     "steps",
+    "status",
     "contour_error_um",
     "estimates_window_s",
     "estimates",
@@ -360,36 +362,48 @@ def test_atomic_write_leaves_nothing_when_the_writer_fails(tmp_path):
 
 
 def test_failure_mid_write_leaves_no_complete_looking_run(tmp_path, capsys, monkeypatch):
+    from gantry_twin import run as run_module
+
     out = tmp_path / "out"
     args = ["run", str(shipped("no_load_circle")), *SHORT, "--out", str(out)]
     assert run_main(args, capsys)[0] == 0
-    assert (out / "summary.json").exists()
+    before = {p.name: p.read_bytes() for p in out.iterdir() if p.name != "run_info.json"}
 
-    def broken_write_table(table, where, **kwargs):
-        where.write(b"PAR1 half a file")
+    def broken_write_table(self, table, **kwargs):
         raise OSError("injected failure mid-write")
 
-    monkeypatch.setattr(results.pq, "write_table", broken_write_table)
-    code, _, err = run_main(args, capsys)
+    # The trace fails while the run writes it: the previous complete run stays as it was.
+    with monkeypatch.context() as patch:
+        patch.setattr(results.pq.ParquetWriter, "write_table", broken_write_table)
+        code, _, err = run_main(args, capsys)
     assert code == 1
     assert_one_line_error(err, "run failed", "injected failure mid-write")
+    assert {p.name: p.read_bytes() for p in out.iterdir() if p.name != "run_info.json"} == before
+
+    # Writing fails after the old summary.json is gone: no summary.json, no file of this run, no temporary file.
+    def broken_text(path, text):
+        raise OSError("injected failure in the last writes")
+
+    monkeypatch.setattr(run_module, "atomic_write_text", broken_text)
+    code, _, err = run_main(args, capsys)
+    assert code == 1
+    assert_one_line_error(err, "run failed", "injected failure in the last writes")
     assert not (out / "summary.json").exists()  # the stale summary is gone: the directory is visibly incomplete
     assert not [p for p in out.iterdir() if p.name.endswith(".part")]
-    assert pq.read_table(out / "trace.parquet").num_rows == 1000  # the previous trace, untouched
 
 
 def test_run_failure_exit_1(tmp_path, capsys, monkeypatch):
+    """An error that is not a fault of the simulated run (tests/test_run.py has those) leaves nothing."""
     from gantry_twin import run as run_module
-    from gantry_twin.trace import SimulationError
 
     def fail(*args, **kwargs):
-        raise SimulationError("non-finite measurement at t = 0.1 s")
+        raise RuntimeError("the simulator itself broke")
 
     monkeypatch.setattr(run_module, "simulate", fail)
     out = tmp_path / "o"
     code, _, err = run_main(["run", str(shipped("no_load_circle")), *SHORT, "--out", str(out)], capsys)
     assert code == 1
-    assert_one_line_error(err, "run failed", "SimulationError", "non-finite")
+    assert_one_line_error(err, "run failed", "RuntimeError", "simulator itself broke")
     assert not out.exists()
 
 
@@ -397,8 +411,8 @@ def test_progress_bar_only_reads_the_trace(tmp_path, capsys):
     from gantry_twin.scenario import build, load_scenario
 
     overrides = ["duration_s=0.1", "window_s=[0, 0.1]", "estimates_window_s=[0, 0.1]"]
-    plain = cli.execute(build(load_scenario(shipped("no_load_circle"), overrides)))
-    shown = cli.execute(build(load_scenario(shipped("no_load_circle"), overrides)), [cli.ProgressBar(True, 0.0)])
+    plain = execute(build(load_scenario(shipped("no_load_circle"), overrides)))
+    shown = execute(build(load_scenario(shipped("no_load_circle"), overrides)), [cli.ProgressBar(True, 0.0)])
     np.testing.assert_array_equal(plain.q_m, shown.q_m)
     assert "simulated" in capsys.readouterr().err
 

@@ -12,7 +12,15 @@ import math
 import numpy as np
 import pytest
 
-from gantry_twin.paths import TimingLaw, circle, contour_error, paper_ellipse, reference, tangent_angle
+from gantry_twin.paths import (
+    ReferenceStream,
+    TimingLaw,
+    circle,
+    contour_error,
+    paper_ellipse,
+    reference,
+    tangent_angle,
+)
 
 PATHS = {"circle": (circle(), 2.0), "ellipse": (paper_ellipse(), 3.0)}
 RNG_SEED = 20100401
@@ -196,3 +204,23 @@ def test_contour_error_is_the_distance_to_the_curve(name: str) -> None:
 def test_timing_law_rejects_bad_settings(kwargs, field):
     with pytest.raises(ValueError, match=field):
         TimingLaw(**kwargs)
+
+
+@pytest.mark.parametrize("path", [circle(), paper_ellipse()], ids=["circle", "ellipse"])
+@pytest.mark.parametrize("start", ["on_path", "rest"])
+def test_reference_in_pieces_is_the_reference_of_the_whole(path, start):
+    """ReferenceStream over pieces of 1 s (and one of 1 sample) of a 20 s run: every array bit for bit as one call,
+    alpha unwrapped across the seams (it wraps every lap) as np.unwrap does over the whole."""
+    ts, n = 2e-4, 100_000
+    timing = TimingLaw(3.0, start=start)
+    t = np.arange(n) * ts
+    whole = reference(path, timing, t)
+    raw_alpha = tangent_angle(path, timing.derivatives(t)[0])[0]
+    np.testing.assert_array_equal(whole.alpha, np.unwrap(raw_alpha))
+    assert whole.alpha[-1] - whole.alpha[0] > 8 * np.pi  # several laps: several wraps
+    stream = ReferenceStream(path, timing)
+    seams = [0, 1, *range(5000, n, 5000), n]
+    pieces = [stream.next(t[a:b]) for a, b in zip(seams[:-1], seams[1:], strict=True)]
+    for field in ("t_s", "phi", "dphi", "q_d", "dq_d", "ddq_d", "alpha", "dalpha", "ddalpha"):
+        joined = np.concatenate([getattr(piece, field) for piece in pieces])
+        np.testing.assert_array_equal(joined, getattr(whole, field), err_msg=field)

@@ -1,26 +1,38 @@
 """The command line: ``gantry-twin run | monitor | validate | report`` (docs/cli.md).
 
 Exit codes: 0 success; 2 bad input (one line on stderr naming the file, the
-field and what is allowed; nothing written); 1 the run itself failed;
-3 ``monitor --fail-on-alarm`` and the health monitor raised an alarm;
-4 ``--strict`` (run, monitor) and a carriage touched an end stop (the files are
-written; checked before 3); 130 interrupted (Ctrl-C).
+field and what is allowed; nothing written), an output directory that
+cannot be written included; 1 the run itself failed (a fault in the run:
+its trace up to the fault and summary.json with ``status: failed`` are
+written); 3 ``monitor --fail-on-alarm`` and the health monitor raised an
+alarm; 4 ``--strict`` (run, monitor) and a carriage touched an end stop (the
+files are written; checked before 3); 128 + the signal's number when stopped
+by a signal: 130 SIGINT (Ctrl-C), 143 SIGTERM, 129 SIGHUP.
+
+SIGINT, SIGTERM and SIGHUP are handled alike: the first raises
+:class:`Interrupted` (a KeyboardInterrupt) wherever the program is, which
+removes the run's temporary files and stops the web viewer's process; later
+ones are ignored while that happens. While ``--serve-web`` keeps serving a
+finished run, one of them stops it (exit status of the run).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
+import signal
 import sys
-import time
-from collections.abc import Sequence
+import threading
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any, NoReturn
 
 from gantry_twin.events import touched_end_stop, travel_warnings
 from gantry_twin.monitor import Alarm
 from gantry_twin.ranges import shorten
-from gantry_twin.run import RUN_FILES, execute, write_run
+from gantry_twin.results import STOP_SIGNALS
+from gantry_twin.run import LARGE_TRACE_BYTES, RunWriter, trace_size
 from gantry_twin.scenario import (
     Scenario,
     ScenarioError,
@@ -43,7 +55,36 @@ EXIT_RUN_FAILED = 1
 EXIT_BAD_INPUT = 2
 EXIT_ALARM = 3
 EXIT_END_STOP = 4
-EXIT_INTERRUPTED = 130  # 128 + SIGINT, as shells report it
+EXIT_INTERRUPTED = 128  # + the signal's number, as shells report it: 130 SIGINT, 143 SIGTERM, 129 SIGHUP
+
+
+class Interrupted(KeyboardInterrupt):
+    """SIGINT, SIGTERM or SIGHUP arrived (``signum``): unwinds like Ctrl-C."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+@contextlib.contextmanager
+def stop_signals_interrupt() -> Iterator[None]:
+    """In the block, the first SIGINT, SIGTERM or SIGHUP raises :class:`Interrupted`; later ones are ignored
+    (the clean-up runs undisturbed). The previous handlers come back after the block."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def interrupt(signum: int, frame: object) -> None:
+        for stop in STOP_SIGNALS:
+            signal.signal(stop, signal.SIG_IGN)
+        raise Interrupted(signum)
+
+    previous = {stop: signal.signal(stop, interrupt) for stop in STOP_SIGNALS}
+    try:
+        yield
+    finally:
+        for stop, handler in previous.items():
+            signal.signal(stop, handler)
 
 
 class BadInput(Exception):
@@ -76,7 +117,7 @@ class ProgressBar:
         from tqdm import tqdm
 
         self._bar = tqdm(
-            total=trace.t_s.size,
+            total=run.samples,
             unit="s",
             unit_scale=trace.sample_period_s,
             desc=f"{run.controller_name}",
@@ -190,17 +231,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     except SystemExit as exc:  # --help (0) or a usage error (2)
         return int(exc.code or 0)
     try:
-        if args.command in ("run", "monitor"):
-            return _run(args)
-        if args.command == "validate":
-            return _validate(args)
-        return _report(args)
+        with stop_signals_interrupt():
+            if args.command in ("run", "monitor"):
+                return _run(args)
+            if args.command == "validate":
+                return _validate(args)
+            return _report(args)
     except (ScenarioError, BadInput, TelemetryError) as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    except KeyboardInterrupt:
-        print(f"{PROG}: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
+    except KeyboardInterrupt as exc:
+        signum = getattr(exc, "signum", signal.SIGINT)
+        print(f"{PROG}: interrupted ({signal.Signals(signum).name})", file=sys.stderr)
+        return EXIT_INTERRUPTED + signum
 
 
 def _scenario_path(arg: str | None) -> Path:
@@ -243,6 +286,28 @@ def _failed(what: str, exc: Exception) -> int:
     return EXIT_RUN_FAILED
 
 
+def _writer(out: Path, built: Any) -> RunWriter:
+    """The run's writer: BadInput (exit 2) if ``out`` cannot be made or written, before anything runs."""
+    try:
+        return RunWriter(out, built)
+    except OSError as exc:
+        raise BadInput(f"--out {out}: cannot write there ({exc.strerror or exc})") from None
+
+
+def _announce_large_trace(built: Any) -> None:
+    """One line on stderr before a run whose trace.parquet would pass LARGE_TRACE_BYTES."""
+    size = trace_size(built)
+    if size.bytes > LARGE_TRACE_BYTES:
+        stride = size.stride_under()
+        print(
+            f"{PROG}: note: trace.parquet will take about {size.bytes / 1e9:.1f} GB ({size.rows} samples x "
+            f"{size.columns} columns); --set outputs.trace_stride={stride} keeps one sample in {stride} "
+            f"(about {size._replace(stride=stride).bytes / 1e9:.2f} GB), outputs.trace=false none",
+            file=sys.stderr,
+            flush=True,
+        )
+
+
 def _run(args: argparse.Namespace) -> int:
     path = _scenario_path(args.scenario)
     overrides = list(args.overrides)
@@ -251,29 +316,38 @@ def _run(args: argparse.Namespace) -> int:
     scenario = load_scenario(path, overrides, args.controller)
     built = build(scenario, str(path))
     out = _out_dir(args, scenario)
-    telemetry = telemetry_observers(args)  # checks every option before anything runs
-    if loop_needs_compiling(built.controller):
-        print(f"{PROG}: compiling the 0.2 ms loop for this machine, once (about 25 s)", file=sys.stderr, flush=True)
-    with telemetry:
-        try:
-            started = time.perf_counter()
-            trace = execute(built, [_progress(args), *telemetry])
-            wall_time_s = time.perf_counter() - started
-            summary = write_run(out, built, trace, wall_time_s)
-        except Exception as exc:  # the run or the writing failed: not the user's input
-            return _failed("run", exc)
-        print(format_summary(summary, wall_time_s, out), flush=True)
-    for line in travel_warnings(summary):
+    with _writer(out, built) as writer:
+        telemetry = telemetry_observers(args)  # checks every option before anything runs
+        _announce_large_trace(built)
+        if loop_needs_compiling(built.controller):
+            print(f"{PROG}: compiling the 0.2 ms loop for this machine, once (about 25 s)", file=sys.stderr, flush=True)
+        with telemetry:
+            try:
+                outcome = writer.run([_progress(args), *telemetry])
+            except Exception as exc:  # the run or the writing failed: not the user's input
+                return _failed("run", exc)
+            if outcome.failed:
+                if os.environ.get("GANTRY_TWIN_DEBUG") and outcome.error is not None:
+                    raise outcome.error
+                failure = outcome.summary["failure"]
+                print(
+                    f"{PROG}: run failed: {failure['error']}; the run up to it is in {out}/ "
+                    f"({', '.join(outcome.files)}; status: failed)",
+                    file=sys.stderr,
+                )
+                return EXIT_RUN_FAILED
+            print(format_summary(outcome.summary, outcome.wall_time_s, out, outcome.files), flush=True)
+    for line in travel_warnings(outcome.summary):
         print(f"{PROG}: warning: {line}", file=sys.stderr)
-    if args.strict and touched_end_stop(summary):
+    if args.strict and touched_end_stop(outcome.summary):
         return EXIT_END_STOP
-    if getattr(args, "fail_on_alarm", False) and summary.get("health", {}).get("alarms"):
+    if getattr(args, "fail_on_alarm", False) and outcome.summary.get("health", {}).get("alarms"):
         return EXIT_ALARM
     return EXIT_OK
 
 
-def format_summary(data: dict[str, Any], wall_time_s: float, out: Path | None = None) -> str:
-    """The short human summary ``run`` prints."""
+def format_summary(data: dict[str, Any], wall_time_s: float, out: Path | None = None, files: Sequence[str] = ()) -> str:
+    """The short human summary ``run`` prints (``files``: those written into ``out``)."""
     c = data["contour_error_um"]
     lines = [
         f"{data['scenario']} with {data['controller']}: {data['duration_s']:g} s simulated "
@@ -290,7 +364,7 @@ def format_summary(data: dict[str, Any], wall_time_s: float, out: Path | None = 
     if "health" in data:
         lines.extend(format_health(data["health"]))
     if out is not None:
-        lines.append(f"results in {out}/ ({', '.join(RUN_FILES)})")
+        lines.append(f"results in {out}/" + (f" ({', '.join(files)})" if files else ""))
     return "\n".join(lines)
 
 

@@ -103,7 +103,8 @@ class TravelWatch:
         self._reset()
 
     def on_chunk(self, trace: Trace, start: int, stop: int) -> None:
-        self.scan(trace.t_s[start:stop], trace.q_m[start:stop], trace.u_v[start:stop])
+        rows = trace.rows(start, stop)
+        self.scan(trace.t_s[rows], trace.q_m[rows], trace.u_v[rows])
 
     def on_end(self, trace: Trace) -> None:
         pass

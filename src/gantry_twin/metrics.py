@@ -29,8 +29,46 @@ def window_mask(t_s: np.ndarray, window_s: tuple[float, float]) -> np.ndarray:
 
 def contour_metrics(trace: Trace, window_s: tuple[float, float]) -> ContourMetrics:
     """The paper's ||eps_c||_rms and eps_cM over the window."""
-    eps = np.abs(trace.eps_c_m[window_mask(trace.t_s, window_s)]) * 1e6
+    return contour_metrics_of(trace.eps_c_m[window_mask(trace.t_s, window_s)], window_s)
+
+
+def contour_metrics_of(eps_c_m: np.ndarray, window_s: tuple[float, float]) -> ContourMetrics:
+    """:func:`contour_metrics` of the true contour errors eps_c (m) of the window's samples, in sample order."""
+    eps = np.abs(eps_c_m) * 1e6
     return ContourMetrics(float(np.sqrt(np.mean(eps**2))), float(eps.max()), window_s)
+
+
+class WindowMean:
+    """The mean over the samples in a window of a series of rows (N, k), gathered chunk by chunk.
+
+    The same floats as ``values[window_mask(t_s, window_s)].mean(axis=0)`` over
+    the whole series, however it is cut: numpy sums axis 0 of such an array
+    row after row, and the partial sum is carried on in the same order.
+    """
+
+    def __init__(self, window_s: tuple[float, float]) -> None:
+        self.window_s = window_s
+        self.count = 0
+        self._sum: np.ndarray | None = None
+        self._shape: tuple[int, ...] = ()
+
+    def add(self, t_s: np.ndarray, values: np.ndarray) -> WindowMean:
+        """Samples at times t_s (in order, after those added before) with their values (N, ...)."""
+        rows = values[(t_s >= self.window_s[0]) & (t_s < self.window_s[1])]
+        if rows.shape[0]:
+            self.count += rows.shape[0]
+            self._shape = rows.shape[1:]
+            rows = rows.reshape(rows.shape[0], -1)
+            if self._sum is not None:
+                rows = np.concatenate([self._sum[None, :], rows])
+            self._sum = np.add.reduce(rows, axis=0)
+        return self
+
+    def mean(self) -> np.ndarray:
+        """The mean (the shape of one row); ValueError if no sample was in the window."""
+        if self._sum is None:
+            raise ValueError(f"window {self.window_s} s holds no sample of the run")
+        return (self._sum / self.count).reshape(self._shape)
 
 
 def steady_estimates(trace: Trace, window_s: tuple[float, float]) -> np.ndarray | None:
@@ -38,7 +76,7 @@ def steady_estimates(trace: Trace, window_s: tuple[float, float]) -> np.ndarray 
     theta = trace.controller_state.get("theta_hat")
     if theta is None:
         return None
-    return theta[window_mask(trace.t_s, window_s)].mean(axis=0)
+    return WindowMean(window_s).add(trace.t_s, theta).mean()
 
 
 def steady_true_parameters(trace: Trace, window_s: tuple[float, float]) -> np.ndarray:
@@ -47,7 +85,52 @@ def steady_true_parameters(trace: Trace, window_s: tuple[float, float]) -> np.nd
     It moves when the run has plant changes (a payload picked up, drifting
     friction); a window before the change is judged against the old value.
     """
-    return trace.true_parameters_t()[window_mask(trace.t_s, window_s)].mean(axis=0)
+    return WindowMean(window_s).add(trace.t_s, trace.true_parameters_t()).mean()
+
+
+class RunMetrics:
+    """What summary.json judges a run by, gathered chunk by chunk (an Observer): the contour error over
+    ``contour_window_s`` and the mean estimate and true theta over ``estimate_window_s``.
+
+    Holds the window's eps_c (8 bytes per sample in it) and two running sums,
+    so a run held in pieces is judged as a whole trace would be, to the bit.
+    """
+
+    def __init__(self, contour_window_s: tuple[float, float], estimate_window_s: tuple[float, float]) -> None:
+        self.contour_window_s, self.estimate_window_s = contour_window_s, estimate_window_s
+        self._eps_c: list[np.ndarray] = []
+        self._theta = WindowMean(estimate_window_s)
+        self._true = WindowMean(estimate_window_s)
+        self._estimated = False
+
+    def on_start(self, run: object, trace: Trace) -> None:
+        pass
+
+    def on_chunk(self, trace: Trace, start: int, stop: int) -> None:
+        rows = trace.rows(start, stop)
+        t = trace.t_s[rows]
+        w = self.contour_window_s
+        self._eps_c.append(trace.eps_c_m[rows][(t >= w[0]) & (t < w[1])])
+        theta = trace.controller_state.get("theta_hat")
+        if theta is not None:
+            self._estimated = True
+            self._theta.add(t, theta[rows])
+            self._true.add(t, trace.true_parameters_t()[rows])
+
+    def on_end(self, trace: Trace) -> None:
+        pass
+
+    def contour(self) -> ContourMetrics:
+        eps = np.concatenate(self._eps_c) if self._eps_c else np.zeros(0)
+        if eps.size == 0:
+            raise ValueError(f"window {self.contour_window_s} s holds no sample of the run")
+        return contour_metrics_of(eps, self.contour_window_s)
+
+    def estimates(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """(mean theta^, mean true theta) over the estimate window, or None if the controller logs no theta_hat."""
+        if not self._estimated:
+            return None
+        return self._theta.mean(), self._true.mean()
 
 
 def error_pct(estimate: float, true: float) -> float | None:

@@ -283,7 +283,7 @@ class MachineMonitor:
         self._next = stop
         if stop <= start:
             return
-        g, speed = self._regressors.advance(trace.q_meas_m[start:stop])
+        g, speed = self._regressors.advance(trace.q_meas_m[trace.rows(start, stop)])
         weight = np.where(speed >= self.excitation.sliding_speed_m_s, self._ts, 0.0)
         most = (stop - start) // self._period + 1
         blocks = np.empty((most, 2, 4, 4))
@@ -300,12 +300,12 @@ class MachineMonitor:
         level, param = normalised_excitation(infos, self._scale, self._window_s)
         for i, end in enumerate(ends):
             self._close_period(
-                float(trace.t_s[end]),
+                float(trace.t_s[end - trace.first]),
                 infos[i],
                 level[i],
                 param[i],
                 block_moving[i],
-                None if theta is None else theta[end],
+                None if theta is None else theta[end - trace.first],
             )
 
     def on_end(self, trace) -> None:

@@ -161,24 +161,71 @@ def tangent_angle(path: Path, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray, 
 
 def reference(path: Path, timing: TimingLaw, t_s: np.ndarray) -> Reference:
     """Sample the desired motion at times t_s (vectorised)."""
-    phi, dphi, ddphi, _ = timing.derivatives(t_s)
-    p, dp, ddp, _ = path.derivatives(phi)
-    alpha, a_phi, a_phiphi = tangent_angle(path, phi)
-    dq = dp * dphi[:, None]
-    ddq = ddp * (dphi**2)[:, None] + dp * ddphi[:, None]
-    # Unwrap so alpha is continuous along the run (the frame only uses sin/cos).
-    alpha = np.unwrap(alpha)
-    return Reference(
-        t_s=np.asarray(t_s, dtype=float),
-        phi=phi,
-        dphi=dphi,
-        q_d=p,
-        dq_d=dq,
-        ddq_d=ddq,
-        alpha=alpha,
-        dalpha=a_phi * dphi,
-        ddalpha=a_phiphi * dphi**2 + a_phi * ddphi,
-    )
+    return ReferenceStream(path, timing).next(t_s)
+
+
+class ReferenceStream:
+    """:func:`reference` over consecutive pieces of a run's times, for a run held piece by piece.
+
+    The pieces give the same arrays, bit for bit, as one call over all the
+    times: every quantity is a function of its own time alone, except alpha,
+    which is unwrapped across the pieces (``np.unwrap``'s operations, carried
+    on from the last sample of the previous piece).
+    """
+
+    def __init__(self, path: Path, timing: TimingLaw) -> None:
+        self.path, self.timing = path, timing
+        self._last: tuple[float, float] | None = None  # (raw alpha, its accumulated correction) of the last sample
+
+    def next(self, t_s: np.ndarray) -> Reference:
+        """The reference at the times t_s that follow the previous piece's."""
+        path = self.path
+        phi, dphi, ddphi, _ = self.timing.derivatives(t_s)
+        p, dp, ddp, _ = path.derivatives(phi)
+        alpha, a_phi, a_phiphi = tangent_angle(path, phi)
+        dq = dp * dphi[:, None]
+        ddq = ddp * (dphi**2)[:, None] + dp * ddphi[:, None]
+        # Unwrap so alpha is continuous along the run (the frame only uses sin/cos).
+        alpha = self._unwrap(alpha)
+        return Reference(
+            t_s=np.asarray(t_s, dtype=float),
+            phi=phi,
+            dphi=dphi,
+            q_d=p,
+            dq_d=dq,
+            ddq_d=ddq,
+            alpha=alpha,
+            dalpha=a_phi * dphi,
+            ddalpha=a_phiphi * dphi**2 + a_phi * ddphi,
+        )
+
+    def _unwrap(self, raw: np.ndarray) -> np.ndarray:
+        """``np.unwrap(raw)`` continued from the previous piece (the same operations, period 2 pi)."""
+        if raw.size == 0:
+            return raw.copy()
+        if self._last is None:
+            accumulated = np.cumsum(_unwrap_corrections(np.diff(raw)))
+            out = raw.copy()
+            out[1:] = raw[1:] + accumulated
+            last = float(accumulated[-1]) if accumulated.size else 0.0
+        else:
+            corrections = _unwrap_corrections(np.diff(np.concatenate([[self._last[0]], raw])))
+            accumulated = np.cumsum(np.concatenate([[self._last[1]], corrections]))[1:]
+            out = raw + accumulated
+            last = float(accumulated[-1])
+        self._last = (float(raw[-1]), last)
+        return out
+
+
+def _unwrap_corrections(dd: np.ndarray) -> np.ndarray:
+    """The phase correction np.unwrap adds for each difference dd of successive angles (period 2 pi)."""
+    period = 2.0 * math.pi
+    high = period / 2
+    ddmod = np.mod(dd + high, period) - high
+    np.copyto(ddmod, high, where=(ddmod == -high) & (dd > 0))
+    correction = ddmod - dd
+    np.copyto(correction, 0, where=np.abs(dd) < high)
+    return correction
 
 
 def contour_error(

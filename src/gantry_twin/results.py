@@ -9,7 +9,9 @@ Every file is written atomically: into a temporary file in the same
 directory, flushed and fsync'ed, then renamed over the final name
 (``os.replace``). A crash leaves either the old file, the new file, or a
 hidden ``.<name>.*.part`` file, never a half-written file under the final
-name.
+name; an exception (Ctrl-C, and SIGTERM and SIGHUP under the command line)
+removes the temporary file. The trace can be written as the run goes
+(:class:`TraceWriter`, one Parquet row group per piece of the run).
 """
 
 from __future__ import annotations
@@ -17,8 +19,10 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import signal
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
 
@@ -26,32 +30,80 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from gantry_twin.metrics import contour_metrics, estimate_errors_pct, steady_estimates, steady_true_parameters
+from gantry_twin.metrics import RunMetrics, estimate_errors_pct
 from gantry_twin.plant import AXES, THETA_NAMES
 from gantry_twin.scenario import Scenario
-from gantry_twin.trace import Trace
+from gantry_twin.trace import RunInfo, Trace
 
 #: Version of the summary.json layout; bumped on any incompatible change.
 SUMMARY_SCHEMA_VERSION = 1
+
+
+#: Signals the command line turns into an exception (cli.py); held while a temporary file is being created.
+STOP_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name))
+
+
+@contextlib.contextmanager
+def signals_held() -> Iterator[None]:
+    """Delay SIGINT, SIGTERM and SIGHUP until the block ends (where the platform allows)."""
+    if not hasattr(signal, "pthread_sigmask"):
+        yield
+        return
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+
+
+def temporary_file(path: Path) -> tuple[IO[bytes], Path]:
+    """A new hidden ``.<name>.*.part`` file beside ``path`` (with the usual permissions), open for writing.
+
+    Create and name it inside ``with signals_held():`` within the ``try``
+    whose ``except`` discards it, so that an interrupt comes after the name is known.
+    """
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".part")
+    try:
+        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give the usual permissions
+        return os.fdopen(fd, "wb"), Path(tmp)
+    except BaseException:
+        os.close(fd)
+        os.unlink(tmp)
+        raise
+
+
+def commit(fh: IO[bytes], tmp: Path, path: Path) -> None:
+    """Flush, fsync and close ``fh`` (the temporary file ``tmp``), rename it to ``path``, fsync the directory."""
+    fh.flush()
+    os.fsync(fh.fileno())
+    fh.close()
+    os.replace(tmp, path)
+    _fsync_dir(path.parent)
+
+
+def discard(fh: IO[bytes] | None, tmp: Path | None) -> None:
+    """Close and remove a temporary file (whatever state it is in)."""
+    if fh is not None:
+        with contextlib.suppress(OSError):
+            fh.close()
+    if tmp is not None:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
 
 
 def atomic_write(path: Path, write: Callable[[IO[bytes]], None]) -> None:
     """Write a file via temp file + fsync + os.replace; on error no file appears."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".part")
+    fh = tmp = None
     try:
-        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give the usual permissions
-        with os.fdopen(fd, "wb") as fh:
-            write(fh)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
+        with signals_held():
+            fh, tmp = temporary_file(path)
+        write(fh)
+        commit(fh, tmp, path)
     except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
+        discard(fh, tmp)
         raise
-    _fsync_dir(path.parent)
 
 
 def _umask() -> int:
@@ -79,31 +131,60 @@ def _fsync_dir(directory: Path) -> None:
 
 
 def summary(scenario: Scenario, trace: Trace, controller_name: str, health: Any = None) -> dict[str, Any]:
-    """The summary.json contract (see docs/cli.md); deterministic for a given scenario.
+    """The summary.json contract (see docs/cli.md) of a run's whole trace; deterministic for a given scenario.
 
     health: the run's :class:`gantry_twin.monitor.MonitorReport` (a ``health``
     section is added only when given). Estimates are judged against the mean
     true theta over the same window (it moves when the scenario has changes).
     """
-    metrics = contour_metrics(trace, scenario.metric_window_s)
+    metrics = RunMetrics(scenario.metric_window_s, scenario.estimate_window_s)
+    metrics.on_chunk(trace, trace.first, trace.filled)
+    return run_summary(scenario, controller_name, trace.sample_period_s, trace.filled, metrics, health)
+
+
+@dataclass(frozen=True)
+class Failure:
+    """Why a run stopped before its end: at time_s, sample ``step`` (None if before the first), the error text."""
+
+    time_s: float | None
+    step: int | None
+    error: str
+
+
+def run_summary(
+    scenario: Scenario,
+    controller_name: str,
+    sample_period_s: float,
+    steps: int,
+    metrics: RunMetrics,
+    health: Any = None,
+    failure: Failure | None = None,
+) -> dict[str, Any]:
+    """:func:`summary` from what the run's observers gathered; ``failure``: the run stopped early (status failed,
+    no contour error or estimates: they judge a whole run)."""
     out: dict[str, Any] = {
         "schema_version": SUMMARY_SCHEMA_VERSION,
         "scenario": scenario.name,
         "controller": controller_name,
         "duration_s": scenario.duration_s,
-        "sample_period_s": trace.sample_period_s,
-        "steps": int(trace.filled),
-        "contour_error_um": {"rms": metrics.rms_um, "max": metrics.max_um, "window_s": list(metrics.window_s)},
+        "sample_period_s": sample_period_s,
+        "steps": int(steps),
+        "status": "ok" if failure is None else "failed",
     }
-    estimate = steady_estimates(trace, scenario.estimate_window_s)
-    if estimate is not None and estimate.shape == (len(THETA_NAMES),):  # a plug-in may log another theta_hat
-        true = steady_true_parameters(trace, scenario.estimate_window_s)
-        errors = estimate_errors_pct(estimate, true)
-        out["estimates_window_s"] = list(scenario.estimate_window_s)
-        out["estimates"] = {
-            name: {"estimate": float(est), "true": float(tru), "error_pct": errors[name]}
-            for name, est, tru in zip(THETA_NAMES, estimate, true, strict=True)
-        }
+    if failure is not None:
+        out["failure"] = {"time_s": failure.time_s, "step": failure.step, "error": failure.error}
+    else:
+        contour = metrics.contour()
+        out["contour_error_um"] = {"rms": contour.rms_um, "max": contour.max_um, "window_s": list(contour.window_s)}
+        estimates = metrics.estimates()
+        if estimates is not None and estimates[0].shape == (len(THETA_NAMES),):  # a plug-in may log another
+            estimate, true = estimates
+            errors = estimate_errors_pct(estimate, true)
+            out["estimates_window_s"] = list(scenario.estimate_window_s)
+            out["estimates"] = {
+                name: {"estimate": float(est), "true": float(tru), "error_pct": errors[name]}
+                for name, est, tru in zip(THETA_NAMES, estimate, true, strict=True)
+            }
     if health is not None:
         out["health"] = health_summary(health)
     return out
@@ -156,7 +237,7 @@ def _columns(name: str, values: np.ndarray) -> dict[str, np.ndarray]:
     """Split an (N,), (N, 2) or (N, 8) series into scalar columns."""
     if values.ndim == 1:
         return {name: values}
-    flat = values.reshape(values.shape[0], -1)
+    flat = values.reshape(values.shape[0], int(np.prod(values.shape[1:])))
     width = flat.shape[1]
     if width == 2:
         suffixes: tuple[str, ...] = AXES
@@ -167,7 +248,27 @@ def _columns(name: str, values: np.ndarray) -> dict[str, np.ndarray]:
     return {f"{name}_{s}": flat[:, i] for i, s in enumerate(suffixes)}
 
 
-def trace_table(trace: Trace, stride: int = 1) -> pa.Table:
+#: The trace's own columns, before the controller's logged state: name -> (Trace attribute, its column or None).
+TRACE_COLUMNS: dict[str, tuple[str, int | None]] = {
+    "t_s": ("t_s", None),
+    "x_m": ("q_m", 0),
+    "y_m": ("q_m", 1),
+    "x_meas_m": ("q_meas_m", 0),
+    "y_meas_m": ("q_meas_m", 1),
+    "x_d_m": ("q_d_m", 0),
+    "y_d_m": ("q_d_m", 1),
+    "e_x_m": ("e_m", 0),
+    "e_y_m": ("e_m", 1),
+    "eps_n_m": ("eps_n_m", None),
+    "eps_c_m": ("eps_c_m", None),
+    "u_x_v": ("u_v", 0),
+    "u_y_v": ("u_v", 1),
+    "d_x_v": ("disturbance_v", 0),
+    "d_y_v": ("disturbance_v", 1),
+}
+
+
+def trace_table(trace: Trace, stride: int = 1, start: int | None = None, stop: int | None = None) -> pa.Table:
     """The trace as one column per scalar series (SI units and volts), every ``stride``-th sample.
 
     Columns: t_s; x_m, y_m (true position); x_meas_m, y_meas_m (encoder);
@@ -177,17 +278,18 @@ def trace_table(trace: Trace, stride: int = 1) -> pa.Table:
     The true parameters at t = 0 are in the schema metadata (``true_theta``,
     JSON); when the scenario changes the plant they are also columns,
     true_theta_M1 ... true_theta_dN2, volt units.
+    start, stop: the samples [start, stop) of the run (default: those the
+    trace holds, up to ``filled``); a sample is kept when its index in the
+    run is a multiple of ``stride``.
     """
-    n = trace.filled
-    rows = slice(0, n, stride)
-    cols: dict[str, np.ndarray] = {"t_s": trace.t_s[rows]}
-    cols.update({"x_m": trace.q_m[rows, 0], "y_m": trace.q_m[rows, 1]})
-    cols.update({"x_meas_m": trace.q_meas_m[rows, 0], "y_meas_m": trace.q_meas_m[rows, 1]})
-    cols.update({"x_d_m": trace.q_d_m[rows, 0], "y_d_m": trace.q_d_m[rows, 1]})
-    cols.update({"e_x_m": trace.e_m[rows, 0], "e_y_m": trace.e_m[rows, 1]})
-    cols.update({"eps_n_m": trace.eps_n_m[rows], "eps_c_m": trace.eps_c_m[rows]})
-    cols.update({"u_x_v": trace.u_v[rows, 0], "u_y_v": trace.u_v[rows, 1]})
-    cols.update({"d_x_v": trace.disturbance_v[rows, 0], "d_y_v": trace.disturbance_v[rows, 1]})
+    start = trace.first if start is None else start
+    stop = trace.filled if stop is None else stop
+    kept = -(-start // stride) * stride  # the first multiple of stride from start
+    rows = slice(kept - trace.first, max(kept, stop) - trace.first, stride)
+    cols: dict[str, np.ndarray] = {}
+    for name, (attribute, column) in TRACE_COLUMNS.items():
+        values = getattr(trace, attribute)[rows]
+        cols[name] = values if column is None else values[:, column]
     for key in sorted(trace.controller_state):
         cols.update(_columns(key, trace.controller_state[key][rows]))
     if trace.true_theta_t is not None:  # the plant changed during the run
@@ -197,5 +299,70 @@ def trace_table(trace: Trace, stride: int = 1) -> pa.Table:
     return table.replace_schema_metadata({**(table.schema.metadata or {}), **meta})
 
 
+#: Parquet writer options: float columns rarely repeat a value, so dictionary pages would only add to the file.
+PARQUET_OPTIONS: dict[str, Any] = {"use_dictionary": False}
+
+
 def write_parquet(path: Path, table: pa.Table) -> None:
-    atomic_write(path, lambda fh: pq.write_table(table, fh))
+    atomic_write(path, lambda fh: pq.write_table(table, fh, **PARQUET_OPTIONS))
+
+
+class TraceWriter:
+    """trace.parquet written as the run goes (an Observer): every ``stride``-th sample, one row group per piece
+    of a run held in pieces (one for a whole run), into a hidden temporary file beside ``path``.
+
+    :meth:`close` completes the file and renames it to ``path``; :meth:`discard`
+    removes it. After a fault the file holds every sample before it
+    (``on_end`` writes what the last piece holds).
+    """
+
+    def __init__(self, path: Path, stride: int = 1) -> None:
+        self.path, self.stride = Path(path), int(stride)
+        self._fh: IO[bytes] | None = None
+        self._tmp: Path | None = None
+        self._writer: pq.ParquetWriter | None = None
+        self._written = 0  # samples [0, _written) of the run are in the file
+        self._empty: pa.Table | None = None
+        try:
+            with signals_held():
+                self._fh, self._tmp = temporary_file(self.path)
+        except BaseException:
+            self.discard()
+            raise
+
+    def on_start(self, run: RunInfo, trace: Trace) -> None:
+        pass
+
+    def on_chunk(self, trace: Trace, start: int, stop: int) -> None:
+        if stop >= trace.first + trace.t_s.size:  # the end of the piece: its samples go now
+            self._write(trace, stop)
+
+    def on_end(self, trace: Trace) -> None:
+        self._write(trace, trace.filled)
+
+    def _write(self, trace: Trace, stop: int) -> None:
+        table = trace_table(trace, self.stride, self._written, stop)
+        if self._writer is None:
+            self._writer = pq.ParquetWriter(self._fh, table.schema, **PARQUET_OPTIONS)
+        if table.num_rows:
+            self._writer.write_table(table, row_group_size=table.num_rows)
+        self._written = stop
+
+    def close(self) -> None:
+        """Complete the file (also with no sample) and rename it to ``path``."""
+        assert self._fh is not None and self._tmp is not None, "closed or discarded already"
+        if self._writer is None:
+            raise RuntimeError("the trace writer saw no run")
+        self._writer.close()
+        self._writer = None
+        commit(self._fh, self._tmp, self.path)
+        self._fh = self._tmp = None
+
+    def discard(self) -> None:
+        """Remove the temporary file (idempotent)."""
+        if self._writer is not None:
+            with contextlib.suppress(Exception):
+                self._writer.close()
+            self._writer = None
+        discard(self._fh, self._tmp)
+        self._fh = self._tmp = None

@@ -1,4 +1,15 @@
-"""Running a built scenario and writing its outputs (used by the CLI, the report and sweeps)."""
+"""Running a built scenario and writing its outputs (used by the CLI, the report and sweeps).
+
+The output contract (docs/cli.md): a directory that holds ``summary.json``
+holds exactly one complete run. :class:`RunWriter` keeps it: it checks that
+the directory can be written before anything runs, writes the trace as the
+run goes (a hidden temporary file), and at the end deletes the old
+summary.json, puts the new files in place, removes the files of an earlier
+run that this run does not write, and writes summary.json last. An
+interrupted run removes its temporary files (and a directory it made and
+left empty); a run stopped by a fault (:class:`SimulationError`) is written
+with the trace up to the fault and ``status: failed``.
+"""
 
 from __future__ import annotations
 
@@ -7,23 +18,45 @@ import platform
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
-from gantry_twin.events import travel_summary
+from gantry_twin.controllers.base import compiled_step_of
+from gantry_twin.events import TravelWatch
+from gantry_twin.metrics import RunMetrics
+from gantry_twin.results import (
+    TRACE_COLUMNS,
+    Failure,
+    TraceWriter,
+    atomic_write_text,
+    discard,
+    run_summary,
+    signals_held,
+    summary_json,
+    temporary_file,
+)
 from gantry_twin.scenario import BuiltRun, dump_yaml
-from gantry_twin.simulate import simulate
-from gantry_twin.trace import Observer, Trace
+from gantry_twin.simulate import sample_count, simulate
+from gantry_twin.trace import Observer, SimulationError, Trace
 
-#: The files :func:`write_run` leaves in a run's directory (docs/cli.md); summary.json is written last.
+#: The files :class:`RunWriter` leaves in a run's directory (docs/cli.md); summary.json is written last.
 SUMMARY_FILE = "summary.json"
 SCENARIO_FILE = "scenario.yaml"
 TRACE_FILE = "trace.parquet"
 RUN_INFO_FILE = "run_info.json"
 RUN_FILES = (SUMMARY_FILE, SCENARIO_FILE, TRACE_FILE, RUN_INFO_FILE)
 
+#: How much of a run :func:`run_and_write` holds in memory, s: the trace goes to disk a piece (row group) at a time.
+HOLD_S = 10.0
+#: A trace.parquet larger than this, bytes (estimated), is announced before the run with the trace_stride hint.
+LARGE_TRACE_BYTES = 10**9
+
 
 def execute(built: BuiltRun, observers: Sequence[Observer] = ()) -> Trace:
-    """Simulate a built scenario."""
+    """Simulate a built scenario; the whole trace, in memory."""
+    return _simulate(built, observers)
+
+
+def _simulate(built: BuiltRun, observers: Sequence[Observer], hold_s: float | None = None) -> Trace:
     s = built.scenario
     if built.monitor is not None:
         # First, so that observers after it (telemetry) see this chunk's alarms.
@@ -42,29 +75,180 @@ def execute(built: BuiltRun, observers: Sequence[Observer] = ()) -> Trace:
         observers=observers,
         controller_name=s.controller.name,
         changes=built.changes,
+        hold_s=hold_s,
     )
 
 
-def write_run(out: Path, built: BuiltRun, trace: Trace, wall_time_s: float) -> dict[str, Any]:
-    """Write scenario.yaml, trace.parquet, run_info.json and (last) summary.json into ``out``.
+class TraceSize(NamedTuple):
+    """How large a run's trace.parquet will be: the run's samples, outputs.trace_stride, columns (at least:
+    a Python controller's log is known only once it runs); 8 bytes per value."""
 
-    A stale summary.json is removed first: summary.json present means the
-    other files of that run are complete.
+    samples: int
+    stride: int
+    columns: int
+
+    @property
+    def rows(self) -> int:
+        return -(-self.samples // self.stride)
+
+    @property
+    def bytes(self) -> int:
+        return self.rows * self.columns * 8
+
+    def stride_under(self, limit_bytes: int = LARGE_TRACE_BYTES) -> int:
+        """An outputs.trace_stride that keeps the trace under ``limit_bytes``."""
+        return max(self.stride + 1, -(-self.samples * self.columns * 8 // limit_bytes))
+
+
+def trace_size(built: BuiltRun) -> TraceSize:
+    """The size of the trace.parquet the scenario will write (no columns with outputs.trace false)."""
+    outputs = built.scenario.outputs
+    n = sample_count(built.scenario.duration_s, built.plant.timestep_s)
+    if not outputs.trace:
+        return TraceSize(n, outputs.trace_stride, 0)
+    compiled = compiled_step_of(built.controller)
+    logged = compiled.log_size if compiled is not None else 0
+    moving = built.changes is not None and not built.changes.empty
+    return TraceSize(n, outputs.trace_stride, len(TRACE_COLUMNS) + logged + (8 if moving else 0))
+
+
+class RunOutcome(NamedTuple):
+    """What :func:`run_and_write` did: summary.json's content, wall time s, the files written (in ``out``),
+    the error that stopped a failed run."""
+
+    summary: dict[str, Any]
+    wall_time_s: float
+    files: tuple[str, ...]
+    error: SimulationError | None = None
+
+    @property
+    def failed(self) -> bool:
+        return self.summary["status"] != "ok"
+
+
+class RunWriter:
+    """Writes one run into ``out`` by the output contract (module docstring); a context manager that
+    removes what it started if the block fails.
+
+    Creating it makes the directory and checks it can be written (OSError if
+    not); its :meth:`observers` gather the summary's metrics and write the
+    trace during the run; :meth:`finish` writes the rest.
     """
-    from gantry_twin.results import atomic_write_text, summary, summary_json, trace_table, write_parquet
 
-    scenario = built.scenario
-    health = built.monitor.report() if built.monitor is not None else None
-    data = summary(scenario, trace, scenario.controller.name, health)
-    data.update(travel_summary(built.plant, trace))  # events, end_stop_contacts, saturation (gantry_twin.events)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / SUMMARY_FILE).unlink(missing_ok=True)
-    if scenario.outputs.trace:
-        write_parquet(out / TRACE_FILE, trace_table(trace, scenario.outputs.trace_stride))
-    atomic_write_text(out / SCENARIO_FILE, dump_yaml(scenario.resolved()))
-    atomic_write_text(out / RUN_INFO_FILE, json.dumps(_run_info(wall_time_s), indent=2) + "\n")
-    atomic_write_text(out / SUMMARY_FILE, summary_json(data))
-    return data
+    def __init__(self, out: Path, built: BuiltRun) -> None:
+        self.out, self.built = Path(out), built
+        scenario = built.scenario
+        self.metrics = RunMetrics(scenario.metric_window_s, scenario.estimate_window_s)
+        self.travel = TravelWatch(built.plant)  # events, end_stop_contacts, saturation (gantry_twin.events)
+        self.trace: TraceWriter | None = None
+        self._made = [p for p in (self.out, *self.out.parents) if not p.exists()]  # deepest first
+        try:
+            self.out.mkdir(parents=True, exist_ok=True)
+            if scenario.outputs.trace:
+                self.trace = TraceWriter(self.out / TRACE_FILE, scenario.outputs.trace_stride)
+            else:  # the trace writer's temporary file is the check; without one, try a file
+                fh = tmp = None
+                try:
+                    with signals_held():
+                        fh, tmp = temporary_file(self.out / SUMMARY_FILE)
+                finally:
+                    discard(fh, tmp)
+        except BaseException:
+            self.discard()
+            raise
+
+    def observers(self) -> list[Observer]:
+        """The observers to run with: the summary's metrics and the trace writer."""
+        return [self.metrics, self.travel] + ([self.trace] if self.trace is not None else [])
+
+    def run(self, observers: Sequence[Observer] = (), hold_s: float | None = HOLD_S) -> RunOutcome:
+        """Simulate the scenario holding ``hold_s`` of it in memory, writing it as it goes, and :meth:`finish`.
+
+        A run stopped by a :class:`SimulationError` is written too (the trace
+        up to the fault, ``status: failed``); any other error, or an
+        interrupt, is raised (and the ``with`` block leaves nothing of the run).
+        """
+        started = time.perf_counter()
+        failure, fault = None, None
+        try:
+            trace: Trace | None = _simulate(self.built, [*self.observers(), *observers], hold_s)
+        except SimulationError as error:
+            trace, fault = error.trace, error
+            failure = Failure(error.time_s, error.step, f"{type(error).__name__}: {error}")
+        except BaseException:
+            self.discard()
+            raise
+        return self.finish(trace, time.perf_counter() - started, failure)._replace(error=fault)
+
+    def finish(self, trace: Trace | None, wall_time_s: float, failure: Failure | None = None) -> RunOutcome:
+        """Write the run whose observers saw ``trace`` (the last piece; None if it stopped before its first
+        sample): summary.json, the trace, scenario.yaml, run_info.json."""
+        built, out = self.built, self.out
+        scenario = built.scenario
+        health = built.monitor.report() if built.monitor is not None else None
+        steps = trace.filled if trace is not None else 0
+        period = trace.sample_period_s if trace is not None else built.plant.timestep_s
+        data = run_summary(scenario, scenario.controller.name, period, steps, self.metrics, health, failure)
+        data.update(self.travel.summary())
+        written: list[str] = []
+        try:
+            (out / SUMMARY_FILE).unlink(missing_ok=True)  # from here the directory shows an incomplete run
+            if self.trace is not None and trace is not None:
+                self.trace.close()
+                written.append(TRACE_FILE)
+            atomic_write_text(out / SCENARIO_FILE, dump_yaml(scenario.resolved()))
+            written.append(SCENARIO_FILE)
+            atomic_write_text(out / RUN_INFO_FILE, json.dumps(_run_info(wall_time_s), indent=2) + "\n")
+            written.append(RUN_INFO_FILE)
+            for name in RUN_FILES:  # an earlier run's files that this run does not write
+                if name not in written:
+                    (out / name).unlink(missing_ok=True)
+            atomic_write_text(out / SUMMARY_FILE, summary_json(data))
+        except BaseException:
+            for name in written:  # not a complete run: none of it stays
+                (out / name).unlink(missing_ok=True)
+            self.discard()
+            raise
+        self.discard()  # a trace writer that saw no sample
+        files = tuple(name for name in RUN_FILES if name in written or name == SUMMARY_FILE)
+        return RunOutcome(data, wall_time_s, files)
+
+    def discard(self) -> None:
+        """Remove the temporary trace file, and the directories this writer made if they are empty."""
+        if self.trace is not None:
+            self.trace.discard()
+        for path in self._made:
+            try:
+                path.rmdir()
+            except OSError:
+                break
+
+    def __enter__(self) -> RunWriter:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is not None:
+            self.discard()
+
+
+def run_and_write(
+    out: Path, built: BuiltRun, observers: Sequence[Observer] = (), hold_s: float | None = HOLD_S
+) -> RunOutcome:
+    """Simulate a built scenario and write it into ``out`` as it goes (:meth:`RunWriter.run`).
+
+    OSError before the run if ``out`` cannot be written.
+    """
+    with RunWriter(out, built) as writer:
+        return writer.run(observers, hold_s)
+
+
+def write_run(out: Path, built: BuiltRun, trace: Trace, wall_time_s: float) -> dict[str, Any]:
+    """Write a finished run's whole trace into ``out`` by the output contract; summary.json's content."""
+    with RunWriter(out, built) as writer:
+        for observer in writer.observers():
+            observer.on_chunk(trace, trace.first, trace.filled)
+            observer.on_end(trace)
+        return writer.finish(trace, wall_time_s).summary
 
 
 def _run_info(wall_time_s: float) -> dict[str, Any]:

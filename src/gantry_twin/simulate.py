@@ -6,9 +6,17 @@ step (zero-order hold, as the DS1103's DAC does). The disturbance actuators
 are driven from the scenario's timeline; the controller never sees them.
 
 The loop records into a :class:`Trace` preallocated for the whole run and
-hands it to observers (progress bars, live telemetry, pacing) after every
-chunk of ``chunk_s`` simulated seconds. Observers only read the trace:
-nothing they do changes the simulation.
+hands it to observers (progress bars, live telemetry, pacing, a trace
+writer) after every chunk of ``chunk_s`` simulated seconds. Observers only
+read the trace: nothing they do changes the simulation. A long run can be
+held in pieces of ``hold_s`` seconds instead (the reference, the
+disturbance and the trace computed piece by piece, the same numbers):
+memory then stays bounded and the observers are where the trace goes.
+
+A fault (a non-finite measurement or command, an exception in the
+controller) stops the run with a :class:`SimulationError` that names the
+time and the sample; the samples before it are recorded, shown to the
+observers and kept in the error's ``trace``.
 
 One sample is written once, in :func:`_run_chunk`: plant changes
 (:mod:`gantry_twin.changes`), the encoder (:mod:`gantry_twin.sensing`), the
@@ -33,7 +41,7 @@ import math
 import os
 import re
 from collections.abc import Callable, Sequence
-from typing import Literal, NamedTuple
+from typing import Literal, NamedTuple, TypeVar
 
 import mujoco
 import numpy as np
@@ -58,26 +66,23 @@ from gantry_twin.controllers.base import (
     compiled_step_of,
 )
 from gantry_twin.estimation import clip
-from gantry_twin.paths import Path, Reference, TimingLaw, contour_error, reference
+from gantry_twin.paths import Path, Reference, ReferenceStream, TimingLaw, contour_error
 from gantry_twin.plant import Plant
 from gantry_twin.sensing import Encoder, SensingConfig, encoder_measure
 from gantry_twin.taskframe import normal_errors
 from gantry_twin.trace import Observer, RunInfo, SimulationError, Trace
+
+T = TypeVar("T")
 
 #: A disturbance timeline: times (N,) s -> input disturbance (N, 2) volts.
 Disturbance = Callable[[np.ndarray], np.ndarray]
 
 
 def _finish_chunk(trace: Trace, ref: Reference, path: Path, start: int, stop: int) -> None:
-    """Derived errors for samples [start, stop): e, eps_n and the true eps_c."""
-    normal_errors(
-        ref.alpha[start:stop],
-        trace.q_m[start:stop],
-        ref.q_d[start:stop],
-        trace.e_m[start:stop],
-        trace.eps_n_m[start:stop],
-    )
-    trace.eps_c_m[start:stop], _ = contour_error(path, trace.q_m[start:stop], ref.phi[start:stop])
+    """Derived errors for samples [start, stop) (``ref``: the reference of the trace's samples): e, eps_n, eps_c."""
+    rows = trace.rows(start, stop)
+    normal_errors(ref.alpha[rows], trace.q_m[rows], ref.q_d[rows], trace.e_m[rows], trace.eps_n_m[rows])
+    trace.eps_c_m[rows], _ = contour_error(path, trace.q_m[rows], ref.phi[rows])
     trace.filled = stop
 
 
@@ -126,10 +131,12 @@ class PlantIO(NamedTuple):
 class Recording(NamedTuple):
     """The loop's inputs (sample times, reference rows, disturbance) and the trace arrays it writes.
 
-    log: a compiled controller's log buffer (:meth:`Trace.allocate_log`;
-    empty for none), log_sizes (keys,) the size of each logged value.
+    Row j holds sample first + j of the run. log: a compiled controller's log
+    buffer (:meth:`Trace.allocate_log`; empty for none), log_sizes (keys,)
+    the size of each logged value.
     """
 
+    first: int
     t_s: np.ndarray
     rows: np.ndarray
     disturbance_v: np.ndarray
@@ -169,7 +176,8 @@ def _measure(plant, encoder, sample, changes, k):
 
 @kernel(inline=True)
 def _record_and_step(plant, recording, k, sample, changes):
-    """Check the command; record the sample; hold u (clipped) and the disturbance (+ cogging); mj_step.
+    """Check the command; record the sample (row k of the recording); hold u (clipped) and the disturbance
+    (+ cogging); mj_step.
 
     Returns False if the command is not finite.
     """
@@ -200,7 +208,7 @@ def _no_log(params, state, out):
 
 @kernel(inline=True)
 def _record_log(recording, k, row):
-    """Store sample k's log row into the log buffer (see :meth:`Trace.allocate_log`)."""
+    """Store the log row of the recording's row k into the log buffer (see :meth:`Trace.allocate_log`)."""
     log, sizes = recording.log, recording.log_sizes
     if log.shape[0] == 0:
         return
@@ -216,7 +224,8 @@ def _record_log(recording, k, row):
 
 @kernel
 def _run_chunk(start, stop, plant, encoder, recording, sample, changes, params, state):
-    """Samples [start, stop): changes -> measure -> control -> record -> mj_step; returns (status, sample index).
+    """Samples [start, stop) of the run: changes -> measure -> control -> record -> mj_step; returns (status,
+    sample index): (STATUS_OK, stop) or the failed status and the sample it failed at, nothing of it recorded.
 
     ``controller_step`` and ``controller_log`` are the controller's kernels,
     bound per controller by :func:`chunk_kernel` (compiled) or :func:`_python_chunk`.
@@ -226,14 +235,15 @@ def _run_chunk(start, stop, plant, encoder, recording, sample, changes, params, 
     )
     t_s, rows, position, velocity = recording.t_s, recording.rows, sample.position, sample.velocity
     for k in range(start, stop):
+        j = k - recording.first
         apply_plant_changes(plant.dof_index, changes, k)
         if not _measure(plant, encoder, sample, changes, k):
             return STATUS_BAD_MEASUREMENT, k
-        controller_step(params, state, t_s[k], position, velocity, rows[k], sample.command)  # noqa: F821
-        if not _record_and_step(plant, recording, k, sample, changes):
+        controller_step(params, state, t_s[j], position, velocity, rows[j], sample.command)  # noqa: F821
+        if not _record_and_step(plant, recording, j, sample, changes):
             return STATUS_BAD_COMMAND, k
         controller_log(params, state, sample.log_row)  # noqa: F821
-        _record_log(recording, k, sample.log_row)
+        _record_log(recording, j, sample.log_row)
     return STATUS_OK, stop
 
 
@@ -270,6 +280,11 @@ def compiled_available() -> bool:
     return mj_step is not None
 
 
+def sample_count(duration_s: float, timestep_s: float) -> int:
+    """How many samples a run of ``duration_s`` has."""
+    return int(round(duration_s / timestep_s))
+
+
 def simulate(
     plant: Plant,
     path: Path,
@@ -283,6 +298,7 @@ def simulate(
     controller_name: str | None = None,
     backend: Backend = "auto",
     changes: PlantChanges | None = None,
+    hold_s: float | None = None,
 ) -> Trace:
     """Run the closed loop for ``duration_s`` seconds and return the trace.
 
@@ -296,6 +312,17 @@ def simulate(
     then records the true theta over time (``true_theta_t``). A payload
     change needs a plant built with ``payload_body=True``. The model's
     damping, friction and masses are restored after the run.
+    hold_s: hold at most this much of the run in memory (rounded up to whole
+    chunks): the run goes piece by piece, the observers see every chunk
+    while its piece is held (``RunInfo.reference`` is None, ``Trace.first``
+    says where a piece starts) and the trace returned is the last piece. The
+    numbers are those of a whole run; ``disturbance`` must then give each
+    time's value from that time alone. None: the whole run is held.
+
+    Raises :class:`SimulationError` (with the time, the sample and the trace
+    of the samples before it) when a measurement or command is not finite
+    or the controller raises; the observers have seen those samples and
+    their ``on_end``.
     """
     if backend not in ("auto", "compiled", "reference"):
         raise ValueError(f"backend must be 'auto', 'compiled' or 'reference', got {backend!r}")
@@ -311,39 +338,52 @@ def simulate(
 
     sensing = sensing or SensingConfig()
     ts = plant.timestep_s
-    n = int(round(duration_s / ts))
+    n = sample_count(duration_s, ts)
     if n < 2:
         raise ValueError(f"duration_s must hold at least two samples of {ts} s, got {duration_s}")
-    t = np.arange(n) * ts
-    ref = reference(path, timing, t)
-    rows = np.ascontiguousarray(ref.packed())
-    dist = np.zeros((n, 2)) if disturbance is None else np.asarray(disturbance(t), dtype=float)
-    if dist.shape != (n, 2):
-        raise ValueError(f"disturbance must give shape ({n}, 2) volts, got {dist.shape}")
-    dist = np.ascontiguousarray(dist)
-
-    schedule = change_schedule(plant, changes, t)
+    chunk = max(1, int(round(chunk_s / ts)))
+    piece = n if hold_s is None else min(n, chunk * max(1, math.ceil(hold_s / ts / chunk)))
+    moving = changes is not None and not changes.empty
+    schedule = change_schedule(plant, changes, np.arange(n) * ts if moving else np.zeros(0))
+    references = ReferenceStream(path, timing)
     model = plant.model
     saved = (model.dof_damping.copy(), model.dof_frictionloss.copy(), model.body_mass.copy())
+    true_theta = plant.true_parameters()
+    loop: _Loop | None = None
     try:
-        plant.reset(ref.q_d[0], ref.dq_d[0])
-        encoder = Encoder(sensing, ts)
-        encoder.reset(plant.q_m, plant.dq_m_s)
-        trace = Trace.allocate(ref, dist, plant.true_parameters())
-        if changes is not None and not changes.empty:
-            trace.true_theta_t = changes.true_parameters_over_time(plant, t)
-            trace.true_theta = trace.true_theta_t[0].copy()
-        info = RunInfo(plant, path, timing, ref, duration_s, controller_name or type(controller).__name__)
-        for observer in observers:
-            observer.on_start(info, trace)
-        chunk = max(1, int(round(chunk_s / ts)))
-        loop = _Loop(plant, encoder, controller, trace, rows, schedule, compiled_step if compiled else None)
-        for start in range(0, n, chunk):
-            stop = min(n, start + chunk)
-            loop.run(start, stop)
-            _finish_chunk(trace, ref, path, start, stop)
-            for observer in observers:
-                observer.on_chunk(trace, start, stop)
+        for first in range(0, n, piece):
+            t = np.arange(first, min(n, first + piece)) * ts
+            ref = references.next(t)
+            dist = np.zeros((t.size, 2)) if disturbance is None else np.asarray(disturbance(t), dtype=float)
+            if dist.shape != (t.size, 2):
+                raise ValueError(f"disturbance must give shape ({t.size}, 2) volts, got {dist.shape}")
+            trace = Trace.allocate(ref, np.ascontiguousarray(dist), true_theta, first, ts)
+            if moving:
+                trace.true_theta_t = _as_before(model, saved, changes.true_parameters_over_time, plant, t)
+                if first == 0:
+                    true_theta = trace.true_theta_t[0].copy()
+                trace.true_theta = true_theta
+            if loop is None:
+                plant.reset(ref.q_d[0], ref.dq_d[0])
+                encoder = Encoder(sensing, ts)
+                encoder.reset(plant.q_m, plant.dq_m_s)
+                name = controller_name or type(controller).__name__
+                info = RunInfo(plant, path, timing, ref if piece == n else None, duration_s, name, n)
+                for observer in observers:
+                    observer.on_start(info, trace)
+                loop = _Loop(plant, encoder, controller, trace, schedule, compiled_step if compiled else None)
+            loop.hold(trace, np.ascontiguousarray(ref.packed()))
+            for start in range(first, first + t.size, chunk):
+                stop, error = loop.run(start, min(first + t.size, start + chunk))
+                if stop > start:
+                    _finish_chunk(trace, ref, path, start, stop)
+                    for observer in observers:
+                        observer.on_chunk(trace, start, stop)
+                if error is not None:
+                    for observer in observers:
+                        observer.on_end(trace)
+                    error.trace = trace
+                    raise error
         for observer in observers:
             observer.on_end(trace)
     finally:
@@ -351,12 +391,21 @@ def simulate(
     return trace
 
 
-def _bad_measurement(t_s: float, position: np.ndarray, velocity: np.ndarray) -> SimulationError:
-    return SimulationError(f"non-finite measurement at t = {t_s:.4f} s: q = {position}, q' = {velocity}")
+def _as_before(model: mujoco.MjModel, saved: tuple[np.ndarray, ...], function: Callable[..., T], *args: object) -> T:
+    """``function(*args)`` computed on the model as it was before the run (``saved``: its damping, friction
+    loss and masses; the loop writes the scheduled values into it)."""
+    during = (model.dof_damping.copy(), model.dof_frictionloss.copy(), model.body_mass.copy())
+    model.dof_damping[:], model.dof_frictionloss[:], model.body_mass[:] = saved
+    try:
+        return function(*args)
+    finally:
+        model.dof_damping[:], model.dof_frictionloss[:], model.body_mass[:] = during
 
 
-def _bad_command(t_s: float, command: np.ndarray) -> SimulationError:
-    return SimulationError(f"controller returned {command!r} at t = {t_s:.4f} s; expected 2 finite volts")
+def _stopped_at(trace: Trace, k: int, what: str, detail: str = "") -> SimulationError:
+    """The error that stops a run at sample k of the trace: "<what> at t = ... s (step k)<detail>"."""
+    t_s = float(trace.t_s[trace.rows(k, k + 1)][0])
+    return SimulationError(f"{what} at t = {t_s:.4f} s (step {k}){detail}", t_s, k)
 
 
 class _Loop:
@@ -368,12 +417,9 @@ class _Loop:
         encoder: Encoder,
         controller: Controller,
         trace: Trace,
-        rows: np.ndarray,
         changes: ChangeSchedule,
         compiled: CompiledStep | None,
     ) -> None:
-        self.trace = trace
-        t = trace.t_s
         u_max = np.ascontiguousarray(plant.ctrl_range_v[:, 1], dtype=float)
         # The first measurement, for the controller's RunContext; the loop measures it again from here.
         sensor = encoder.state._replace(previous_m=encoder.state.previous_m.copy())
@@ -382,8 +428,9 @@ class _Loop:
         if not uncompiled(encoder_measure)(
             encoder.state, plant.q_m.copy(), plant.dq_m_s.copy(), *glitches, position, velocity
         ):
-            raise _bad_measurement(t[0], position, velocity)
-        controller.reset(RunContext(plant.timestep_s, u_max.copy(), Measurement(float(t[0]), position, velocity)))
+            raise _stopped_at(trace, 0, "non-finite measurement", f": q = {position}, q' = {velocity}")
+        t0 = float(trace.t_s[0])
+        controller.reset(RunContext(plant.timestep_s, u_max.copy(), Measurement(t0, position, velocity)))
 
         data = plant.data
         self.plant = PlantIO(
@@ -398,33 +445,55 @@ class _Loop:
             ),
             u_max,
         )
-        self.encoder, self.changes = sensor, changes
+        self.encoder, self.changes, self.compiled = sensor, changes, compiled
         if compiled is not None:
             self.params, self.state = controller.kernel_arguments()
-            log = trace.allocate_log(compiled.layout)
-            sizes = np.array([int(np.prod(shape)) for _, shape in compiled.layout], dtype=np.int64)
             self.function = chunk_kernel(compiled)
             log_row = np.zeros(compiled.log_size)
         else:
             self.params, self.state = None, None
-            log, sizes, log_row = np.zeros(0), np.zeros(0, dtype=np.int64), np.zeros(0)
-            self.function = _python_chunk(plant, controller, trace)
-        self.recording = Recording(t, rows, trace.disturbance_v, trace.q_m, trace.q_meas_m, trace.u_v, log, sizes)
+            log_row = np.zeros(0)
+            self.function = _python_chunk(plant, controller, self)
         self.sample = SampleWork(np.zeros(2), np.zeros(2), np.zeros(2), np.zeros(2), np.zeros(2), log_row)
 
-    def run(self, start: int, stop: int) -> None:
-        """Samples [start, stop); SimulationError on a non-finite measurement or command."""
-        status, k = self.function(
-            start, stop, self.plant, self.encoder, self.recording, self.sample, self.changes, self.params, self.state
+    def hold(self, trace: Trace, rows: np.ndarray) -> None:
+        """Record into ``trace`` from now on; rows: the packed reference of its samples."""
+        self.trace = trace
+        if self.compiled is not None:
+            log = trace.allocate_log(self.compiled.layout)
+            sizes = np.array([int(np.prod(shape)) for _, shape in self.compiled.layout], dtype=np.int64)
+        else:
+            log, sizes = np.zeros(0), np.zeros(0, dtype=np.int64)
+        self.recording = Recording(
+            trace.first, trace.t_s, rows, trace.disturbance_v, trace.q_m, trace.q_meas_m, trace.u_v, log, sizes
         )
-        t = self.trace.t_s
+
+    def run(self, start: int, stop: int) -> tuple[int, SimulationError | None]:
+        """Samples [start, stop): (stop, None), or (k, the error) if the run cannot go on at sample k."""
+        try:
+            arguments = (self.plant, self.encoder, self.recording, self.sample, self.changes, self.params, self.state)
+            status, k = self.function(start, stop, *arguments)
+        except Exception as exc:  # the controller's step raised: the first sample not recorded is where
+            recorded = ~np.isnan(self.trace.q_m[self.trace.rows(start, stop), 0])
+            k = start + int(np.argmin(recorded)) if not recorded.all() else stop
+            text = str(exc).splitlines()[0] if str(exc) else ""
+            if isinstance(exc, SimulationError):
+                error = _stopped_at(self.trace, min(k, stop - 1), text)
+            else:
+                what = f"the controller raised {type(exc).__name__}"
+                error = _stopped_at(self.trace, min(k, stop - 1), what, f": {text}" if text else "")
+            error.__cause__ = exc
+            return min(k, stop - 1), error
         if status == STATUS_BAD_MEASUREMENT:
-            raise _bad_measurement(t[k], self.sample.position.copy(), self.sample.velocity.copy())
+            q, dq = self.sample.position.copy(), self.sample.velocity.copy()
+            return k, _stopped_at(self.trace, k, "non-finite measurement", f": q = {q}, q' = {dq}")
         if status == STATUS_BAD_COMMAND:
-            raise _bad_command(t[k], self.sample.command.copy())
+            command = self.sample.command.copy()
+            return k, _stopped_at(self.trace, k, f"controller returned {command!r}", "; expected 2 finite volts")
+        return stop, None
 
 
-def _python_chunk(plant: Plant, controller: Controller, trace: Trace) -> Callable[..., tuple[int, int]]:
+def _python_chunk(plant: Plant, controller: Controller, loop: _Loop) -> Callable[..., tuple[int, int]]:
     """The chunk function run by the interpreter: ``update()`` as the step, ``state_for_logging`` as the log."""
 
     def step(
@@ -433,11 +502,11 @@ def _python_chunk(plant: Plant, controller: Controller, trace: Trace) -> Callabl
         measurement = Measurement(float(t_s), q_m.copy(), dq_m_s.copy())
         command = np.asarray(controller.update(measurement, ReferenceSample.from_row(ref)), dtype=float)
         if command.shape != (2,):
-            raise _bad_command(float(t_s), command)
+            raise SimulationError(f"controller returned {command!r}, not 2 volts")
         u_v[:] = command
 
-    def record_log(recording: Recording, k: int, row: np.ndarray) -> None:
-        trace.record_state(k, controller.state_for_logging())
+    def record_log(recording: Recording, j: int, row: np.ndarray) -> None:
+        loop.trace.record_state(j, controller.state_for_logging())
 
     def python_mj_step(model_address: int, data_address: int) -> None:
         mujoco.mj_step(plant.model, plant.data)

@@ -17,7 +17,16 @@ from gantry_twin.plant import Plant
 
 
 class SimulationError(RuntimeError):
-    """The run cannot go on (a non-finite measurement or command)."""
+    """The run cannot go on: a non-finite measurement or command, or the controller raised.
+
+    time_s, step: the sample at which it stopped (None when it stopped before the first sample).
+    trace: the samples before it (``trace.filled`` of them; the trace held last when the run was held in pieces).
+    """
+
+    def __init__(self, message: str, time_s: float | None = None, step: int | None = None) -> None:
+        super().__init__(message)
+        self.time_s, self.step = time_s, step
+        self.trace: Trace | None = None
 
 
 @dataclass
@@ -33,7 +42,13 @@ class Trace:
     true_theta_t (N, 8): the true theta at each sample when the run's
     :class:`~gantry_twin.changes.PlantChanges` move it (None otherwise: it is
     ``true_theta`` throughout; :meth:`true_parameters_t` gives it either way).
-    ``filled``: how many samples hold data (all of them after the run).
+    ``filled``: how many samples of the run hold data (all of them after the run).
+
+    A run held in pieces (``simulate(..., hold_s=...)``) gives observers a
+    trace of one piece at a time: its arrays hold samples [first, first +
+    len(t_s)) of the run, and observers index them with :meth:`rows`
+    (``trace.eps_c_m[trace.rows(start, stop)]``), which is ``start:stop`` for
+    a whole trace (``first`` = 0).
     """
 
     t_s: np.ndarray
@@ -49,6 +64,8 @@ class Trace:
     controller_state: dict[str, np.ndarray] = field(default_factory=dict)
     filled: int = 0
     true_theta_t: np.ndarray | None = None
+    first: int = 0
+    timestep_s: float | None = None
 
     def true_parameters_t(self) -> np.ndarray:
         """The true theta at each sample (N, 8), volt units (a read-only broadcast if nothing changes)."""
@@ -56,8 +73,20 @@ class Trace:
             return self.true_theta_t
         return np.broadcast_to(self.true_theta, (self.t_s.size, 8))
 
+    def rows(self, start: int, stop: int) -> slice:
+        """Where samples [start, stop) of the run are in this trace's arrays."""
+        return slice(start - self.first, stop - self.first)
+
     @classmethod
-    def allocate(cls, ref: Reference, disturbance_v: np.ndarray, true_theta: np.ndarray) -> Trace:
+    def allocate(
+        cls,
+        ref: Reference,
+        disturbance_v: np.ndarray,
+        true_theta: np.ndarray,
+        first: int = 0,
+        timestep_s: float | None = None,
+    ) -> Trace:
+        """A trace of the samples of ``ref`` (samples [first, first + N) of the run), NaN until recorded."""
         n = ref.t_s.size
         nan2 = np.full((n, 2), np.nan)
         return cls(
@@ -71,10 +100,15 @@ class Trace:
             u_v=nan2.copy(),
             disturbance_v=disturbance_v,
             true_theta=true_theta,
+            filled=first,
+            first=first,
+            timestep_s=timestep_s,
         )
 
     @property
     def sample_period_s(self) -> float:
+        if self.timestep_s is not None:
+            return self.timestep_s
         return float(self.t_s[1] - self.t_s[0]) if self.t_s.size > 1 else 0.0
 
     def allocate_state(self, state: dict[str, np.ndarray]) -> None:
@@ -111,18 +145,32 @@ class Trace:
 
 @dataclass(frozen=True)
 class RunInfo:
-    """What observers learn before the first sample."""
+    """What observers learn before the first sample.
+
+    reference: the whole run's desired motion, or None when the run is held
+    in pieces (compute what is needed with ``paths.reference(path, timing, t)``).
+    samples: how many samples the run will have.
+    """
 
     plant: Plant
     path: Path
     timing: TimingLaw
-    reference: Reference
+    reference: Reference | None
     duration_s: float
     controller_name: str
+    samples: int = 0
 
 
 class Observer(Protocol):
-    """Watches a run chunk by chunk; must not change the trace."""
+    """Watches a run chunk by chunk; must not change the trace.
+
+    ``on_chunk(trace, start, stop)``: samples [start, stop) of the run are
+    recorded, at ``trace.rows(start, stop)``. ``on_end``: after the last
+    sample, or after the samples before a fault (``trace.filled`` of them). In a run held in pieces a
+    piece's samples are gone once its last chunk has been seen: an observer
+    that batches must send what it holds back when ``stop`` reaches
+    ``trace.first + trace.t_s.size``.
+    """
 
     def on_start(self, run: RunInfo, trace: Trace) -> None: ...
 

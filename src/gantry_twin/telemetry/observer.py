@@ -7,7 +7,8 @@ and sent as columns (``send_columns``) at most every ``flush_interval_s`` of
 wall time (default 0.2 s: five viewer updates a second), at the end of a
 chunk; rerun's cost is mostly per row and per call, not per value
 (docs/telemetry.md, "Cost"), so one send covers many chunks when the loop is
-fast. Static styling is logged once; the 3D transforms (50 Hz) and the XY
+fast (and at the end of each piece of a run held in pieces, before its
+samples are gone). Static styling is logged once; the 3D transforms (50 Hz) and the XY
 contour (1 kHz) are decimated.
 
 What is logged (timeline ``sim_time``, the trace's own sample times, exact to
@@ -47,6 +48,7 @@ import numpy as np
 import pyarrow as pa
 import rerun as rr
 
+from gantry_twin.paths import reference
 from gantry_twin.plant import THETA_NAMES, THETA_UNITS
 from gantry_twin.telemetry.dashboard import (
     ERROR_MAGNIFICATION,
@@ -200,8 +202,10 @@ class RerunObserver:
         self._estimates: list[tuple[str, int]] = []  # (entity, index into theta_hat)
         self._styled = False
         self._bodies = gantry_bodies(run.plant)
-        step = max(1, run.reference.q_d.shape[0] // 4000)
-        self._desired_mm = np.vstack([run.reference.q_d[::step], run.reference.q_d[-1:]]) * 1e3
+        samples = run.samples or run.reference.t_s.size
+        step = max(1, samples // 4000)
+        times_s = np.append(np.arange(0, samples, step), samples - 1) * ts
+        self._desired_mm = reference(run.path, run.timing, times_s).q_d * 1e3
         self.recording.send_recording_name(f"{run.controller_name}, {run.duration_s:g} s")
         self._log_static_scene(run)
 
@@ -209,7 +213,7 @@ class RerunObserver:
         if not self._styled:
             self._log_static_styling(trace)
         now = time.perf_counter()
-        if now - self._last_flush >= self.flush_interval_s:
+        if now - self._last_flush >= self.flush_interval_s or stop >= trace.first + trace.t_s.size:
             self._send(trace, self._sent, trace.filled)
             self._last_flush = now
 
@@ -321,43 +325,43 @@ class RerunObserver:
     def _send(self, trace: Trace, start: int, stop: int) -> None:
         if stop <= start or self._run is None:
             return
-        rec = self.recording
-        times = [_TimeIndex(trace.t_s[start:stop])]
+        rec, rows, first = self.recording, trace.rows(start, stop), trace.first
+        times = [_TimeIndex(trace.t_s[rows])]
 
         def scalars(entity: str, values: np.ndarray, index: list = times) -> None:
             rec.send_columns(entity, indexes=index, columns=[_scalar_column(values)])
 
-        scalars("errors/contour/eps_c_um", trace.eps_c_m[start:stop] * 1e6)
-        scalars("errors/contour/eps_n_um", trace.eps_n_m[start:stop] * 1e6)
-        scalars("errors/axial/e_x_um", trace.e_m[start:stop, 0] * 1e6)
-        scalars("errors/axial/e_y_um", trace.e_m[start:stop, 1] * 1e6)
-        scalars("inputs/u_x_V", trace.u_v[start:stop, 0])
-        scalars("inputs/u_y_V", trace.u_v[start:stop, 1])
-        scalars("inputs/disturbance_x_V", trace.disturbance_v[start:stop, 0])
-        scalars("inputs/disturbance_y_V", trace.disturbance_v[start:stop, 1])
+        scalars("errors/contour/eps_c_um", trace.eps_c_m[rows] * 1e6)
+        scalars("errors/contour/eps_n_um", trace.eps_n_m[rows] * 1e6)
+        scalars("errors/axial/e_x_um", trace.e_m[rows, 0] * 1e6)
+        scalars("errors/axial/e_y_um", trace.e_m[rows, 1] * 1e6)
+        scalars("inputs/u_x_V", trace.u_v[rows, 0])
+        scalars("inputs/u_y_V", trace.u_v[rows, 1])
+        scalars("inputs/disturbance_x_V", trace.disturbance_v[rows, 0])
+        scalars("inputs/disturbance_y_V", trace.disturbance_v[rows, 1])
         state = trace.controller_state
         if self._estimates:
-            theta = state["theta_hat"][start:stop]
+            theta = state["theta_hat"][rows]
             if trace.true_theta_t is None:  # constant: a line needs two points per send
-                rows = np.array([start, stop - 1])
+                at = np.array([start, stop - 1])
                 true = np.broadcast_to(trace.true_theta, (2, trace.true_theta.size))
             else:  # plant changes move it: at the 3D marker rate, and the last sample
-                rows = np.unique(
+                at = np.unique(
                     np.append(
                         np.arange(-(-start // self._marker_stride) * self._marker_stride, stop, self._marker_stride),
                         stop - 1,
                     )
                 )
-                true = trace.true_theta_t[rows]
-            true_times = [_TimeIndex(trace.t_s[rows])]
+                true = trace.true_theta_t[at - first]
+            true_times = [_TimeIndex(trace.t_s[at - first])]
             for entity, i in self._estimates:
                 scalars(f"{entity}/estimate", theta[:, i])
                 if i < true.shape[1]:
                     scalars(f"{entity}/true", true[:, i], true_times)
         if "dc_hat" in state:
-            scalars("estimates/dc_hat_V", state["dc_hat"][start:stop])
+            scalars("estimates/dc_hat_V", state["dc_hat"][rows])
         if "gamma_lambda_max" in state:
-            scalars("estimates/gamma_lambda_max", state["gamma_lambda_max"][start:stop])
+            scalars("estimates/gamma_lambda_max", state["gamma_lambda_max"][rows])
         self._send_geometry(trace, start, stop)
         self._send_health()
         self._sent = stop
@@ -389,13 +393,14 @@ class RerunObserver:
         idx = np.arange(-(-start // stride) * stride, stop, stride)
         if idx.size == 0 or idx[-1] != stop - 1:
             idx = np.append(idx, stop - 1)
-        points_mm = magnified_contour_m(run.path, trace.q_m[idx], run.reference.phi[idx], self.error_magnification)
+        phi = run.timing.derivatives(trace.t_s[idx - trace.first])[0]  # the desired phi, as in the reference
+        points_mm = magnified_contour_m(run.path, trace.q_m[idx - trace.first], phi, self.error_magnification)
         points_mm *= 1e3
         strip = points_mm if self._last_point_mm is None else np.vstack([self._last_point_mm, points_mm])
         self._last_point_mm = points_mm[-1:]
         rec.send_columns(
             self._actual_entity,
-            indexes=[_TimeIndex(trace.t_s[stop - 1 : stop])],
+            indexes=[_TimeIndex(trace.t_s[trace.rows(stop - 1, stop)])],
             columns=rr.LineStrips2D.columns(strips=[strip], colors=[_X_RGB], radii=[-1.5]),
         )
         # The moving bodies at marker_rate_hz.
@@ -403,8 +408,8 @@ class RerunObserver:
         idx = np.arange(-(-start // stride) * stride, stop, stride)
         if idx.size == 0:
             return
-        marker_times = [_TimeIndex(trace.t_s[idx])]
-        q = trace.q_m[idx]
+        marker_times = [_TimeIndex(trace.t_s[idx - trace.first])]
+        q = trace.q_m[idx - trace.first]
         for body in self._bodies:
             if body.slides:
                 rec.send_columns(

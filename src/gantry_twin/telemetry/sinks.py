@@ -9,6 +9,7 @@ from __future__ import annotations
 import atexit
 import math
 import os
+import signal
 import socket
 import subprocess
 import sys
@@ -133,10 +134,21 @@ def rerun_binary() -> str:
     raise TelemetryError(f"the rerun binary is missing from {folder} (reinstall rerun-sdk)")
 
 
+def _end_with_parent() -> None:
+    """In a child process before it runs (Linux): SIGTERM when the process that started it ends, however it
+    ends (even SIGKILL)."""
+    import ctypes
+
+    pr_set_pdeathsig = 1
+    ctypes.CDLL(None).prctl(pr_set_pdeathsig, int(signal.SIGTERM))
+
+
 class WebViewerServer:
     """rerun's web viewer and gRPC server in a child process, bound to 127.0.0.1 only.
 
     ``recordings``: .rrd files the server shows from the start (else it shows what is streamed to ``grpc_url``).
+    The process is stopped by :meth:`stop` (at exit at the latest); on Linux it also ends when this process
+    ends without stopping it.
     """
 
     def __init__(
@@ -154,12 +166,23 @@ class WebViewerServer:
         command = [rerun_binary(), "--serve-web", "--bind", LOCALHOST]
         command += ["--port", str(self.grpc_port), "--web-viewer-port", str(self.web_port), *map(str, recordings)]
         self._log = tempfile.TemporaryFile(mode="w+")
-        self.process = subprocess.Popen(command, stdin=subprocess.DEVNULL, stdout=self._log, stderr=self._log)
+        linux = sys.platform.startswith("linux")
+        self.process = subprocess.Popen(
+            command,
+            stdin=subprocess.DEVNULL,
+            stdout=self._log,
+            stderr=self._log,
+            preexec_fn=_end_with_parent if linux else None,
+        )
         atexit.register(self.stop)
-        if not (
-            wait_for_port(self.grpc_port, self.process, timeout_s)
-            and wait_for_port(self.web_port, self.process, timeout_s)
-        ):
+        try:
+            listening = wait_for_port(self.grpc_port, self.process, timeout_s) and wait_for_port(
+                self.web_port, self.process, timeout_s
+            )
+        except BaseException:  # interrupted while it starts
+            self.stop()
+            raise
+        if not listening:
             self.stop()
             self._log.seek(0)
             last = next((line.strip() for line in reversed(self._log.read().splitlines()) if line.strip()), "")
