@@ -1,4 +1,4 @@
-"""The command line: ``gantry-twin run | monitor | validate | report`` (docs/cli.md).
+"""The command line: ``gantry-twin run | monitor | validate | report | sweep`` (docs/cli.md, docs/sweeps.md).
 
 Exit codes: 0 success; 2 bad input (one line on stderr naming the file, the
 field and what is allowed; nothing written); 1 the run itself failed;
@@ -105,7 +105,7 @@ def _progress(args: argparse.Namespace) -> ProgressBar:
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog=PROG, description="MuJoCo digital twin of a biaxial linear-motor gantry.")
     sub = parser.add_subparsers(
-        dest="command", required=True, metavar="{run,monitor,validate,report}", parser_class=_Parser
+        dest="command", required=True, metavar="{run,monitor,validate,report,sweep}", parser_class=_Parser
     )
 
     run = sub.add_parser("run", help="run a scenario and write its results")
@@ -144,6 +144,17 @@ def build_parser() -> argparse.ArgumentParser:
     )
     _add_set(report, "override a field in every scenario of the matrix, e.g. duration_s=10")
     _add_progress(report)
+
+    sweep = sub.add_parser("sweep", help="run a sweep or Monte Carlo study on a Dask cluster (docs/sweeps.md)")
+    sweep.add_argument("file", help="sweep YAML file")
+    sweep.add_argument("--out", metavar="DIR", type=Path, help=f"output directory (default: {RUNS_DIR}/sweeps/<file>/)")
+    where = sweep.add_mutually_exclusive_group()
+    where.add_argument("--workers", metavar="N", type=int, help="local worker processes (default: os.cpu_count())")
+    where.add_argument(
+        "--scheduler", metavar="ADDRESS", help="use the running Dask cluster at ADDRESS (tcp://host:8786)"
+    )
+    sweep.add_argument("--resume", action="store_true", help="run only the points DIR/results.parquet lacks")
+    _add_progress(sweep)
     return parser
 
 
@@ -182,6 +193,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             return _run(args)
         if args.command == "validate":
             return _validate(args)
+        if args.command == "sweep":
+            return _sweep(args)
         return _report(args)
     except (ScenarioError, BadInput, TelemetryError) as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
@@ -314,6 +327,29 @@ def _report(args: argparse.Namespace) -> int:
     except Exception as exc:
         return _failed("report", exc)
     print(f"report written to {path}")
+    return EXIT_OK
+
+
+def _sweep(args: argparse.Namespace) -> int:
+    from gantry_twin.sweep import ClusterError, existing_results, load_sweep, plan_sweep, run_sweep
+
+    if args.workers is not None and args.workers < 1:
+        raise BadInput(f"--workers: must be a positive integer, got {args.workers}")
+    out = _checked_out(args.out or RUNS_DIR / "sweeps" / Path(args.file).stem)
+    plan = plan_sweep(load_sweep(args.file), args.file)  # every point checked before anything runs
+    if not args.resume and existing_results(out):
+        raise BadInput(f"--out {out}: holds an earlier sweep's results.parquet; add --resume to finish it")
+    try:
+        done = run_sweep(plan, out, args.workers, args.scheduler, args.resume, _progress_wanted(args))
+    except ClusterError as exc:
+        raise BadInput(str(exc)) from None
+    except Exception as exc:
+        return _failed("sweep", exc)
+    print(
+        f"{done.total} points: {done.done_before} done before, {done.ran} run now ({done.failed} failed) "
+        f"in {done.wall_time_s:.1f} s; results in {done.results}",
+        flush=True,
+    )
     return EXIT_OK
 
 
