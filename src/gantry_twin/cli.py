@@ -146,7 +146,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_progress(report)
 
     sweep = sub.add_parser("sweep", help="run a sweep or Monte Carlo study on a Dask cluster (docs/sweeps.md)")
-    sweep.add_argument("file", help="sweep YAML file")
+    sweep.add_argument("file", help="sweep YAML file or shipped sweep name (sweeps/)")
     sweep.add_argument("--out", metavar="DIR", type=Path, help=f"output directory (default: {RUNS_DIR}/sweeps/<file>/)")
     where = sweep.add_mutually_exclusive_group()
     where.add_argument("--workers", metavar="N", type=int, help="local worker processes (default: os.cpu_count())")
@@ -331,12 +331,13 @@ def _report(args: argparse.Namespace) -> int:
 
 
 def _sweep(args: argparse.Namespace) -> int:
-    from gantry_twin.sweep import ClusterError, existing_results, load_sweep, plan_sweep, run_sweep
+    from gantry_twin.sweep import ClusterError, existing_results, load_sweep, plan_sweep, run_sweep, sweep_file
 
     if args.workers is not None and args.workers < 1:
         raise BadInput(f"--workers: must be a positive integer, got {args.workers}")
-    out = _checked_out(args.out or RUNS_DIR / "sweeps" / Path(args.file).stem)
-    plan = plan_sweep(load_sweep(args.file), args.file)  # every point checked before anything runs
+    path = sweep_file(args.file)
+    out = _checked_out(args.out or RUNS_DIR / "sweeps" / path.stem)
+    plan = plan_sweep(load_sweep(path), str(path))  # every point checked before anything runs
     if not args.resume and existing_results(out):
         raise BadInput(f"--out {out}: holds an earlier sweep's results.parquet; add --resume to finish it")
     try:
@@ -347,7 +348,7 @@ def _sweep(args: argparse.Namespace) -> int:
         return _failed("sweep", exc)
     print(
         f"{done.total} points: {done.done_before} done before, {done.ran} run now ({done.failed} failed) "
-        f"in {done.wall_time_s:.1f} s; results in {done.results}",
+        f"in {done.wall_time_s:.1f} s ({done.startup_s:.1f} s starting the workers); results in {done.results}",
         flush=True,
     )
     return EXIT_OK

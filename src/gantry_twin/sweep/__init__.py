@@ -18,7 +18,7 @@ The modules, in the order data flows:
 from gantry_twin.sweep.driver import SweepOutcome, existing_results, run_sweep
 from gantry_twin.sweep.engine import ClusterError
 from gantry_twin.sweep.points import Plan, Point, plan_sweep
-from gantry_twin.sweep.spec import SweepSpec, load_sweep
+from gantry_twin.sweep.spec import SweepSpec, load_sweep, sweep_file, sweeps_dir
 
 __all__ = [
     "ClusterError",
@@ -30,4 +30,6 @@ __all__ = [
     "load_sweep",
     "plan_sweep",
     "run_sweep",
+    "sweep_file",
+    "sweeps_dir",
 ]

@@ -17,13 +17,20 @@ RUNS_DIR = "runs"
 
 @dataclass(frozen=True)
 class SweepOutcome:
-    """What a sweep did: points in the plan, done before (``--resume``), run now, failed now, wall time s."""
+    """What a sweep did: points in the plan, done before (``--resume``), run now, failed now, and its times, s.
+
+    startup_s: from the start to the workers warmed up (cluster, imports,
+    compiling or loading the loop); points_s: from the first point submitted
+    to the last result written; wall_time_s: the whole call.
+    """
 
     total: int
     done_before: int
     ran: int
     failed: int
     wall_time_s: float
+    startup_s: float
+    points_s: float
     results: Path
 
 
@@ -56,11 +63,13 @@ def run_sweep(
     failed = 0
     keep = plan.spec.keep_runs
     changed = not todo  # nothing to run: the figures and summary are made again
+    ready = finished = started
     try:
         with sigterm_as_interrupt():
             if todo:
                 with open_client(workers, scheduler) as client:
                     prepare_workers(client, [p.resolved for p in todo], plan.scenario_source)
+                    ready = time.perf_counter()
                     arguments = [(p.resolved, plan.scenario_source, keep) for p in todo]
                     for index, result, error in run_tasks(
                         client, run_point, arguments, progress, "sweep", len(plan.points), done_before
@@ -72,13 +81,17 @@ def run_sweep(
                             _write_run_files(out / RUNS_DIR / point.key, result.files)
                         table.add(point, row)
                         changed = True
+                    finished = time.perf_counter()
             if not table.path.exists():
                 table.write()
     finally:
         rows = list(table.rows.values())
         if rows and changed:
             write_summary(plan, rows, write_figures(plan, rows, out), out)
-    return SweepOutcome(len(plan.points), done_before, len(todo), failed, time.perf_counter() - started, table.path)
+    wall = time.perf_counter() - started
+    return SweepOutcome(
+        len(plan.points), done_before, len(todo), failed, wall, ready - started, finished - ready, table.path
+    )
 
 
 def _write_run_files(directory: Path, files: dict[str, bytes]) -> None:

@@ -1,9 +1,12 @@
 """A sweep's points: planned and checked on the driver, run on the workers.
 
 A point is the sweep's scenario with ``--set`` style overrides: the sweep's
-``set``, then one value of each swept field. It is loaded exactly as
-``gantry-twin run --set ...`` loads it (:func:`gantry_twin.scenario.load_scenario`)
-and validated and built on the driver before anything runs; the workers get
+``set``, then one value of each swept field. It is loaded as ``gantry-twin
+run --set ...`` loads it (the file read once, then, as
+:func:`~gantry_twin.scenario.load_scenario` does,
+:func:`~gantry_twin.scenario.apply_overrides` and
+:func:`~gantry_twin.scenario.validate_data`) and built on the driver
+before anything runs; the workers get
 the *resolved* scenario (plain data, never MuJoCo objects), validate and
 build it again, run it with :func:`gantry_twin.run.execute` and summarise
 it with :func:`gantry_twin.results.summary`, the code ``gantry-twin run``
@@ -30,7 +33,7 @@ import yaml
 from gantry_twin.metrics import axial_rms_um, command_metrics
 from gantry_twin.plant import AXES
 from gantry_twin.run import RUN_FILES, execute, package_version, write_run
-from gantry_twin.scenario import ScenarioError, build, load_scenario, validate_data
+from gantry_twin.scenario import ScenarioError, apply_overrides, build, read_scenario_file, validate_data
 from gantry_twin.sweep.sampling import draws
 from gantry_twin.sweep.spec import SweepSpec, scenario_path
 
@@ -98,6 +101,7 @@ def _describe(values: dict[str, Any]) -> str:
 def plan_sweep(spec: SweepSpec, source: str) -> Plan:
     """Every point, loaded, validated and built as ``gantry-twin run`` would: a ScenarioError names the point."""
     path = scenario_path(spec, source)
+    base = read_scenario_file(path)  # then as load_scenario: overrides, validation, the file's stem as default name
     common = [override(k, v) for k, v in spec.set.items()]
     version = package_version()
     points: list[Point] = []
@@ -105,7 +109,8 @@ def plan_sweep(spec: SweepSpec, source: str) -> Plan:
     for index, (values, sample, seed) in enumerate(_combinations(spec)):
         where = f"point {index} ({_describe(values)})"
         try:
-            scenario = load_scenario(path, [*common, *(override(k, v) for k, v in values.items())])
+            data = apply_overrides(base, [*common, *(override(k, v) for k, v in values.items())], str(path))
+            scenario = validate_data(data, str(path), default_name=path.stem)
             build(scenario, str(path))
         except ScenarioError as exc:
             raise ScenarioError(source, where, f"{exc.field}: {exc.message}" if exc.field else exc.message) from None

@@ -10,13 +10,21 @@ sweep is planned (:mod:`gantry_twin.sweep.points`), before anything runs.
 from __future__ import annotations
 
 import re
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from pydantic import ValidationError, model_validator
 
 from gantry_twin.ranges import rule
-from gantry_twin.scenario import ScenarioError, read_scenario_file, shipped, shipped_scenarios
+from gantry_twin.scenario import (
+    ScenarioError,
+    parse_yaml,
+    read_scenario_file,
+    scenarios_dir,
+    shipped,
+    shipped_scenarios,
+)
 from gantry_twin.scenario.errors import raise_validation
 from gantry_twin.sweep.sampling import (
     POINTS_MAX,
@@ -160,10 +168,18 @@ class SweepSpec(_Model):
 
 def load_sweep(path: str | Path) -> SweepSpec:
     """Read and validate a sweep file (ScenarioError, one line, on any problem)."""
-    source = str(path)
+    return _validated(lambda: read_scenario_file(path), str(path))
+
+
+def parse_sweep(text: str, source: str) -> SweepSpec:
+    """A sweep from its YAML text (for tests and tools)."""
+    return _validated(lambda: parse_yaml(text, source), source)
+
+
+def _validated(read: Callable[[], dict[str, Any]], source: str) -> SweepSpec:
     try:
-        data = read_scenario_file(path)
-    except ScenarioError as exc:  # the scenario reader's words, said of a sweep file
+        data = read()  # the scenario reader (YAML rules, duplicate keys), its words said of a sweep file
+    except ScenarioError as exc:
         raise ScenarioError(source, exc.field, _of_a_sweep(exc.message)) from None
     try:
         return SweepSpec.model_validate(data)
@@ -190,3 +206,17 @@ def scenario_path(spec: SweepSpec, source: str) -> Path:
     raise ScenarioError(
         source, "scenario", f"no file {here} and no shipped scenario {spec.scenario!r}; shipped: {names}"
     )
+
+
+def sweeps_dir() -> Path:
+    """The shipped sweeps: ``gantry_twin/sweeps`` in a wheel, ``sweeps/`` in a checkout (beside the scenarios)."""
+    return scenarios_dir().parent / "sweeps"
+
+
+def sweep_file(arg: str) -> Path:
+    """A sweep file path, or the name of a shipped sweep (``payload_0_20kg``) when no such file exists."""
+    path = Path(arg)
+    named = sweeps_dir() / (arg if arg.endswith(".yaml") else f"{arg}.yaml")
+    if not path.exists() and "/" not in arg and named.is_file():
+        return named
+    return path

@@ -66,6 +66,8 @@ class ResultsTable:
 
     def load(self) -> int:
         """Take the rows of an earlier run of this sweep (same keys) from the file; returns how many are ``ok``."""
+        for stale in self.path.parent.glob(f".{self.path.name}.*.part"):  # a write cut short by a killed driver
+            stale.unlink(missing_ok=True)
         if not self.path.is_file():
             return 0
         try:
