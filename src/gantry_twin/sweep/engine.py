@@ -127,7 +127,7 @@ def open_client(workers: int | None = None, scheduler: str | None = None) -> Ite
             n_workers=n,
             threads_per_worker=1,
             processes=True,
-            dashboard_address=None,
+            dashboard_address=":0",  # its HTTP server on a free port (never a clash on 8787)
             silence_logs=logging.ERROR,
         ) as cluster,
         Client(cluster) as client,
