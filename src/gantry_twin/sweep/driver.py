@@ -82,7 +82,7 @@ def run_sweep(
                         table.add(point, row)
                         changed = True
                     finished = time.perf_counter()
-            if not table.path.exists():
+            if not todo or not table.path.exists():  # e.g. --resume dropped rows of points no longer swept
                 table.write()
     finally:
         rows = list(table.rows.values())
