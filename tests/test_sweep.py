@@ -173,7 +173,9 @@ def test_scheduler_and_two_workers_rows_equal_gantry_twin_run(tmp_path, capsys, 
 
 def _driver(path: Path, out: Path, *args: str) -> subprocess.Popen:
     argv = [sys.executable, "-m", "gantry_twin.cli", "sweep", str(path), "--out", str(out), "--no-progress", *args]
-    return subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=os.environ.copy())
+    return subprocess.Popen(
+        argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=os.environ.copy(), start_new_session=True
+    )
 
 
 @pytest.mark.slow
@@ -242,22 +244,29 @@ def test_killed_driver_then_resume_runs_only_the_missing_points(tmp_path, capsys
 
 
 @pytest.mark.slow
-def test_sigterm_stops_the_cluster_and_leaves_a_valid_table(tmp_path):
+@pytest.mark.parametrize("how", ["sigterm_to_the_driver", "ctrl_c_to_the_process_group"])
+def test_signals_stop_the_cluster_and_leave_a_valid_table(tmp_path, how):
+    import psutil
+
     path = tmp_path / "ten.yaml"
     path.write_text(TEN_POINTS)
     out = tmp_path / "out"
-    driver = _driver(path, out, "--workers", "2")
+    driver = _driver(path, out, "--workers", "2")  # in a session of its own, like a shell's job
     try:
         wait_for(lambda: finished_rows(out) >= 2, "two points")
         children = _descendants(driver.pid)
-        driver.send_signal(signal.SIGTERM)
+        if how == "sigterm_to_the_driver":
+            driver.send_signal(signal.SIGTERM)
+        else:  # a terminal's Ctrl-C reaches the driver and its worker processes at once
+            os.killpg(driver.pid, signal.SIGINT)
         _, stderr = driver.communicate(timeout=60)
     finally:
         if driver.poll() is None:
             driver.kill()
     assert driver.returncode == 130, stderr
     assert stderr.strip().splitlines()[-1] == "gantry-twin: interrupted"
-    assert not [c for c in children if c.is_running() and c.status() != "zombie"]
+    _, alive = psutil.wait_procs(children, timeout=15)  # the cluster's processes end with the driver
+    assert not alive, [" ".join(p.cmdline()) for p in alive]
     rows = rows_of(out)
     assert 2 <= len(rows) < 10 and all(r["status"] == "ok" for r in rows)
     assert not list(out.glob(".*.part"))

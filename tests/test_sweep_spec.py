@@ -335,3 +335,14 @@ def test_plan_errors_are_scenario_errors_naming_the_sweep_file(tmp_path):
     with pytest.raises(ScenarioError) as caught:
         plan_sweep(load_sweep(path), str(path))
     assert caught.value.source == str(path) and caught.value.field.startswith("point 0 (payload.mass_kg=30)")
+
+
+def test_sweep_takes_the_progress_flags(monkeypatch):
+    from gantry_twin import cli
+
+    parser = cli.build_parser()
+    assert parser.parse_args(["sweep", "s.yaml", "--no-progress"]).progress is False
+    assert parser.parse_args(["sweep", "s.yaml", "--progress"]).progress is True
+    args = parser.parse_args(["sweep", "s.yaml"])
+    monkeypatch.setattr(cli.sys.stderr, "isatty", lambda: False)
+    assert args.progress is None and cli._progress_wanted(args) is False
