@@ -42,6 +42,8 @@ WARM_UP_S = 0.01
 CONNECT_TIMEOUT_S = 10.0
 WORKERS_TIMEOUT_S = 60.0
 COMPILE_LOCK = ".compile.lock"
+#: Tasks submitted ahead per worker thread: every worker has its next point queued, the rest wait in the driver.
+IN_FLIGHT_PER_THREAD = 3
 
 
 class ClusterError(RuntimeError):
@@ -174,14 +176,30 @@ def run_tasks(
 ) -> Iterator[tuple[int, Any, Exception | None]]:
     """Submit ``function(*args)`` for each args; yield (index, result, None) or (index, None, error) as they finish.
 
-    Impure submits: every call is its own task. Pending tasks are cancelled
-    when the caller stops early (an interrupt). The progress bar counts
-    points done of ``total`` (``initial`` done before), with rate and ETA.
+    Impure submits: every call is its own task. At most
+    :data:`IN_FLIGHT_PER_THREAD` tasks per worker thread are submitted at a
+    time (a big sweep's scenarios are not all held by the scheduler, and an
+    interrupt has little to cancel); pending tasks are cancelled when the
+    caller stops early. The progress bar counts points done of ``total``
+    (``initial`` done before), with rate and ETA.
     """
     from distributed import as_completed
     from tqdm import tqdm
 
-    futures = {client.submit(function, *args, pure=False): i for i, args in enumerate(arguments)}
+    futures: dict[Any, int] = {}
+    queue = iter(enumerate(arguments))
+    finished = as_completed()
+
+    def submit_next() -> None:
+        item = next(queue, None)
+        if item is not None:
+            future = client.submit(function, *item[1], pure=False)
+            futures[future] = item[0]
+            finished.add(future)
+
+    threads = sum(client.nthreads().values()) or 1
+    for _ in range(IN_FLIGHT_PER_THREAD * threads):
+        submit_next()
     bar = tqdm(
         total=total if total is not None else len(arguments),
         initial=initial,
@@ -192,13 +210,14 @@ def run_tasks(
         smoothing=0.1,
     )
     try:
-        for future in as_completed(futures):
-            index = futures[future]
+        for future in finished:
+            index = futures.pop(future)
             try:
                 result, error = future.result(), None
             except Exception as exc:  # the task raised, or its worker died too often (KilledWorker)
                 result, error = None, exc
             future.release()
+            submit_next()
             bar.update()
             yield index, result, error
     finally:
