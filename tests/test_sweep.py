@@ -339,3 +339,27 @@ def test_axial_and_command_metrics_against_direct_computation():
         at_limit = np.sum(np.abs(u[:, axis]) >= u_max[axis])
         assert metrics.saturated_fraction[axis] == at_limit / n and at_limit > 0
         assert metrics.max_abs_u_v[axis] == u_max[axis]
+
+
+def test_resume_keeps_ok_rows_of_this_sweep_and_reruns_failed_ones(tmp_path):
+    from gantry_twin.sweep.table import ResultsTable
+
+    path = tmp_path / "minimal.yaml"
+    path.write_text(MINIMAL)
+    plan = plan_sweep(load_sweep(path), str(path))
+    first = ResultsTable(plan, tmp_path / "results.parquet")
+    first.add(plan.points[0], {"contour_rms_um": 1.0, "status": "ok", "error": None, "wall_time_s": 0.5})
+    first.add(plan.points[1], {"status": "failed", "error": "SimulationError: x", "wall_time_s": 0.1})
+    first.add(plan.points[4], {"contour_rms_um": 2.0, "status": "ok", "error": None, "wall_time_s": 0.5})
+    (tmp_path / ".results.parquet.abc.part").write_bytes(b"cut short")
+    # The same sweep with one payload value changed: points 0-1 are still there, 4-5 (5 kg) are gone.
+    path.write_text(MINIMAL.replace("[0, 2.5, 5]", "[0, 2.5, 6]"))
+    changed = plan_sweep(load_sweep(path), str(path))
+    resumed = ResultsTable(changed, tmp_path / "results.parquet")
+    assert resumed.load() == 1
+    assert [resumed.done(p) for p in changed.points] == [True] + [False] * 5
+    assert resumed.rows[changed.points[1].key]["status"] == "failed"  # kept until it runs again
+    assert not list(tmp_path.glob(".*.part"))
+    resumed.write()
+    rows = rows_of(tmp_path)
+    assert [r["point"] for r in rows] == [0, 1] and rows[0]["contour_rms_um"] == 1.0
