@@ -296,7 +296,7 @@ def test_compile_lock_holds_across_processes(tmp_path):
 
 
 def test_a_run_that_raises_gives_a_failed_row():
-    from gantry_twin.controllers import register
+    from gantry_twin.controllers import register, unregister
     from gantry_twin.scenario import load_scenario, shipped
     from gantry_twin.sweep.points import run_point
 
@@ -311,9 +311,12 @@ def test_a_run_that_raises_gives_a_failed_row():
             return {}
 
     register("broken_for_sweep", Broken)
-    sets = ["controller.name=broken_for_sweep", "duration_s=0.1", "window_s=[0,0.1]", "estimates_window_s=[0,0.1]"]
-    scenario = load_scenario(shipped("no_load_circle"), sets)
-    result = run_point(scenario.resolved(), "no_load_circle.yaml")
+    try:
+        sets = ["controller.name=broken_for_sweep", "duration_s=0.1", "window_s=[0,0.1]", "estimates_window_s=[0,0.1]"]
+        scenario = load_scenario(shipped("no_load_circle"), sets)
+        result = run_point(scenario.resolved(), "no_load_circle.yaml")
+    finally:
+        unregister("broken_for_sweep")
     assert result.row["status"] == "failed"
     assert result.row["error"].startswith("SimulationError: controller returned")
     assert "contour_rms_um" not in result.row
