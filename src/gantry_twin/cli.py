@@ -1,4 +1,4 @@
-"""The command line: ``gantry-twin run | monitor | validate | report`` (docs/cli.md).
+"""The command line: ``gantry-twin run | monitor | validate | report | sweep`` (docs/cli.md, docs/sweeps.md).
 
 Exit codes: 0 success; 2 bad input (one line on stderr naming the file, the
 field and what is allowed; nothing written), an output directory that
@@ -19,19 +19,17 @@ finished run, one of them stops it (exit status of the run).
 from __future__ import annotations
 
 import argparse
-import contextlib
 import os
 import signal
 import sys
-import threading
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, NoReturn
 
 from gantry_twin.events import touched_end_stop, travel_warnings
 from gantry_twin.monitor import Alarm
 from gantry_twin.ranges import shorten
-from gantry_twin.results import STOP_SIGNALS
+from gantry_twin.results import stop_signals_interrupt
 from gantry_twin.run import LARGE_TRACE_BYTES, RunWriter, trace_size
 from gantry_twin.scenario import (
     Scenario,
@@ -56,35 +54,6 @@ EXIT_BAD_INPUT = 2
 EXIT_ALARM = 3
 EXIT_END_STOP = 4
 EXIT_INTERRUPTED = 128  # + the signal's number, as shells report it: 130 SIGINT, 143 SIGTERM, 129 SIGHUP
-
-
-class Interrupted(KeyboardInterrupt):
-    """SIGINT, SIGTERM or SIGHUP arrived (``signum``): unwinds like Ctrl-C."""
-
-    def __init__(self, signum: int) -> None:
-        super().__init__(signal.Signals(signum).name)
-        self.signum = signum
-
-
-@contextlib.contextmanager
-def stop_signals_interrupt() -> Iterator[None]:
-    """In the block, the first SIGINT, SIGTERM or SIGHUP raises :class:`Interrupted`; later ones are ignored
-    (the clean-up runs undisturbed). The previous handlers come back after the block."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-
-    def interrupt(signum: int, frame: object) -> None:
-        for stop in STOP_SIGNALS:
-            signal.signal(stop, signal.SIG_IGN)
-        raise Interrupted(signum)
-
-    previous = {stop: signal.signal(stop, interrupt) for stop in STOP_SIGNALS}
-    try:
-        yield
-    finally:
-        for stop, handler in previous.items():
-            signal.signal(stop, handler)
 
 
 class BadInput(Exception):
@@ -150,7 +119,7 @@ def _progress(args: argparse.Namespace) -> ProgressBar:
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog=PROG, description="MuJoCo digital twin of a biaxial linear-motor gantry.")
     sub = parser.add_subparsers(
-        dest="command", required=True, metavar="{run,monitor,validate,report}", parser_class=_Parser
+        dest="command", required=True, metavar="{run,monitor,validate,report,sweep}", parser_class=_Parser
     )
 
     run = sub.add_parser("run", help="run a scenario and write its results")
@@ -191,6 +160,17 @@ def build_parser() -> argparse.ArgumentParser:
     )
     _add_set(report, "override a field in every scenario of the matrix, e.g. duration_s=10")
     _add_progress(report)
+
+    sweep = sub.add_parser("sweep", help="run a sweep or Monte Carlo study on a Dask cluster (docs/sweeps.md)")
+    sweep.add_argument("file", help="sweep YAML file or shipped sweep name (sweeps/)")
+    sweep.add_argument("--out", metavar="DIR", type=Path, help=f"output directory (default: {RUNS_DIR}/sweeps/<file>/)")
+    where = sweep.add_mutually_exclusive_group()
+    where.add_argument("--workers", metavar="N", type=int, help="local worker processes (default: os.cpu_count())")
+    where.add_argument(
+        "--scheduler", metavar="ADDRESS", help="use the running Dask cluster at ADDRESS (tcp://host:8786)"
+    )
+    sweep.add_argument("--resume", action="store_true", help="run only the points DIR/results.parquet lacks")
+    _add_progress(sweep)
     return parser
 
 
@@ -236,6 +216,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                 return _run(args)
             if args.command == "validate":
                 return _validate(args)
+            if args.command == "sweep":
+                return _sweep(args)
             return _report(args)
     except (ScenarioError, BadInput, TelemetryError) as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
@@ -404,6 +386,30 @@ def _report(args: argparse.Namespace) -> int:
     except Exception as exc:
         return _failed("report", exc)
     print(f"report written to {path}")
+    return EXIT_OK
+
+
+def _sweep(args: argparse.Namespace) -> int:
+    from gantry_twin.sweep import ClusterError, existing_results, load_sweep, plan_sweep, run_sweep, sweep_file
+
+    if args.workers is not None and args.workers < 1:
+        raise BadInput(f"--workers: must be a positive integer, got {args.workers}")
+    path = sweep_file(args.file)
+    out = _checked_out(args.out or RUNS_DIR / "sweeps" / path.stem)
+    plan = plan_sweep(load_sweep(path), str(path))  # every point checked before anything runs
+    if not args.resume and existing_results(out):
+        raise BadInput(f"--out {out}: holds an earlier sweep's results.parquet; add --resume to finish it")
+    try:
+        done = run_sweep(plan, out, args.workers, args.scheduler, args.resume, _progress_wanted(args))
+    except ClusterError as exc:
+        raise BadInput(str(exc)) from None
+    except Exception as exc:
+        return _failed("sweep", exc)
+    print(
+        f"{done.total} points: {done.done_before} done before, {done.ran} run now ({done.failed} failed) "
+        f"in {done.wall_time_s:.1f} s ({done.startup_s:.1f} s starting the workers); results in {done.results}",
+        flush=True,
+    )
     return EXIT_OK
 
 

@@ -141,3 +141,28 @@ def error_pct(estimate: float, true: float) -> float | None:
 def estimate_errors_pct(estimate: np.ndarray, true_theta: np.ndarray) -> dict[str, float | None]:
     """:func:`error_pct` of each parameter, by name."""
     return {name: error_pct(est, tru) for name, est, tru in zip(THETA_NAMES, estimate, true_theta, strict=True)}
+
+
+def axial_rms_um(trace: Trace, window_s: tuple[float, float]) -> np.ndarray:
+    """rms of each axis's tracking error e = q - q_d over the window, micrometres (X, Y)."""
+    e = trace.e_m[window_mask(trace.t_s, window_s)] * 1e6
+    return np.sqrt(np.mean(e**2, axis=0))
+
+
+@dataclass(frozen=True)
+class CommandMetrics:
+    """How hard a run drove the motors, over the whole run, per axis (X, Y).
+
+    max_abs_u_v: largest |u|, volts; saturated_fraction: the fraction of
+    samples at the DAC limit (|u| = u_max, the loop clips to exactly it).
+    """
+
+    max_abs_u_v: np.ndarray
+    saturated_fraction: np.ndarray
+
+
+def command_metrics(trace: Trace, u_max_v: np.ndarray) -> CommandMetrics:
+    """:class:`CommandMetrics` of the recorded (clipped) command; u_max_v (2,) the DAC limits, volts."""
+    u = np.abs(trace.u_v[: trace.filled])
+    limit = np.asarray(u_max_v, dtype=float)
+    return CommandMetrics(u.max(axis=0), np.mean(u >= limit, axis=0))

@@ -4,7 +4,8 @@ The matrix: C1 DARC, C2 DIARC (paper estimator), C3 DRC on the circle and the
 ellipse for Set 1 (no load), Set 2 (5 kg) and Set 3 (step disturbance; no C3,
 as in the paper): 16 runs; plus DIARC with the twin's recommended estimator
 (50 Hz filters) on Sets 1-2: 4 runs. Each run is a shipped scenario with the
-controller replaced; runs go to a process pool.
+controller replaced; runs go to a local Dask cluster, the engine of
+``gantry-twin sweep`` (:mod:`gantry_twin.sweep.engine`).
 
 Reading of "after running the gantry for one period" (control-spec section 8):
 contour metrics of Sets 1-2 cover the second period [T, 2T] of a run started
@@ -19,7 +20,6 @@ import json
 import math
 import time
 from collections.abc import Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -187,28 +187,29 @@ def run_case(case: Case) -> CaseResult:
     )
 
 
-def run_matrix(cases: Sequence[Case], jobs: int = 1, progress: bool = False) -> list[CaseResult]:
-    """Run every case, in ``jobs`` processes (in this process for jobs = 1); results in case order."""
-    from tqdm import tqdm
+def _warm_run_case(case: Case) -> CaseResult:
+    """:func:`run_case` on a worker, its loop compiled or loaded first (once per process, under the cache lock)."""
+    from gantry_twin.sweep.engine import warm_up
 
-    bar = tqdm(total=len(cases), unit="run", desc="report", disable=not progress, leave=False)
-    try:
-        if jobs <= 1 or len(cases) <= 1:
-            results = []
-            for case in cases:
-                results.append(run_case(case))
-                bar.update()
-            return results
-        done: dict[str, CaseResult] = {}
-        with ProcessPoolExecutor(max_workers=min(jobs, len(cases))) as pool:
-            futures = [pool.submit(run_case, case) for case in cases]
-            for future in as_completed(futures):
-                result = future.result()
-                done[result.case.key] = result
-                bar.update()
-        return [done[case.key] for case in cases]
-    finally:
-        bar.close()
+    warm_up(_load(case), case.scenario_path)
+    return run_case(case)
+
+
+def run_matrix(cases: Sequence[Case], jobs: int = 1, progress: bool = False) -> list[CaseResult]:
+    """Run every case on a local Dask cluster of ``jobs`` worker processes (the sweep engine); results in case order."""
+    from gantry_twin.results import stop_signals_interrupt
+    from gantry_twin.sweep.engine import open_client, prepare_workers, run_tasks
+
+    scenarios = [_load(case) for case in cases]
+    done: dict[int, CaseResult] = {}
+    with stop_signals_interrupt(), open_client(workers=max(1, min(jobs, len(cases)))) as client:
+        if cases:
+            prepare_workers(client, [s.resolved() for s in scenarios], cases[0].scenario_path)
+        for index, result, error in run_tasks(client, _warm_run_case, [(case,) for case in cases], progress, "report"):
+            if error is not None:
+                raise error
+            done[index] = result
+    return [done[i] for i in range(len(cases))]
 
 
 # ---------------------------------------------------------------------------

@@ -251,20 +251,24 @@ def write_run(out: Path, built: BuiltRun, trace: Trace, wall_time_s: float) -> d
         return writer.finish(trace, wall_time_s).summary
 
 
-def _run_info(wall_time_s: float) -> dict[str, Any]:
-    """What differs between two runs of the same scenario (kept out of summary.json)."""
+def package_version() -> str:
+    """The installed gantry-twin's version ("unknown" when run from a source tree that is not installed)."""
     from importlib.metadata import PackageNotFoundError, version
 
+    try:
+        return version("gantry-twin")
+    except PackageNotFoundError:
+        return "unknown"
+
+
+def _run_info(wall_time_s: float) -> dict[str, Any]:
+    """What differs between two runs of the same scenario (kept out of summary.json)."""
     import mujoco
 
-    try:
-        own = version("gantry-twin")
-    except PackageNotFoundError:
-        own = "unknown"
     return {
         "wall_time_s": wall_time_s,
         "finished_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-        "gantry_twin": own,
+        "gantry_twin": package_version(),
         "mujoco": mujoco.__version__,
         "python": platform.python_version(),
         "machine": platform.machine(),

@@ -1,0 +1,104 @@
+"""``gantry-twin sweep``: plan -> cluster -> points as they finish -> results.parquet, figures, summary.md."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from gantry_twin.results import stop_signals_interrupt
+from gantry_twin.sweep.engine import open_client, prepare_workers, run_tasks
+from gantry_twin.sweep.plots import write_figures, write_summary
+from gantry_twin.sweep.points import STATUS_OK, Plan, failed_row, run_point
+from gantry_twin.sweep.table import RESULTS_FILE, ResultsTable
+
+#: Where ``keep_runs`` puts each point's run files (``<out>/runs/<key>/``, the files of ``gantry-twin run``).
+RUNS_DIR = "runs"
+
+
+@dataclass(frozen=True)
+class SweepOutcome:
+    """What a sweep did: points in the plan, done before (``--resume``), run now, failed now, and its times, s.
+
+    startup_s: from the start to the workers warmed up (cluster, imports,
+    compiling or loading the loop); points_s: from the first point submitted
+    to the last result written; wall_time_s: the whole call.
+    """
+
+    total: int
+    done_before: int
+    ran: int
+    failed: int
+    wall_time_s: float
+    startup_s: float
+    points_s: float
+    results: Path
+
+
+def existing_results(out: Path) -> Path | None:
+    """The results file of an earlier sweep in ``out``, if any."""
+    path = Path(out) / RESULTS_FILE
+    return path if path.exists() else None
+
+
+def run_sweep(
+    plan: Plan,
+    out: Path,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    resume: bool = False,
+    progress: bool = False,
+) -> SweepOutcome:
+    """Run the points of ``plan`` not yet done (all of them without ``resume``) and write the outputs.
+
+    ``results.parquet`` is rewritten as each point finishes; the figures and
+    summary.md at the end, or on an interrupt (KeyboardInterrupt, also
+    raised by SIGTERM here) for the points finished so far, after the
+    cluster has been shut down.
+    """
+    out = Path(out)
+    started = time.perf_counter()
+    table = ResultsTable(plan, out / RESULTS_FILE)
+    done_before = table.load() if resume else 0
+    todo = [p for p in plan.points if not table.done(p)]
+    failed = 0
+    keep = plan.spec.keep_runs
+    changed = not todo  # nothing to run: the figures and summary are made again
+    ready = finished = started
+    try:
+        with stop_signals_interrupt():
+            if todo:
+                with open_client(workers, scheduler) as client:
+                    prepare_workers(client, [p.resolved for p in todo], plan.scenario_source)
+                    ready = time.perf_counter()
+                    arguments = [(p.resolved, plan.scenario_source, keep) for p in todo]
+                    for index, result, error in run_tasks(
+                        client, run_point, arguments, progress, "sweep", len(plan.points), done_before
+                    ):
+                        point = todo[index]
+                        row = failed_row(error) if error is not None else result.row
+                        failed += row["status"] != STATUS_OK
+                        if result is not None and result.files:
+                            _write_run_files(out / RUNS_DIR / point.key, result.files)
+                        table.add(point, row)
+                        changed = True
+                    finished = time.perf_counter()
+            if not todo or not table.path.exists():  # e.g. --resume dropped rows of points no longer swept
+                table.write()
+    finally:
+        rows = list(table.rows.values())
+        if rows and changed:
+            write_summary(plan, rows, write_figures(plan, rows, out), out)
+    wall = time.perf_counter() - started
+    return SweepOutcome(
+        len(plan.points), done_before, len(todo), failed, wall, ready - started, finished - ready, table.path
+    )
+
+
+def _write_run_files(directory: Path, files: dict[str, bytes]) -> None:
+    from gantry_twin.results import atomic_write
+    from gantry_twin.run import SUMMARY_FILE
+
+    # summary.json last: present means the run's other files are complete (as gantry-twin run writes them).
+    for name in sorted(files, key=lambda n: n == SUMMARY_FILE):
+        atomic_write(directory / name, lambda fh, data=files[name]: fh.write(data))

@@ -1,0 +1,223 @@
+"""Running many independent runs on Dask distributed: a LocalCluster, or a running cluster by address.
+
+The same code serves a laptop and a cluster (docs/sweeps.md): a
+``LocalCluster`` of one single-threaded worker *process* per core (the
+compiled loop holds the GIL, so threads would queue on it), or
+``Client("tcp://host:8786")``. Tasks are submitted impure (``pure=False``):
+two runs of the same arguments are two tasks, and anything random travels
+in the arguments as an explicit seed. A worker that dies has its tasks
+rescheduled by Dask; the caller sees each task's result (or error) once.
+
+numba's on-disk cache is not safe when several processes compile into it
+at once, so each worker process compiles (or loads) the loop of each
+controller it will run once, before the runs, in a short warm-up run held
+under a file lock beside the cache (:func:`warm_up`): one worker compiles,
+the others wait and then load what it wrote.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import os
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import replace
+from typing import Any
+
+from gantry_twin._jit import cache_dir
+from gantry_twin.run import execute, package_version
+from gantry_twin.scenario import Scenario, build, validate_data
+
+try:  # POSIX; elsewhere warm-ups are not serialised
+    import fcntl
+except ImportError:  # pragma: no cover
+    fcntl = None  # type: ignore[assignment]
+
+#: Simulated time of a warm-up run, s: long enough to call every kernel of the loop once.
+WARM_UP_S = 0.01
+#: How long to wait for a scheduler to answer, and for a connected cluster to have a worker, s.
+CONNECT_TIMEOUT_S = 10.0
+WORKERS_TIMEOUT_S = 60.0
+COMPILE_LOCK = ".compile.lock"
+#: Tasks submitted ahead per worker thread: every worker has its next point queued, the rest wait in the driver.
+IN_FLIGHT_PER_THREAD = 3
+
+
+class ClusterError(RuntimeError):
+    """The cluster cannot take the work: no scheduler at the address, no worker, a worker of another version."""
+
+
+# ---------------------------------------------------------------------------
+# On the workers.
+
+_warmed: set[str] = set()
+
+
+@contextlib.contextmanager
+def compile_lock() -> Iterator[None]:
+    """An exclusive lock on this machine's kernel cache (a file lock, so it holds across processes)."""
+    directory = cache_dir()
+    os.makedirs(directory, exist_ok=True)
+    with open(os.path.join(directory, COMPILE_LOCK), "a") as handle:
+        if fcntl is not None:
+            fcntl.flock(handle, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            if fcntl is not None:
+                fcntl.flock(handle, fcntl.LOCK_UN)
+
+
+def warm_up(scenario: Scenario, source: str = "<scenario>") -> bool:
+    """Compile or load this process's loop for the scenario's controller, under :func:`compile_lock`.
+
+    Once per process and controller (name and options: they fix the
+    kernel's argument types); returns True if it ran. A warm-up that fails
+    is ignored: the run itself will report the problem.
+    """
+    tag = json.dumps([scenario.controller.name, scenario.controller.options, scenario.monitor.enable], default=str)
+    if tag in _warmed:
+        return False
+    built = build(scenario, source)
+    short = replace(built, scenario=scenario.model_copy(update={"duration_s": WARM_UP_S}))
+    with compile_lock():
+        with contextlib.suppress(Exception):
+            execute(short)
+    _warmed.add(tag)
+    return True
+
+
+def _warm_up_all(resolved: Sequence[dict[str, Any]], source: str) -> int:
+    """Warm up every controller of a sweep (a task pinned to one worker); returns how many ran."""
+    return sum(warm_up(validate_data(r, source), source) for r in resolved)
+
+
+def worker_versions() -> dict[str, str]:
+    """What a worker runs (compared with the driver's before a sweep)."""
+    import platform
+
+    return {"gantry_twin": package_version(), "python": platform.python_version()}
+
+
+# ---------------------------------------------------------------------------
+# On the driver.
+
+
+@contextlib.contextmanager
+def open_client(workers: int | None = None, scheduler: str | None = None) -> Iterator[Any]:
+    """A Client: of a new LocalCluster (``workers`` processes, one thread each), or of the scheduler at an address."""
+    from distributed import Client, LocalCluster
+
+    if scheduler is not None:
+        try:
+            client = Client(scheduler, timeout=CONNECT_TIMEOUT_S)
+        except (OSError, TimeoutError) as exc:
+            why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+            raise ClusterError(f"--scheduler {scheduler}: cannot connect ({why})") from None
+        try:
+            _check_workers(client, scheduler)
+            yield client
+        finally:
+            client.close()
+        return
+    n = workers or os.cpu_count() or 1
+    with (
+        LocalCluster(
+            n_workers=n,
+            threads_per_worker=1,
+            processes=True,
+            dashboard_address=":0",  # its HTTP server on a free port (never a clash on 8787)
+            silence_logs=logging.ERROR,
+        ) as cluster,
+        Client(cluster) as client,
+    ):
+        yield client
+
+
+def _check_workers(client: Any, scheduler: str) -> None:
+    """At least one worker, each running this driver's gantry-twin and Python."""
+    try:
+        client.wait_for_workers(1, timeout=WORKERS_TIMEOUT_S)
+    except TimeoutError:
+        raise ClusterError(f"--scheduler {scheduler}: no worker joined within {WORKERS_TIMEOUT_S:g} s") from None
+    mine = worker_versions()
+    for address, theirs in client.run(worker_versions, on_error="return").items():
+        if isinstance(theirs, BaseException):
+            raise ClusterError(f"worker {address} cannot run gantry-twin ({type(theirs).__name__}: {theirs})")
+        if theirs["gantry_twin"] != mine["gantry_twin"]:
+            raise ClusterError(
+                f"worker {address} runs gantry-twin {theirs['gantry_twin']}, this driver {mine['gantry_twin']}; "
+                "install the same version on every worker"
+            )
+
+
+def prepare_workers(client: Any, resolved: Sequence[dict[str, Any]], source: str) -> None:
+    """Warm up every current worker for these scenarios (one per controller), before the runs."""
+    distinct = {json.dumps([r["controller"], r["monitor"]["enable"]], default=str): r for r in resolved}
+    workers = list(client.scheduler_info()["workers"])
+    futures = [
+        client.submit(_warm_up_all, list(distinct.values()), source, workers=[w], allow_other_workers=False, pure=False)
+        for w in workers
+    ]
+    client.gather(futures, errors="skip")  # a worker that died warms up in its first task
+
+
+def run_tasks(
+    client: Any,
+    function: Callable[..., Any],
+    arguments: Sequence[tuple[Any, ...]],
+    progress: bool = False,
+    desc: str = "sweep",
+    total: int | None = None,
+    initial: int = 0,
+) -> Iterator[tuple[int, Any, Exception | None]]:
+    """Submit ``function(*args)`` for each args; yield (index, result, None) or (index, None, error) as they finish.
+
+    Impure submits: every call is its own task. At most
+    :data:`IN_FLIGHT_PER_THREAD` tasks per worker thread are submitted at a
+    time (a big sweep's scenarios are not all held by the scheduler, and an
+    interrupt has little to cancel); pending tasks are cancelled when the
+    caller stops early. The progress bar counts points done of ``total``
+    (``initial`` done before), with rate and ETA.
+    """
+    from distributed import as_completed
+    from tqdm import tqdm
+
+    futures: dict[Any, int] = {}
+    queue = iter(enumerate(arguments))
+    finished = as_completed()
+
+    def submit_next() -> None:
+        item = next(queue, None)
+        if item is not None:
+            future = client.submit(function, *item[1], pure=False)
+            futures[future] = item[0]
+            finished.add(future)
+
+    threads = sum(client.nthreads().values()) or 1
+    for _ in range(IN_FLIGHT_PER_THREAD * threads):
+        submit_next()
+    bar = tqdm(
+        total=total if total is not None else len(arguments),
+        initial=initial,
+        unit="point",
+        desc=desc,
+        disable=not progress,
+        leave=False,
+        smoothing=0.1,
+    )
+    try:
+        for future in finished:
+            index = futures.pop(future)
+            try:
+                result, error = future.result(), None
+            except Exception as exc:  # the task raised, or its worker died too often (KilledWorker)
+                result, error = None, exc
+            future.release()
+            submit_next()
+            bar.update()
+            yield index, result, error
+    finally:
+        bar.close()
+        client.cancel(list(futures))

@@ -1,0 +1,203 @@
+"""A sweep's figures and ``summary.md``, beside ``results.parquet``.
+
+Per swept field and plotted metric: the metric against the field's value,
+every finished point as a dot (the spread over the other fields and the
+seeds) and, for a grid axis, the mean per value as a line, one line per
+combination of the other grid axes when there are few (e.g. one per
+controller). An ``estimate_*`` metric also shows the true value, dashed.
+With two or more swept fields, a heat map of the first two: the mean
+metric per cell of two grid axes, else the points coloured by the metric.
+"""
+
+from __future__ import annotations
+
+import io
+import math
+from collections import defaultdict
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from gantry_twin.results import atomic_write, atomic_write_text
+from gantry_twin.sweep.points import STATUS_OK, Plan
+
+SUMMARY_FILE = "summary.md"
+#: At most this many lines (combinations of the other grid axes) in one plot.
+MAX_SERIES = 8
+#: Best and worst points listed in summary.md.
+LISTED = 5
+
+
+def _numeric(values: Sequence[Any]) -> bool:
+    return all(isinstance(v, int | float) and not isinstance(v, bool) for v in values)
+
+
+def _mean(values: Sequence[float]) -> float:
+    return sum(values) / len(values)
+
+
+def _save(fig: Any, path: Path) -> None:
+    import matplotlib.pyplot as plt
+
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=110)
+    plt.close(fig)
+    atomic_write(path, lambda fh: fh.write(buffer.getvalue()))
+
+
+def _grid_fields(plan: Plan) -> list[str]:
+    return [a.field for a in plan.spec.axes]
+
+
+def _series(plan: Plan, rows: list[dict[str, Any]], field: str) -> dict[str, list[dict[str, Any]]]:
+    """Rows grouped by the values of the other grid axes (one group if that makes too many)."""
+    others = [f for f in _grid_fields(plan) if f != field]
+    groups: dict[str, list[dict[str, Any]]] = defaultdict(list)
+    for row in rows:
+        groups[", ".join(f"{f}={row[f]}" for f in others)].append(row)
+    return groups if len(groups) <= MAX_SERIES else {"": rows}
+
+
+def _positions(values: Sequence[Any]) -> tuple[list[float], list[Any] | None]:
+    """x positions of values: the numbers themselves, else the index of each distinct value (and the labels)."""
+    if _numeric(values):
+        return [float(v) for v in values], None
+    labels = list(dict.fromkeys(values))
+    return [float(labels.index(v)) for v in values], labels
+
+
+def metric_plot(plan: Plan, rows: list[dict[str, Any]], field: str, metric: str, out: Path) -> str | None:
+    """``<metric>_vs_<field>.png``; None when no finished point has the metric."""
+    import matplotlib.pyplot as plt
+
+    rows = [r for r in rows if r.get(metric) is not None]
+    if not rows:
+        return None
+    _, labels = _positions([r[field] for r in rows])
+    fig, ax = plt.subplots(figsize=(7, 4.2))
+    is_grid = field in _grid_fields(plan)
+    true_column = "true_" + metric.removeprefix("estimate_") if metric.startswith("estimate_") else None
+    for name, group in _series(plan, rows, field).items():
+        xs, _ = (
+            _positions([r[field] for r in group]) if labels is None else ([labels.index(r[field]) for r in group], None)
+        )
+        dots = ax.plot(xs, [r[metric] for r in group], "o", ms=4, alpha=0.6, label=name or None)[0]
+        by_x: dict[float, list[dict[str, Any]]] = defaultdict(list)
+        for x, r in zip(xs, group, strict=True):
+            by_x[x].append(r)
+        order = sorted(by_x)
+        if is_grid and len(order) > 1:
+            ax.plot(order, [_mean([r[metric] for r in by_x[x]]) for x in order], "-", color=dots.get_color())
+        if true_column and all(r.get(true_column) is not None for r in group):
+            true = [_mean([r[true_column] for r in by_x[x]]) for x in order]
+            ax.plot(order, true, "--", color=dots.get_color(), lw=0.9)
+    if labels is not None:
+        ax.set_xticks(range(len(labels)), [str(v) for v in labels])
+    ax.set_xlabel(field)
+    ax.set_ylabel(metric + (" (true dashed)" if true_column else ""))
+    ax.grid(alpha=0.3)
+    if ax.get_legend_handles_labels()[1]:
+        ax.legend(fontsize=7)
+    ax.set_title(f"{metric} against {field} ({len(rows)} points)")
+    fig.tight_layout()
+    name = f"{metric}_vs_{field}.png"
+    _save(fig, out / name)
+    return name
+
+
+def heat_map(plan: Plan, rows: list[dict[str, Any]], fx: str, fy: str, metric: str, out: Path) -> str | None:
+    """``<metric>_<fx>_x_<fy>.png``: mean metric per cell of two grid axes, else the points coloured by it."""
+    import matplotlib.pyplot as plt
+
+    rows = [r for r in rows if r.get(metric) is not None]
+    if not rows:
+        return None
+    fig, ax = plt.subplots(figsize=(7, 5))
+    grid = _grid_fields(plan)
+    if fx in grid and fy in grid:
+        xs = list(dict.fromkeys(r[fx] for r in sorted(rows, key=lambda r: r["point"])))
+        ys = list(dict.fromkeys(r[fy] for r in sorted(rows, key=lambda r: r["point"])))
+        cells: dict[tuple[int, int], list[float]] = defaultdict(list)
+        for r in rows:
+            cells[(ys.index(r[fy]), xs.index(r[fx]))].append(r[metric])
+        image = [
+            [_mean(cells[(j, i)]) if (j, i) in cells else math.nan for i in range(len(xs))] for j in range(len(ys))
+        ]
+        shown = ax.imshow(image, origin="lower", aspect="auto", cmap="viridis")
+        ax.set_xticks(range(len(xs)), [f"{v:.4g}" if _numeric([v]) else str(v) for v in xs], rotation=45)
+        ax.set_yticks(range(len(ys)), [f"{v:.4g}" if _numeric([v]) else str(v) for v in ys])
+    else:
+        px, xlabels = _positions([r[fx] for r in rows])
+        py, ylabels = _positions([r[fy] for r in rows])
+        shown = ax.scatter(px, py, c=[r[metric] for r in rows], cmap="viridis", s=25)
+        if xlabels is not None:
+            ax.set_xticks(range(len(xlabels)), [str(v) for v in xlabels])
+        if ylabels is not None:
+            ax.set_yticks(range(len(ylabels)), [str(v) for v in ylabels])
+    fig.colorbar(shown, ax=ax, label=metric + (" (mean)" if fx in grid and fy in grid else ""))
+    ax.set_xlabel(fx)
+    ax.set_ylabel(fy)
+    ax.set_title(f"{metric} over {fx} and {fy}")
+    fig.tight_layout()
+    name = f"{metric}_{fx}_x_{fy}.png"
+    _save(fig, out / name)
+    return name
+
+
+def write_figures(plan: Plan, rows: list[dict[str, Any]], out: Path) -> list[str]:
+    """Every figure of the sweep (PNG files in ``out``); returns their names."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    ok = [r for r in rows if r.get("status") == STATUS_OK]
+    made = []
+    for metric in plan.spec.plot_metrics():
+        for field in plan.fields:
+            made.append(metric_plot(plan, ok, field, metric, out))
+        if len(plan.fields) >= 2:
+            made.append(heat_map(plan, ok, plan.fields[0], plan.fields[1], metric, out))
+    return [m for m in made if m is not None]
+
+
+def _fmt(value: Any) -> str:
+    if isinstance(value, float):
+        return f"{value:.4g}"
+    return "-" if value is None else str(value)
+
+
+def write_summary(plan: Plan, rows: list[dict[str, Any]], figures: list[str], out: Path, note: str = "") -> Path:
+    """``summary.md``: what ran, how many finished, the best and worst points, failures, the figures."""
+    ok = [r for r in rows if r.get("status") == STATUS_OK]
+    failed = [r for r in rows if r.get("status") not in (None, STATUS_OK)]
+    spec = plan.spec
+    lines = [f"# Sweep {Path(plan.source).name}", ""]
+    if spec.description:
+        lines += [spec.description, ""]
+    lines += [
+        f"Scenario `{plan.scenario_source}`; {len(plan.points)} points over "
+        + (", ".join(f"`{f}`" for f in plan.fields) or "no field")
+        + f"; gantry-twin {plan.version}.",
+        "",
+        f"Finished: {len(ok)} ok, {len(failed)} failed, {len(plan.points) - len(ok) - len(failed)} not run."
+        + (f" {note}" if note else ""),
+        "",
+    ]
+    columns = ["point", *plan.fields, *spec.plot_metrics()]
+    for metric in spec.plot_metrics():
+        ranked = sorted((r for r in ok if r.get(metric) is not None), key=lambda r: r[metric])
+        if not ranked:
+            continue
+        for title, chosen in (("lowest", ranked[:LISTED]), ("highest", ranked[::-1][:LISTED])):
+            lines += [f"## {title.capitalize()} {metric}", "", "| " + " | ".join(columns) + " |"]
+            lines.append("|---" * len(columns) + "|")
+            lines += ["| " + " | ".join(_fmt(r.get(c)) for c in columns) + " |" for r in chosen]
+            lines.append("")
+    if failed:
+        lines += ["## Failed points", "", "| point | error |", "|---|---|"]
+        lines += [f"| {r['point']} | {r.get('error') or '-'} |" for r in failed[:20]]
+        lines.append("")
+    if figures:
+        lines += ["## Figures", ""] + [f"![{name}]({name})\n" for name in figures]
+    path = out / SUMMARY_FILE
+    atomic_write_text(path, "\n".join(lines) + "\n")
+    return path
