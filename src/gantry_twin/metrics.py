@@ -149,20 +149,9 @@ def axial_rms_um(trace: Trace, window_s: tuple[float, float]) -> np.ndarray:
     return np.sqrt(np.mean(e**2, axis=0))
 
 
-@dataclass(frozen=True)
-class CommandMetrics:
-    """How hard a run drove the motors, over the whole run, per axis (X, Y).
+def max_abs_command_v(trace: Trace) -> np.ndarray:
+    """The largest |u| of the recorded (clipped) command over the whole run, per axis (X, Y), volts.
 
-    max_abs_u_v: largest |u|, volts; saturated_fraction: the fraction of
-    samples at the DAC limit (|u| = u_max, the loop clips to exactly it).
+    (The fraction of samples at the DAC limit is :class:`gantry_twin.events.TravelWatch`'s ``saturation``.)
     """
-
-    max_abs_u_v: np.ndarray
-    saturated_fraction: np.ndarray
-
-
-def command_metrics(trace: Trace, u_max_v: np.ndarray) -> CommandMetrics:
-    """:class:`CommandMetrics` of the recorded (clipped) command; u_max_v (2,) the DAC limits, volts."""
-    u = np.abs(trace.u_v[: trace.filled])
-    limit = np.asarray(u_max_v, dtype=float)
-    return CommandMetrics(u.max(axis=0), np.mean(u >= limit, axis=0))
+    return np.abs(trace.u_v[: trace.filled]).max(axis=0)

@@ -30,7 +30,8 @@ from typing import Any
 
 import yaml
 
-from gantry_twin.metrics import axial_rms_um, command_metrics
+from gantry_twin.events import travel_summary
+from gantry_twin.metrics import axial_rms_um, max_abs_command_v
 from gantry_twin.plant import AXES
 from gantry_twin.run import RUN_FILES, execute, package_version, write_run
 from gantry_twin.scenario import ScenarioError, apply_overrides, build, read_scenario_file, validate_data
@@ -159,20 +160,19 @@ def run_point(resolved: dict[str, Any], source: str, keep_runs: bool = False) ->
 
         health = built.monitor.report() if built.monitor is not None else None
         data = summary(scenario, trace, scenario.controller.name, health)
-    row = metrics_row(
-        data, axial_rms_um(trace, scenario.metric_window_s), command_metrics(trace, built.plant.ctrl_range_v[:, 1])
-    )
+        data.update(travel_summary(built.plant, trace))  # as gantry-twin run's summary.json
+    row = metrics_row(data, axial_rms_um(trace, scenario.metric_window_s), max_abs_command_v(trace))
     return PointResult({**row, "wall_time_s": wall_time_s, "status": STATUS_OK, "error": None}, files)
 
 
-def metrics_row(data: dict[str, Any], axial_um: Any, command: Any) -> dict[str, Any]:
+def metrics_row(data: dict[str, Any], axial_um: Any, max_abs_u_v: Any) -> dict[str, Any]:
     """A row's metric columns from a run's summary.json data and the metrics summary lacks."""
     contour = data["contour_error_um"]
     row: dict[str, Any] = {"contour_rms_um": contour["rms"], "contour_max_um": contour["max"]}
     for i, axis in enumerate(AXES):
         row[f"axial_rms_{axis}_um"] = float(axial_um[i])
-        row[f"max_abs_u_{axis}_v"] = float(command.max_abs_u_v[i])
-        row[f"saturated_fraction_{axis}"] = float(command.saturated_fraction[i])
+        row[f"max_abs_u_{axis}_v"] = float(max_abs_u_v[i])
+        row[f"saturated_fraction_{axis}"] = float(data["saturation"][axis]["fraction"])
     for name, e in data.get("estimates", {}).items():
         row[f"estimate_{name}"], row[f"true_{name}"], row[f"error_pct_{name}"] = (
             e["estimate"],
