@@ -185,11 +185,7 @@ class RunWriter:
         sample): summary.json, the trace, scenario.yaml, run_info.json."""
         built, out = self.built, self.out
         scenario = built.scenario
-        health = built.monitor.report() if built.monitor is not None else None
-        steps = trace.filled if trace is not None else 0
-        period = trace.sample_period_s if trace is not None else built.plant.timestep_s
-        data = run_summary(scenario, scenario.controller.name, period, steps, self.metrics, health, failure)
-        data.update(self.travel.summary())
+        data = _summary(built, trace, self.metrics, self.travel, failure)
         written: list[str] = []
         try:
             (out / SUMMARY_FILE).unlink(missing_ok=True)  # from here the directory shows an incomplete run
@@ -249,6 +245,29 @@ def write_run(out: Path, built: BuiltRun, trace: Trace, wall_time_s: float) -> d
             observer.on_chunk(trace, trace.first, trace.filled)
             observer.on_end(trace)
         return writer.finish(trace, wall_time_s).summary
+
+
+def _summary(
+    built: BuiltRun, trace: Trace | None, metrics: RunMetrics, travel: TravelWatch, failure: Failure | None = None
+) -> dict[str, Any]:
+    """summary.json's content from what a run's observers gathered (``trace``: its last piece, or None)."""
+    scenario = built.scenario
+    health = built.monitor.report() if built.monitor is not None else None
+    steps = trace.filled if trace is not None else 0
+    period = trace.sample_period_s if trace is not None else built.plant.timestep_s
+    data = run_summary(scenario, scenario.controller.name, period, steps, metrics, health, failure)
+    data.update(travel.summary())
+    return data
+
+
+def summarise(built: BuiltRun, trace: Trace) -> dict[str, Any]:
+    """summary.json's content for a finished run's whole trace, as :class:`RunWriter` writes it (nothing written)."""
+    scenario = built.scenario
+    metrics = RunMetrics(scenario.metric_window_s, scenario.estimate_window_s)
+    travel = TravelWatch(built.plant)
+    for observer in (metrics, travel):
+        observer.on_chunk(trace, trace.first, trace.filled)
+    return _summary(built, trace, metrics, travel)
 
 
 def package_version() -> str:

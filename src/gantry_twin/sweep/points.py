@@ -30,10 +30,9 @@ from typing import Any
 
 import yaml
 
-from gantry_twin.events import travel_summary
 from gantry_twin.metrics import axial_rms_um, max_abs_command_v
 from gantry_twin.plant import AXES
-from gantry_twin.run import RUN_FILES, execute, package_version, write_run
+from gantry_twin.run import RUN_FILES, execute, package_version, summarise, write_run
 from gantry_twin.scenario import ScenarioError, apply_overrides, build, read_scenario_file, validate_data
 from gantry_twin.sweep.sampling import draws
 from gantry_twin.sweep.spec import SweepSpec, scenario_path
@@ -156,11 +155,7 @@ def run_point(resolved: dict[str, Any], source: str, keep_runs: bool = False) ->
             data = write_run(Path(tmp), built, trace, wall_time_s)
             files = {name: (Path(tmp) / name).read_bytes() for name in RUN_FILES if (Path(tmp) / name).is_file()}
     else:
-        from gantry_twin.results import summary
-
-        health = built.monitor.report() if built.monitor is not None else None
-        data = summary(scenario, trace, scenario.controller.name, health)
-        data.update(travel_summary(built.plant, trace))  # as gantry-twin run's summary.json
+        data = summarise(built, trace)  # what gantry-twin run's summary.json holds
     row = metrics_row(data, axial_rms_um(trace, scenario.metric_window_s), max_abs_command_v(trace))
     return PointResult({**row, "wall_time_s": wall_time_s, "status": STATUS_OK, "error": None}, files)
 
