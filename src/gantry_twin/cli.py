@@ -282,9 +282,9 @@ def _announce_large_trace(built: Any) -> None:
     if size.bytes > LARGE_TRACE_BYTES:
         stride = size.stride_under()
         print(
-            f"{PROG}: note: trace.parquet will take about {size.bytes / 1e9:.1f} GB ({size.rows} samples x "
-            f"{size.columns} columns); --set outputs.trace_stride={stride} keeps one sample in {stride} "
-            f"(about {size._replace(stride=stride).bytes / 1e9:.2f} GB), outputs.trace=false none",
+            f"{PROG}: note: trace.parquet will take up to {size.bytes / 1e9:.1f} GB ({size.rows} samples x "
+            f"{size.columns} columns, before compression); --set outputs.trace_stride={stride} keeps one sample "
+            f"in {stride} (up to {size._replace(stride=stride).bytes / 1e9:.2f} GB), outputs.trace=false none",
             file=sys.stderr,
             flush=True,
         )
