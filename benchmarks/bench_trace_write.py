@@ -46,6 +46,24 @@ CHOICES: list[tuple[str, bool, dict[str, Any]]] = [
 ROW_GROUPS_S = (1.0, 10.0, 30.0)
 
 
+#: Significant bits (of float32's 24) kept by :func:`rounded`, to show what a lossy choice would give.
+LOSSY_BITS = (16, 12)
+
+
+def rounded(table: pa.Table, bits: int) -> pa.Table:
+    """The table with each float32 column rounded (to nearest even) to ``bits`` significant bits."""
+    drop = np.uint32(24 - bits)
+    columns = {}
+    for field in table.schema:
+        values = table.column(field.name).to_numpy()
+        if field.type == pa.float32():
+            raw = values.view(np.uint32)
+            half = np.uint32((1 << int(drop - 1)) - 1) + ((raw >> drop) & np.uint32(1))
+            values = (((raw + half) >> drop) << drop).view(np.float32)
+        columns[field.name] = values
+    return pa.table(columns, metadata=table.schema.metadata)
+
+
 def simulated_trace(scenario: str, duration_s: float):
     from gantry_twin.cli import _scenario_path
     from gantry_twin.run import execute
@@ -104,6 +122,10 @@ def main() -> None:
     )
     size, seconds = measure(all32, rows_10s, TRACE_PARQUET_OPTIONS, args.repeats)
     print(f"  {'shipped options, positions float32 too (not shipped)':<52} {size:7.2f} {seconds:8.3f}")
+    for bits in LOSSY_BITS:
+        size, seconds = measure(rounded(mixed, bits), rows_10s, TRACE_PARQUET_OPTIONS, args.repeats)
+        label = f"float32 columns kept to {bits} bits (lossy, not shipped)"
+        print(f"  {label:<52} {size:7.2f} {seconds:8.3f}")
     before, after = times[CHOICES[0][0]], times["mixed, zstd, BYTE_STREAM_SPLIT"]
     print(f"write time, shipped / before: {after / before:.2f} ({after:.3f} s / {before:.3f} s)")
 
