@@ -32,7 +32,9 @@ class ExportError(Exception):
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("run", metavar="RUN", help=f"a run's directory (holding {TRACE_FILE}) or a {TRACE_FILE} file")
-    parser.add_argument("--csv", action="store_true", required=True, help="write the trace as CSV (the one format)")
+    parser.add_argument(
+        "--csv", action="store_true", required=True, help="write the trace as CSV (the only format so far)"
+    )
     parser.add_argument(
         "--out", metavar="FILE", type=Path, help=f"the CSV file to write (default: RUN/{CSV_FILE}, beside the trace)"
     )

@@ -64,9 +64,9 @@ from gantry_twin.trace import RunInfo, Trace
 MARKER_RATE_HZ = 50.0
 #: Rate of the points of the magnified actual contour, Hz.
 CONTOUR_RATE_HZ = 1000.0
-#: Rate of the parameter estimates theta^ and lambda_max(Gamma), Hz: they move on the estimator's time scale
-#: (its filters and forgetting: milliseconds and slower), and they are nine of the eighteen full-rate series of a
-#: recording (sizes: docs/telemetry.md). dc^, the fast compensation, stays at the full rate.
+#: Rate of the parameter estimates theta^ and lambda_max(Gamma), Hz: they converge and drift over tens of
+#: milliseconds to seconds, and they were nine of the eighteen 5 kHz series of a recording (sizes:
+#: docs/performance.md, "Trace files"). dc^, the fast compensation, stays at the full rate.
 ESTIMATE_RATE_HZ = 1000.0
 
 _ESTIMATE_RGB = (230, 120, 30)
@@ -350,8 +350,7 @@ class RerunObserver:
         k = self._estimate_stride
         slow = np.arange(-(-start // k) * k, stop, k) - first  # the samples at estimate_rate_hz
         slow_times = [_TimeIndex(trace.t_s[slow])]
-        if self._estimates and slow.size:
-            theta = state["theta_hat"][slow]
+        if self._estimates:
             if trace.true_theta_t is None:  # constant: a line needs two points per send
                 at = np.array([start, stop - 1])
                 true = np.broadcast_to(trace.true_theta, (2, trace.true_theta.size))
@@ -365,7 +364,8 @@ class RerunObserver:
                 true = trace.true_theta_t[at - first]
             true_times = [_TimeIndex(trace.t_s[at - first])]
             for entity, i in self._estimates:
-                scalars(f"{entity}/estimate", theta[:, i], slow_times)
+                if slow.size:
+                    scalars(f"{entity}/estimate", state["theta_hat"][slow, i], slow_times)
                 if i < true.shape[1]:
                     scalars(f"{entity}/true", true[:, i], true_times)
         if "dc_hat" in state:
