@@ -64,7 +64,7 @@ def main() -> None:
     print(f"  wall time      : {wall:8.1f} s")
     print(f"  peak RSS       : {rss_mb:8.1f} MB (target < {TARGET_RSS_MB:g} MB): {verdict}")
     print(f"  trace.parquet  : {on_disk / 1e6:8.1f} MB ({meta.num_rows} rows, {meta.num_row_groups} row groups)")
-    print(f"  announced size : {size.bytes / 1e6:8.1f} MB (8 bytes per value)")
+    print(f"  announced size : {size.bytes / 1e6:8.1f} MB (before compression: {size.row_bytes} bytes a row)")
     for line in err.strip().splitlines():
         print(f"  stderr: {line}")
 

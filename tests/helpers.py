@@ -36,6 +36,18 @@ for _constant in (MASS_NO_LOAD_KG, DAMPING_N_S_PER_M, FRICTION_N, THETA_MIN, THE
     _constant.flags.writeable = False  # shared by every test: no test may change them
 
 
+#: float32's relative rounding, 2**-24 (half an ulp). trace.parquet stores every column but time and the positions
+#: as float32 (gantry_twin.results.FLOAT64_COLUMNS): a figure computed from those columns is within this (twice it,
+#: leaving room for the float64 arithmetic on top) of the figure computed in memory.
+FLOAT32_REL = 2.0**-24
+
+
+def trace_column(table, name: str) -> np.ndarray:
+    """A trace.parquet column as float64 (a float32 column widened, so that arithmetic on it runs in float64:
+    ``float32 array * 1e6`` stays float32 in NumPy 2)."""
+    return table.column(name).to_numpy().astype(np.float64)
+
+
 def spec_theta(payload_kg: float = 0.0) -> np.ndarray:
     """The paper's theta [M1, M2, B1, B2, Af1, Af2, dN1, dN2] (volt units) of the spec's machine carrying payload_kg.
 

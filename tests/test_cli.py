@@ -14,7 +14,7 @@ from gantry_twin.plant import THETA_NAMES
 from gantry_twin.run import execute
 from gantry_twin.scenario import shipped
 
-from .helpers import deviation_pct, read_rrd, run_main, scalars, spec_theta
+from .helpers import FLOAT32_REL, deviation_pct, read_rrd, run_main, scalars, spec_theta, trace_column
 
 #: Short runs: 0.2 s of simulation (1000 samples) with windows inside it.
 SHORT = ["--set", "duration_s=0.2", "--set", "window_s=[0.05, 0.2]", "--set", "estimates_window_s=[0.1, 0.2]"]
@@ -235,7 +235,7 @@ def test_validate_accepts_every_shipped_scenario(capsys):
 
 def _window_rms_max_um(table, window):
     t = table.column("t_s").to_numpy()
-    eps = np.abs(table.column("eps_c_m").to_numpy()[(t >= window[0]) & (t < window[1])]) * 1e6
+    eps = np.abs(trace_column(table, "eps_c_m")[(t >= window[0]) & (t < window[1])]) * 1e6
     return math.sqrt(float(np.mean(eps**2))), float(eps.max())
 
 
@@ -271,18 +271,19 @@ def test_run_writes_scenario_summary_trace(tmp_path, capsys):
     ):
         assert column in table.column_names
     rms, peak = _window_rms_max_um(table, (0.05, 0.2))
-    assert summary["contour_error_um"]["rms"] == pytest.approx(rms, rel=1e-12)
-    assert summary["contour_error_um"]["max"] == pytest.approx(peak, rel=1e-12)
+    assert summary["contour_error_um"]["rms"] == pytest.approx(rms, rel=2 * FLOAT32_REL)
+    assert summary["contour_error_um"]["max"] == pytest.approx(peak, rel=2 * FLOAT32_REL)
     # Estimates: the trace's mean over estimates_window_s, judged against the spec's machine with 5 kg on the
     # X carriage (M1 = (8.28 + 5) / 69, M2 = (34.5 + 5) / 69, control-spec section 1).
     est_t = table.column("t_s").to_numpy()
     sel = (est_t >= 0.1) & (est_t < 0.2)
     for name, true in zip(THETA_NAMES[:6], spec_theta(5.0), strict=False):
         reported = summary["estimates"][name]
-        estimate = table.column(f"theta_hat_{name}").to_numpy()[sel].mean()
+        estimate = trace_column(table, f"theta_hat_{name}")[sel].mean()
         assert reported["true"] == pytest.approx(true, rel=1e-12), name
-        assert reported["estimate"] == pytest.approx(estimate, rel=1e-12), name
-        assert reported["error_pct"] == pytest.approx(deviation_pct(estimate, true), rel=1e-9), name
+        assert reported["estimate"] == pytest.approx(estimate, rel=2 * FLOAT32_REL), name
+        pct_tolerance = 100 * 2 * FLOAT32_REL * abs(estimate / true)  # the estimate's float32 rounding, in %
+        assert reported["error_pct"] == pytest.approx(deviation_pct(estimate, true), abs=pct_tolerance), name
     # The resolved scenario is complete and runs again to the same summary.
     resolved = (out / "scenario.yaml").read_text()
     assert "duration_s: 0.2" in resolved and "mass_kg: 5.0" in resolved
@@ -418,7 +419,7 @@ def test_progress_bar_only_reads_the_trace(tmp_path, capsys):
 
 
 def test_run_records_telemetry_to_a_file(tmp_path):
-    """The recording `run --save` writes holds the run's trace.parquet, sample for sample."""
+    """The recording `run --save` writes holds the run's trace.parquet, sample for sample (the estimates at 1 kHz)."""
     rrd = tmp_path / "run.rrd"
     out = tmp_path / "out"
     code = cli.main(["run", "no_load_circle", *SHORT, "--out", str(out), "--save", str(rrd)])
@@ -427,17 +428,19 @@ def test_run_records_telemetry_to_a_file(tmp_path):
     assert table.num_rows == 1000
     data = read_rrd(rrd)
     times_ns = np.rint(table.column("t_s").to_numpy() * 1e9).astype(np.int64)
+    # entity -> (the trace's values, relative tolerance: float32 columns are rounded, positions exact)
     recorded = {
-        "errors/contour/eps_c_um": table.column("eps_c_m").to_numpy() * 1e6,
-        "errors/axial/e_x_um": table.column("x_m").to_numpy() * 1e6 - table.column("x_d_m").to_numpy() * 1e6,
-        "inputs/u_x_V": table.column("u_x_v").to_numpy(),
-        "inputs/u_y_V": table.column("u_y_v").to_numpy(),
-        "estimates/M1_V_s2_per_m/estimate": table.column("theta_hat_M1").to_numpy(),
-        "estimates/Af2_V/estimate": table.column("theta_hat_Af2").to_numpy(),
+        "errors/contour/eps_c_um": (trace_column(table, "eps_c_m") * 1e6, 2 * FLOAT32_REL),
+        "errors/axial/e_x_um": (trace_column(table, "x_m") * 1e6 - trace_column(table, "x_d_m") * 1e6, 1e-12),
+        "inputs/u_x_V": (trace_column(table, "u_x_v"), 2 * FLOAT32_REL),
+        "inputs/u_y_V": (trace_column(table, "u_y_v"), 2 * FLOAT32_REL),
+        "estimates/M1_V_s2_per_m/estimate": (trace_column(table, "theta_hat_M1")[::5], 2 * FLOAT32_REL),  # 1 kHz
+        "estimates/Af2_V/estimate": (trace_column(table, "theta_hat_Af2")[::5], 2 * FLOAT32_REL),
     }
-    for entity, expected in recorded.items():
-        np.testing.assert_array_equal(data[entity]["time_ns"], times_ns, err_msg=entity)
-        np.testing.assert_allclose(scalars(data, entity)[:, 0], expected, rtol=1e-12, atol=1e-9, err_msg=entity)
+    for entity, (expected, rtol) in recorded.items():
+        at = times_ns[::5] if entity.startswith("estimates/") else times_ns
+        np.testing.assert_array_equal(data[entity]["time_ns"], at, err_msg=entity)
+        np.testing.assert_allclose(scalars(data, entity)[:, 0], expected, rtol=rtol, atol=1e-9, err_msg=entity)
     # The 3D view: the X carriage's translation, 50 Hz (every 100th sample), float32.
     carriage = data["gantry/y_carriage/x_carriage"]
     np.testing.assert_array_equal(carriage["time_ns"], times_ns[::100])
@@ -478,8 +481,9 @@ def test_estimates_are_judged_against_the_truth_of_their_window(tmp_path, capsys
         true = np.where(t >= 0.3, m1_loaded, m1_free)[in_window].mean()
         assert true == pytest.approx(m1_free + fraction_loaded * (m1_loaded - m1_free), rel=1e-3)
         assert m1["true"] == pytest.approx(true, rel=1e-12)
-        estimate = table.column("theta_hat_M1").to_numpy()[in_window].mean()
-        assert m1["error_pct"] == pytest.approx(deviation_pct(estimate, true), rel=1e-9)
+        estimate = trace_column(table, "theta_hat_M1")[in_window].mean()
+        pct_tolerance = 100 * 2 * FLOAT32_REL * abs(estimate / true)  # the estimate's float32 rounding, in %
+        assert m1["error_pct"] == pytest.approx(deviation_pct(estimate, true), abs=pct_tolerance)
     true_m1 = table.column("true_theta_M1").to_numpy()
     assert np.allclose(true_m1[t < 0.3 - 1e-9], m1_free) and np.allclose(true_m1[t > 0.3 + 1e-9], m1_loaded)
 

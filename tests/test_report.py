@@ -12,7 +12,7 @@ import pytest
 from gantry_twin import report
 from gantry_twin.plant import THETA_NAMES
 
-from .helpers import deviation_pct, run_main, spec_theta
+from .helpers import FLOAT32_REL, deviation_pct, run_main, spec_theta, trace_column
 
 TINY = ("duration_s=0.1", "window_s=[0.02, 0.1]", "estimates_window_s=[0.05, 0.1]")
 
@@ -46,14 +46,16 @@ def _independent_numbers(tmp_path, capsys) -> dict[str, dict]:
         assert code == 0, err
         table = pq.read_table(out / "trace.parquet")
         t = table.column("t_s").to_numpy()
-        eps_um = np.abs(table.column("eps_c_m").to_numpy()[(t >= 0.02) & (t < 0.1)]) * 1e6
+        eps_um = np.abs(trace_column(table, "eps_c_m")[(t >= 0.02) & (t < 0.1)]) * 1e6
         in_estimates_window = (t >= 0.05) & (t < 0.1)
-        estimates = [table.column(f"theta_hat_{n}").to_numpy()[in_estimates_window].mean() for n in THETA_NAMES]
+        theta = [trace_column(table, f"theta_hat_{n}")[in_estimates_window] for n in THETA_NAMES]
         numbers[key] = {
             "steps": t.size,
             "rms_um": math.sqrt(np.mean(eps_um**2)),
             "max_um": eps_um.max(),
-            "estimates": np.array(estimates),
+            "estimates": np.array([values.mean() for values in theta]),
+            # how far float32 rounding can move each mean: 2**-24 of the mean magnitude (and float64 arithmetic)
+            "estimates_tolerance": np.array([2 * FLOAT32_REL * np.abs(values).mean() for values in theta]),
         }
     return numbers
 
@@ -96,9 +98,9 @@ def test_report_on_a_tiny_matrix(tmp_path, capsys):
     for key, want in expected.items():
         got = runs[key]
         assert got["steps"] == want["steps"] == 500, key
-        assert got["rms_um"] == pytest.approx(want["rms_um"], rel=1e-12), key
-        assert got["max_um"] == pytest.approx(want["max_um"], rel=1e-12), key
-        np.testing.assert_allclose(got["estimates"], want["estimates"], rtol=1e-12, atol=1e-15, err_msg=key)
+        assert got["rms_um"] == pytest.approx(want["rms_um"], rel=2 * FLOAT32_REL), key
+        assert got["max_um"] == pytest.approx(want["max_um"], rel=2 * FLOAT32_REL), key
+        assert np.all(np.abs(np.subtract(got["estimates"], want["estimates"])) <= want["estimates_tolerance"]), key
         np.testing.assert_allclose(got["true_theta"], truth, rtol=1e-12, atol=1e-15, err_msg=key)
         row = _row_cells(_section(text, "## Runs"), f"| {key} |")
         assert row[:3] == ["500", f"{want['rms_um']:.3f}", f"{want['max_um']:.3f}"], key

@@ -283,9 +283,10 @@ def test_a_trace_over_1_gb_is_announced_with_the_stride_that_fits(capsys):
 
     assert note("duration_s=60") == ""
     line = one_line(note("duration_s=3600"))
-    assert "about 4.9 GB (18000000 samples x 34 columns)" in line
-    assert "--set outputs.trace_stride=5" in line and "outputs.trace=false" in line
-    assert note("duration_s=3600", "outputs.trace_stride=5") == ""
+    # 7 float64 columns (time, positions) and 27 float32 ones (DIARC): 164 bytes a row before compression.
+    assert "up to 3.0 GB (18000000 samples x 34 columns, before compression)" in line
+    assert "--set outputs.trace_stride=3" in line and "(up to 0.98 GB)" in line and "outputs.trace=false" in line
+    assert note("duration_s=3600", "outputs.trace_stride=3") == ""
     assert note("duration_s=3600", "outputs.trace=false") == ""
 
 

@@ -1,4 +1,4 @@
-"""The command line: ``gantry-twin run | monitor | validate | report | sweep`` (docs/cli.md, docs/sweeps.md).
+"""The command line: ``gantry-twin run | monitor | validate | report | sweep | export`` (docs/cli.md, docs/sweeps.md).
 
 Exit codes: 0 success; 2 bad input (one line on stderr naming the file, the
 field and what is allowed; nothing written), an output directory that
@@ -26,6 +26,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, NoReturn
 
+from gantry_twin import export
 from gantry_twin.events import touched_end_stop, travel_warnings
 from gantry_twin.monitor import Alarm
 from gantry_twin.ranges import shorten
@@ -119,7 +120,7 @@ def _progress(args: argparse.Namespace) -> ProgressBar:
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog=PROG, description="MuJoCo digital twin of a biaxial linear-motor gantry.")
     sub = parser.add_subparsers(
-        dest="command", required=True, metavar="{run,monitor,validate,report,sweep}", parser_class=_Parser
+        dest="command", required=True, metavar="{run,monitor,validate,report,sweep,export}", parser_class=_Parser
     )
 
     run = sub.add_parser("run", help="run a scenario and write its results")
@@ -171,6 +172,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sweep.add_argument("--resume", action="store_true", help="run only the points DIR/results.parquet lacks")
     _add_progress(sweep)
+
+    export.add_arguments(sub.add_parser("export", help="write a run's trace as CSV (docs/cli.md)"))
     return parser
 
 
@@ -218,8 +221,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                 return _validate(args)
             if args.command == "sweep":
                 return _sweep(args)
+            if args.command == "export":
+                return export.command(args)
             return _report(args)
-    except (ScenarioError, BadInput, TelemetryError) as exc:
+    except (ScenarioError, BadInput, TelemetryError, export.ExportError) as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except KeyboardInterrupt as exc:
@@ -282,9 +287,9 @@ def _announce_large_trace(built: Any) -> None:
     if size.bytes > LARGE_TRACE_BYTES:
         stride = size.stride_under()
         print(
-            f"{PROG}: note: trace.parquet will take about {size.bytes / 1e9:.1f} GB ({size.rows} samples x "
-            f"{size.columns} columns); --set outputs.trace_stride={stride} keeps one sample in {stride} "
-            f"(about {size._replace(stride=stride).bytes / 1e9:.2f} GB), outputs.trace=false none",
+            f"{PROG}: note: trace.parquet will take up to {size.bytes / 1e9:.1f} GB ({size.rows} samples x "
+            f"{size.columns} columns, before compression); --set outputs.trace_stride={stride} keeps one sample "
+            f"in {stride} (up to {size._replace(stride=stride).bytes / 1e9:.2f} GB), outputs.trace=false none",
             file=sys.stderr,
             flush=True,
         )

@@ -270,7 +270,8 @@ TRACE_COLUMNS: dict[str, tuple[str, int | None]] = {
 
 
 def trace_table(trace: Trace, stride: int = 1, start: int | None = None, stop: int | None = None) -> pa.Table:
-    """The trace as one column per scalar series (SI units and volts), every ``stride``-th sample.
+    """The trace as one column per scalar series (SI units and volts), every ``stride``-th sample, each column
+    of the type it is stored as (:func:`stored_dtype`: float64 time and positions, float32 the others).
 
     Columns: t_s; x_m, y_m (true position); x_meas_m, y_meas_m (encoder);
     x_d_m, y_d_m (desired); e_x_m, e_y_m; eps_n_m, eps_c_m; u_x_v, u_y_v
@@ -296,12 +297,40 @@ def trace_table(trace: Trace, stride: int = 1, start: int | None = None, stop: i
     if trace.true_theta_t is not None:  # the plant changed during the run
         cols.update(_columns("true_theta", trace.true_theta_t[rows]))
     meta = {"true_theta": json.dumps(dict(zip(THETA_NAMES, map(float, trace.true_theta), strict=True)))}
-    table = pa.table({k: pa.array(np.ascontiguousarray(v, dtype=float)) for k, v in cols.items()})
+    table = pa.table({k: pa.array(np.ascontiguousarray(v, dtype=stored_dtype(k))) for k, v in cols.items()})
     return table.replace_schema_metadata({**(table.schema.metadata or {}), **meta})
+
+
+#: The trace columns stored as float64: time and the positions, whose differences are taken (q - q_d, the
+#: contour error: nanometres out of 0.25 m need more than float32's 24 bits, which step by 15 nm at 0.25 m and
+#: by 0.24 ms at t = 3600 s). Every other column (errors, volts, a controller's logged state, true theta) is
+#: float32: 24 bits, a relative step of 6e-8, far below the precision of any figure read from it (docs/cli.md).
+FLOAT64_COLUMNS = frozenset(("t_s", "x_m", "y_m", "x_meas_m", "y_meas_m", "x_d_m", "y_d_m"))
+
+
+def stored_dtype(column: str) -> type[np.floating]:
+    """How a trace.parquet column is stored: float64 for FLOAT64_COLUMNS, float32 for any other."""
+    return np.float64 if column in FLOAT64_COLUMNS else np.float32
+
+
+def stored_row_bytes(other_columns: int) -> int:
+    """Bytes of one trace.parquet row before compression: the trace's own columns and ``other_columns`` more
+    (the controller's logged state, true theta: float32)."""
+    own = sum(np.dtype(stored_dtype(name)).itemsize for name in TRACE_COLUMNS)
+    return own + other_columns * np.dtype(np.float32).itemsize
 
 
 #: Parquet writer options: float columns rarely repeat a value, so dictionary pages would only add to the file.
 PARQUET_OPTIONS: dict[str, Any] = {"use_dictionary": False}
+#: trace.parquet's writer options (sizes and times of the choices: docs/performance.md, "Trace files"):
+#: zstd, and BYTE_STREAM_SPLIT, which puts the same byte of every float together (the sign, exponent and
+#: high mantissa bytes of a smooth series repeat, and zstd then finds them).
+TRACE_PARQUET_OPTIONS: dict[str, Any] = {
+    **PARQUET_OPTIONS,
+    "compression": "zstd",
+    "compression_level": 1,
+    "column_encoding": "BYTE_STREAM_SPLIT",
+}
 
 
 def write_parquet(path: Path, table: pa.Table) -> None:
@@ -344,7 +373,7 @@ class TraceWriter:
     def _write(self, trace: Trace, stop: int) -> None:
         table = trace_table(trace, self.stride, self._written, stop)
         if self._writer is None:
-            self._writer = pq.ParquetWriter(self._fh, table.schema, **PARQUET_OPTIONS)
+            self._writer = pq.ParquetWriter(self._fh, table.schema, **TRACE_PARQUET_OPTIONS)
         if table.num_rows:
             self._writer.write_table(table, row_group_size=table.num_rows)
         self._written = stop

@@ -23,6 +23,7 @@ from typing import Any, NamedTuple
 from gantry_twin.controllers.base import compiled_step_of
 from gantry_twin.events import TravelWatch
 from gantry_twin.metrics import RunMetrics
+from gantry_twin.plant import THETA_NAMES
 from gantry_twin.results import (
     TRACE_COLUMNS,
     Failure,
@@ -31,6 +32,7 @@ from gantry_twin.results import (
     discard,
     run_summary,
     signals_held,
+    stored_row_bytes,
     summary_json,
     temporary_file,
 )
@@ -47,7 +49,7 @@ RUN_FILES = (SUMMARY_FILE, SCENARIO_FILE, TRACE_FILE, RUN_INFO_FILE)
 
 #: How much of a run :func:`run_and_write` holds in memory, s: the trace goes to disk a piece (row group) at a time.
 HOLD_S = 10.0
-#: A trace.parquet larger than this, bytes (estimated), is announced before the run with the trace_stride hint.
+#: A trace.parquet larger than this, bytes (before compression), is announced before the run with the trace_stride hint.
 LARGE_TRACE_BYTES = 10**9
 
 
@@ -80,12 +82,14 @@ def _simulate(built: BuiltRun, observers: Sequence[Observer], hold_s: float | No
 
 
 class TraceSize(NamedTuple):
-    """How large a run's trace.parquet will be: the run's samples, outputs.trace_stride, columns (at least:
-    a Python controller's log is known only once it runs); 8 bytes per value."""
+    """How large a run's trace.parquet can be: the run's samples, outputs.trace_stride, columns (at least:
+    a Python controller's log is known only once it runs), bytes per row before compression
+    (:func:`gantry_twin.results.stored_row_bytes`); compression only makes the file smaller."""
 
     samples: int
     stride: int
     columns: int
+    row_bytes: int
 
     @property
     def rows(self) -> int:
@@ -93,11 +97,11 @@ class TraceSize(NamedTuple):
 
     @property
     def bytes(self) -> int:
-        return self.rows * self.columns * 8
+        return self.rows * self.row_bytes
 
     def stride_under(self, limit_bytes: int = LARGE_TRACE_BYTES) -> int:
         """An outputs.trace_stride that keeps the trace under ``limit_bytes``."""
-        return max(self.stride + 1, -(-self.samples * self.columns * 8 // limit_bytes))
+        return max(self.stride + 1, -(-self.samples * self.row_bytes // limit_bytes))
 
 
 def trace_size(built: BuiltRun) -> TraceSize:
@@ -105,11 +109,12 @@ def trace_size(built: BuiltRun) -> TraceSize:
     outputs = built.scenario.outputs
     n = sample_count(built.scenario.duration_s, built.plant.timestep_s)
     if not outputs.trace:
-        return TraceSize(n, outputs.trace_stride, 0)
+        return TraceSize(n, outputs.trace_stride, 0, 0)
     compiled = compiled_step_of(built.controller)
     logged = compiled.log_size if compiled is not None else 0
     moving = built.changes is not None and not built.changes.empty
-    return TraceSize(n, outputs.trace_stride, len(TRACE_COLUMNS) + logged + (8 if moving else 0))
+    others = logged + (len(THETA_NAMES) if moving else 0)
+    return TraceSize(n, outputs.trace_stride, len(TRACE_COLUMNS) + others, stored_row_bytes(others))
 
 
 class RunOutcome(NamedTuple):

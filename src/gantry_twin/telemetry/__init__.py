@@ -24,6 +24,7 @@ from gantry_twin.telemetry.dashboard import (
 )
 from gantry_twin.telemetry.observer import (
     CONTOUR_RATE_HZ,
+    ESTIMATE_RATE_HZ,
     MARKER_RATE_HZ,
     RerunObserver,
     theta_entity,
@@ -48,6 +49,7 @@ from gantry_twin.telemetry.sinks import (
 __all__ = [
     "CONTOUR_RATE_HZ",
     "ERROR_MAGNIFICATION",
+    "ESTIMATE_RATE_HZ",
     "LOCALHOST",
     "MARKER_RATE_HZ",
     "TIMELINE",

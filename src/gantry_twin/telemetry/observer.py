@@ -8,8 +8,8 @@ wall time (default 0.2 s: five viewer updates a second), at the end of a
 chunk; rerun's cost is mostly per row and per call, not per value
 (docs/telemetry.md, "Cost"), so one send covers many chunks when the loop is
 fast (and at the end of each piece of a run held in pieces, before its
-samples are gone). Static styling is logged once; the 3D transforms (50 Hz) and the XY
-contour (1 kHz) are decimated.
+samples are gone). Static styling is logged once; the 3D transforms (50 Hz), the XY
+contour (1 kHz), and the parameter estimates and lambda_max(Gamma) (1 kHz) are decimated.
 
 What is logged (timeline ``sim_time``, the trace's own sample times, exact to
 the nanosecond; units in the entity names):
@@ -18,10 +18,10 @@ the nanosecond; units in the entity names):
     errors/axial/e_x_um, e_y_um            axial tracking errors q - q_d, um
     inputs/u_x_V, u_y_V                    control command, volts
     inputs/disturbance_x_V, ..._y_V        input disturbance, volts
-    estimates/<name>_<unit>/estimate       theta^_i, e.g. estimates/M1_V_s2_per_m/estimate
+    estimates/<name>_<unit>/estimate       theta^_i, e.g. estimates/M1_V_s2_per_m/estimate (1 kHz)
     estimates/<name>_<unit>/true           theta_i of the model (a line: its value at each send's ends)
     estimates/dc_hat_V                     [dc^_x, dc^_y]
-    estimates/gamma_lambda_max             lambda_max(Gamma)
+    estimates/gamma_lambda_max             lambda_max(Gamma) (1 kHz)
     contour_mm/xy/desired                  the desired contour (static), mm
     contour_mm/xy/actual_x<K>              the actual contour with its error magnified K times
     gantry/...                             base, carriages and payload as boxes (metres, 50 Hz)
@@ -64,6 +64,10 @@ from gantry_twin.trace import RunInfo, Trace
 MARKER_RATE_HZ = 50.0
 #: Rate of the points of the magnified actual contour, Hz.
 CONTOUR_RATE_HZ = 1000.0
+#: Rate of the parameter estimates theta^ and lambda_max(Gamma), Hz: they converge and drift over tens of
+#: milliseconds to seconds, and they were nine of the eighteen 5 kHz series of a recording (sizes:
+#: docs/performance.md, "Trace files"). dc^, the fast compensation, stays at the full rate.
+ESTIMATE_RATE_HZ = 1000.0
 
 _ESTIMATE_RGB = (230, 120, 30)
 _TRUE_RGB = (120, 120, 120)
@@ -146,6 +150,7 @@ class RerunObserver:
         flush_interval_s: float = 0.2,
         marker_rate_hz: float = MARKER_RATE_HZ,
         contour_rate_hz: float = CONTOUR_RATE_HZ,
+        estimate_rate_hz: float = ESTIMATE_RATE_HZ,
     ) -> None:
         self.recording = recording
         self._monitor = None
@@ -153,6 +158,7 @@ class RerunObserver:
         self.flush_interval_s = float(flush_interval_s)
         self.marker_rate_hz = float(marker_rate_hz)
         self.contour_rate_hz = float(contour_rate_hz)
+        self.estimate_rate_hz = float(estimate_rate_hz)
         self._run: RunInfo | None = None
 
     def watch(self, monitor) -> None:  # noqa: ANN001 (a gantry_twin.monitor.MachineMonitor)
@@ -196,6 +202,7 @@ class RerunObserver:
         ts = trace.sample_period_s or run.plant.timestep_s
         self._marker_stride = max(1, int(round(1.0 / (self.marker_rate_hz * ts))))
         self._contour_stride = max(1, int(round(1.0 / (self.contour_rate_hz * ts))))
+        self._estimate_stride = max(1, int(round(1.0 / (self.estimate_rate_hz * ts))))
         self._sent = 0  # samples [0, _sent) are logged
         self._last_flush = -math.inf
         self._last_point_mm: np.ndarray | None = None
@@ -340,8 +347,10 @@ class RerunObserver:
         scalars("inputs/disturbance_x_V", trace.disturbance_v[rows, 0])
         scalars("inputs/disturbance_y_V", trace.disturbance_v[rows, 1])
         state = trace.controller_state
+        k = self._estimate_stride
+        slow = np.arange(-(-start // k) * k, stop, k) - first  # the samples at estimate_rate_hz
+        slow_times = [_TimeIndex(trace.t_s[slow])]
         if self._estimates:
-            theta = state["theta_hat"][rows]
             if trace.true_theta_t is None:  # constant: a line needs two points per send
                 at = np.array([start, stop - 1])
                 true = np.broadcast_to(trace.true_theta, (2, trace.true_theta.size))
@@ -355,13 +364,14 @@ class RerunObserver:
                 true = trace.true_theta_t[at - first]
             true_times = [_TimeIndex(trace.t_s[at - first])]
             for entity, i in self._estimates:
-                scalars(f"{entity}/estimate", theta[:, i])
+                if slow.size:
+                    scalars(f"{entity}/estimate", state["theta_hat"][slow, i], slow_times)
                 if i < true.shape[1]:
                     scalars(f"{entity}/true", true[:, i], true_times)
         if "dc_hat" in state:
             scalars("estimates/dc_hat_V", state["dc_hat"][rows])
-        if "gamma_lambda_max" in state:
-            scalars("estimates/gamma_lambda_max", state["gamma_lambda_max"][rows])
+        if "gamma_lambda_max" in state and slow.size:
+            scalars("estimates/gamma_lambda_max", state["gamma_lambda_max"][slow], slow_times)
         self._send_geometry(trace, start, stop)
         self._send_health()
         self._sent = stop

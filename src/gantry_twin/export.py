@@ -1,0 +1,88 @@
+"""``gantry-twin export RUN --csv [--out FILE]``: a run's trace.parquet as CSV, for tools without Parquet.
+
+One header row of the trace's column names (docs/cli.md, "trace.parquet columns"), then one row per
+sample. Each value is the shortest decimal text that reads back to the same number (Arrow's CSV
+writer): the float64 columns (time and positions) round-trip bit for bit when parsed as float64
+(Python's ``float``, NumPy's float64); the float32 columns when parsed as float32. The trace's schema
+metadata (``true_theta``) is not in the CSV: it is in summary.json. The file is written a row group
+at a time (memory does not grow with the run) into a temporary file renamed at the end
+(:func:`gantry_twin.results.atomic_write`): an interrupted export leaves no partial CSV.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import IO
+
+import pyarrow as pa
+import pyarrow.csv as pacsv
+import pyarrow.parquet as pq
+
+from gantry_twin.results import atomic_write
+from gantry_twin.run import TRACE_FILE
+
+#: The CSV's name beside the trace when --out is not given.
+CSV_FILE = "trace.csv"
+
+
+class ExportError(Exception):
+    """RUN is not a run with a trace, or the CSV cannot be written there (exit code 2, one line)."""
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("run", metavar="RUN", help=f"a run's directory (holding {TRACE_FILE}) or a {TRACE_FILE} file")
+    parser.add_argument(
+        "--csv", action="store_true", required=True, help="write the trace as CSV (the only format so far)"
+    )
+    parser.add_argument(
+        "--out", metavar="FILE", type=Path, help=f"the CSV file to write (default: RUN/{CSV_FILE}, beside the trace)"
+    )
+
+
+def trace_path(run: str | Path) -> Path:
+    """The trace.parquet of ``run`` (a run directory or the file itself); ExportError if there is none."""
+    path = Path(run)
+    if path.is_dir():
+        if not (path / TRACE_FILE).is_file():
+            raise ExportError(f"RUN {path}: no {TRACE_FILE} in it (a run written with outputs.trace: false?)")
+        return path / TRACE_FILE
+    if not path.exists():
+        raise ExportError(f"RUN {path}: no such run directory or file")
+    return path
+
+
+def open_trace(path: Path) -> pq.ParquetFile:
+    """The Parquet file at ``path``; ExportError if it is not one."""
+    try:
+        return pq.ParquetFile(path)
+    except (pa.ArrowException, OSError) as exc:
+        raise ExportError(f"RUN {path}: not a readable Parquet trace ({str(exc).splitlines()[0]})") from None
+
+
+def write_csv(trace: pq.ParquetFile, out: Path) -> None:
+    """Write the trace as CSV to ``out`` atomically, one row group at a time."""
+
+    def write(fh: IO[bytes]) -> None:
+        with pacsv.CSVWriter(fh, trace.schema_arrow) as writer:
+            for group in range(trace.num_row_groups):
+                writer.write_table(trace.read_row_group(group))
+
+    atomic_write(out, write)
+
+
+def command(args: argparse.Namespace) -> int:
+    """Run ``export``: 0 when the CSV is written; ExportError (exit 2) for a bad RUN or --out."""
+    source = trace_path(args.run)
+    trace = open_trace(source)
+    out = args.out if args.out is not None else source.parent / CSV_FILE
+    if out.is_dir():
+        raise ExportError(f"--out {out}: is a directory (give the CSV file's name)")
+    try:
+        write_csv(trace, out)
+    except OSError as exc:
+        raise ExportError(f"--out {out}: cannot write there ({exc.strerror or exc})") from None
+    except pa.ArrowException as exc:  # a damaged row group: nothing is written
+        raise ExportError(f"RUN {source}: not a readable Parquet trace ({str(exc).splitlines()[0]})") from None
+    print(f"{trace.metadata.num_rows} rows x {trace.metadata.num_columns} columns written to {out}")
+    return 0
