@@ -15,7 +15,8 @@ Figures (units on every axis; the window of each figure in its title):
 - ``estimates.png``: theta^ (t) of each parameter against its true value (dashed), volt units; only when
   the controller logs ``theta_hat``;
 - ``contour.png``: the desired path, mm, and around it the contour error magnified: the points
-  q_d + k eps_c n (n the path's left normal, the sign of eps_c), k in the legend.
+  q_d + k eps_c n (n the unit normal to the left of the direction of travel, the side where eps_c > 0),
+  k in the legend.
 """
 
 from __future__ import annotations
@@ -201,6 +202,7 @@ def _name(runs: Sequence[RunSeries], r: RunSeries, what: str) -> str:
 def fig_eps_c(plt: Any, runs: Sequence[RunSeries]) -> Any:
     """eps_c(t), um, with the paper's window (the first run's) shaded."""
     fig, ax = plt.subplots(figsize=(9, 3.6))
+    fig.subplots_adjust(left=0.08, right=0.98, bottom=0.14, top=0.85)
     for r in runs:
         ax.plot(r.t_eps_s, r.eps_c_um, lw=0.7, label=_name(runs, r, "" if len(runs) > 1 else "eps_c"))
     window = _window(runs[0].summary)
@@ -216,6 +218,7 @@ def fig_eps_c(plt: Any, runs: Sequence[RunSeries]) -> Any:
 def fig_axial(plt: Any, runs: Sequence[RunSeries]) -> Any:
     """e_x(t), e_y(t), um."""
     fig, axes = plt.subplots(2, 1, figsize=(9, 5), sharex=True)
+    fig.subplots_adjust(left=0.09, right=0.98, bottom=0.1, top=0.89, hspace=0.08)
     for i, (ax, axis) in enumerate(zip(axes, AXES, strict=True)):
         for r in runs:
             t, e = r.axial[i]
@@ -232,6 +235,7 @@ def fig_axial(plt: Any, runs: Sequence[RunSeries]) -> Any:
 def fig_commands(plt: Any, runs: Sequence[RunSeries]) -> Any:
     """u_x(t), u_y(t), V, with the motor's limits."""
     fig, axes = plt.subplots(2, 1, figsize=(9, 5), sharex=True)
+    fig.subplots_adjust(left=0.09, right=0.98, bottom=0.1, top=0.89, hspace=0.08)
     for i, (ax, axis) in enumerate(zip(axes, AXES, strict=True)):
         for r in runs:
             t, u = r.command[i]
@@ -256,6 +260,7 @@ def fig_estimates(plt: Any, runs: Sequence[RunSeries]) -> Any | None:
     if not runs:
         return None
     fig, axes = plt.subplots(4, 2, figsize=(10, 8.5), sharex=True)
+    fig.subplots_adjust(left=0.09, right=0.98, bottom=0.06, top=0.92, wspace=0.28, hspace=0.1)
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     for j, (ax, name) in enumerate(zip(axes.T.ravel(), THETA_NAMES, strict=True)):
         low, high = [], []
@@ -295,6 +300,7 @@ def fig_contour(plt: Any, runs: Sequence[RunSeries]) -> Any:
     """The desired path (mm) and q_d + k eps_c n around it, one factor k for every run."""
     k = magnification(runs)
     fig, ax = plt.subplots(figsize=(6.5, 6.5))
+    fig.subplots_adjust(left=0.13, right=0.97, bottom=0.09, top=0.9)
     path = runs[0].contour_m
     order = np.argsort(np.arctan2(path[:, 1] - path[:, 1].mean(), path[:, 0] - path[:, 0].mean()))
     ax.plot(path[order, 0] * 1e3, path[order, 1] * 1e3, color="0.5", lw=0.8, label="desired path q_d")
@@ -304,7 +310,9 @@ def fig_contour(plt: Any, runs: Sequence[RunSeries]) -> Any:
         ax.plot(points[:, 0] * 1e3, points[:, 1] * 1e3, ".", ms=1.2, label=_name(runs, r, f"q_d + {k:g} eps_c n"))
     ax.set_aspect("equal", adjustable="datalim")
     ax.set(xlabel="x (mm)", ylabel="y (mm)")
-    ax.set_title(_title(runs, f"contour error magnified {k:g}x around the path (outward: eps_c > 0)"), fontsize=9)
+    ax.set_title(
+        _title(runs, f"contour error magnified {k:g}x around the path (eps_c > 0: left of the travel)"), fontsize=9
+    )
     ax.legend(loc="upper right", fontsize=7, markerscale=6)
     return fig
 
@@ -337,7 +345,6 @@ def draw(runs: Sequence[RunSeries], directory: Path) -> list[str]:
         fig = draw_one(plt, runs)
         if fig is None:
             continue
-        fig.tight_layout()
         fig.savefig(directory / name, dpi=DPI)
         plt.close(fig)
         written.append(name)
