@@ -142,8 +142,10 @@ def read_series(run_dir: Path, summary: dict[str, Any], label: str) -> RunSeries
         return None
     bins = _Bins(max(1, math.ceil(rows / PLOT_BINS)), theta)
     carry: dict[str, np.ndarray] | None = None
-    for batch in pf.iter_batches(batch_size=bins.bin_size * 64, columns=columns):
-        block = {name: batch.column(name).to_numpy(zero_copy_only=False) for name in columns}
+    for group in range(pf.metadata.num_row_groups):  # one at a time: memory bounded by a row group
+        table = pf.read_row_group(group, columns=columns, use_threads=False)
+        block = {name: table.column(name).to_numpy() for name in columns}
+        del table
         if carry is not None:
             block = {name: np.concatenate([carry[name], block[name]]) for name in columns}
         whole = (block["t_s"].size // bins.bin_size) * bins.bin_size
