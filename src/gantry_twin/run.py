@@ -5,7 +5,8 @@ holds exactly one complete run. :class:`RunWriter` keeps it: it checks that
 the directory can be written before anything runs, writes the trace as the
 run goes (a hidden temporary file), and at the end deletes the old
 summary.json, puts the new files in place, removes the files of an earlier
-run that this run does not write, and writes summary.json last. An
+run that this run does not write, and writes summary.json last (the figures,
+``plots/``, before it, when asked for: :mod:`gantry_twin.runplots`). An
 interrupted run removes its temporary files (and a directory it made and
 left empty); a run stopped by a fault (:class:`SimulationError`) is written
 with the trace up to the fault and ``status: failed``.
@@ -195,7 +196,7 @@ class RunWriter:
 
     def finish(self, trace: Trace | None, wall_time_s: float, failure: Failure | None = None) -> RunOutcome:
         """Write the run whose observers saw ``trace`` (the last piece; None if it stopped before its first
-        sample): summary.json, the trace, scenario.yaml, run_info.json."""
+        sample): summary.json, the trace, scenario.yaml, run_info.json, and plots/ when asked for."""
         built, out = self.built, self.out
         scenario = built.scenario
         data = _summary(built, trace, self.metrics, self.travel, failure, self.overrides, self.controller_option)
