@@ -223,3 +223,16 @@ def test_a_run_that_fails_or_is_interrupted_leaves_latest_as_it_was(tmp_path, ca
     assert code == 130
     assert sorted(run_dirs(base)) == sorted([good, failed[0]])  # the interrupted run's directory is gone
     assert os.readlink(base / "latest") == good.name
+
+
+def test_a_damaged_trace_leaves_the_run_out_of_the_plots_only(two_runs, tmp_path, capsys):
+    work, _, _ = two_runs
+    first, second = run_dirs(work / "runs" / "no_load_circle")
+    damaged = tmp_path / "damaged"
+    shutil.copytree(first, damaged)
+    (damaged / "trace.parquet").write_bytes(b"not parquet")
+    code, stdout, err = run_main(["compare", str(damaged), str(second), "--out", str(tmp_path / "c")], capsys)
+    assert code == 0, err
+    assert "Traceback" not in err and f"#1 ({damaged}): trace.parquet unreadable (" in err
+    assert "| eps_c rms over window_s (um) | " in stdout
+    assert sorted(p.name for p in (tmp_path / "c" / "plots").iterdir()) == sorted(FIGURES)

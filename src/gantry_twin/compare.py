@@ -231,9 +231,9 @@ def markdown(runs: Sequence[Run], rows: list[tuple[str, list[Any]]], notes: list
     lines += [f"- **{run.column}**: `{run.directory}`" for run in runs]
     lines += ["", "| figure (window) | " + " | ".join(run.column for run in runs) + " |"]
     lines.append("|---" * (len(runs) + 1) + "|")
-    lines += [f"| {name} | " + " | ".join(_cell(v) for v in cells) + " |" for name, cells in rows]
+    lines += [f"| {name} | " + " | ".join(_cell(v).replace("|", "\\|") for v in cells) + " |" for name, cells in rows]
     if notes:
-        lines += ["", "Missing figures:", "", *[f"- {n}" for n in notes]]
+        lines += ["", "Notes:", "", *[f"- {n}" for n in notes]]
     return "\n".join(lines) + "\n"
 
 
@@ -259,13 +259,19 @@ def command(args: argparse.Namespace) -> int:
     if out.exists() and not out.is_dir():
         raise CompareError(f"--out {out}: exists and is not a directory")
     rows, notes = table(runs)
-    series = [read_series(run.directory, run.summary, label) for run, label in zip(runs, labels(runs), strict=True)]
-    notes += [
-        f"{run.column} ({run.directory}): no trace.parquet, not in the plots"
-        for run, s in zip(runs, series, strict=True)
-        if s is None
-    ]
-    drawn = [s for s in series if s is not None]
+    drawn = []
+    for run, label in zip(runs, labels(runs), strict=True):
+        try:
+            series = read_series(run.directory, run.summary, label)
+        except Exception as exc:  # a damaged trace: the table does not need it
+            notes.append(
+                f"{run.column} ({run.directory}): trace.parquet unreadable ({type(exc).__name__}), not in the plots"
+            )
+            continue
+        if series is None:
+            notes.append(f"{run.column} ({run.directory}): no trace.parquet, not in the plots")
+        else:
+            drawn.append(series)
     text = markdown(runs, rows, notes)
     try:
         out.mkdir(parents=True, exist_ok=True)
