@@ -17,17 +17,22 @@ from gantry_twin.scenario import shipped
 from .helpers import FLOAT32_REL, deviation_pct, read_rrd, run_main, scalars, spec_theta, trace_column
 
 #: Short runs: 0.2 s of simulation (1000 samples) with windows inside it.
-SHORT = ["--set", "duration_s=0.2", "--set", "window_s=[0.05, 0.2]", "--set", "estimates_window_s=[0.1, 0.2]"]
+OVERRIDES_SHORT = ["duration_s=0.2", "window_s=[0.05, 0.2]", "estimates_window_s=[0.1, 0.2]"]
+SHORT = [word for override in OVERRIDES_SHORT for word in ("--set", override)]
 
 SUMMARY_KEYS = {
     "schema_version",
     "scenario",
     "controller",
+    "overrides",
+    "controller_option",
     "duration_s",
     "sample_period_s",
     "steps",
     "status",
     "contour_error_um",
+    "whole_run",
+    "contour_error_per_period_um",
     "estimates_window_s",
     "estimates",
     "events",
@@ -244,7 +249,13 @@ def test_run_writes_scenario_summary_trace(tmp_path, capsys):
     code, stdout, err = run_main(["run", str(shipped("load_5kg_ellipse")), *SHORT, "--out", str(out)], capsys)
     assert code == 0, err
     assert "rms" in stdout and "M1" in stdout
-    assert sorted(p.name for p in out.iterdir()) == ["run_info.json", "scenario.yaml", "summary.json", "trace.parquet"]
+    assert sorted(p.name for p in out.iterdir()) == [
+        "plots",
+        "run_info.json",
+        "scenario.yaml",
+        "summary.json",
+        "trace.parquet",
+    ]
     summary = json.loads((out / "summary.json").read_text())
     assert set(summary) == SUMMARY_KEYS
     assert summary["scenario"] == "load_5kg_ellipse" and summary["controller"] == "diarc"
@@ -292,7 +303,9 @@ def test_run_writes_scenario_summary_trace(tmp_path, capsys):
     assert code == 0, err
     first = json.loads((out / "summary.json").read_text())
     second = json.loads((again / "summary.json").read_text())
-    assert {k: v for k, v in first.items() if k != "scenario"} == {k: v for k, v in second.items() if k != "scenario"}
+    made = ("scenario", "overrides", "controller_option")  # how each was made differs, not what it holds
+    assert {k: v for k, v in first.items() if k not in made} == {k: v for k, v in second.items() if k not in made}
+    assert first["overrides"] == OVERRIDES_SHORT and second["overrides"] == []
 
 
 def test_same_scenario_twice_gives_byte_identical_summaries(tmp_path, capsys):
@@ -308,11 +321,14 @@ def test_default_scenario_and_default_out_dir(tmp_path, capsys, monkeypatch):
     monkeypatch.chdir(tmp_path)
     code, _, err = run_main(["run", *SHORT, "--controller", "drc", "--set", "outputs.trace=false"], capsys)
     assert code == 0, err
-    out = tmp_path / "runs" / "no_load_circle"
+    out = tmp_path / "runs" / "no_load_circle" / "latest"  # the new run directory under runs/<name>/
     summary = json.loads((out / "summary.json").read_text())
     assert summary["scenario"] == "no_load_circle" and summary["controller"] == "drc"
+    assert summary["controller_option"] == "drc" and summary["overrides"] == [*OVERRIDES_SHORT, "outputs.trace=false"]
     assert "estimates" not in summary  # DRC estimates nothing
     assert not (out / "trace.parquet").exists()
+    assert not (out / "plots").exists()  # nothing to draw from
+    assert "no plots: no trace.parquet" in err
 
 
 def test_shipped_scenarios_can_be_named_without_a_path(tmp_path, capsys, monkeypatch):
@@ -362,13 +378,23 @@ def test_atomic_write_leaves_nothing_when_the_writer_fails(tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["file.bin"]
 
 
+def _files(out):
+    """Every file under ``out`` but run_info.json (its times differ), by path: its bytes."""
+    return {
+        p.relative_to(out).as_posix(): p.read_bytes()
+        for p in out.rglob("*")
+        if p.is_file() and p.name != "run_info.json"
+    }
+
+
 def test_failure_mid_write_leaves_no_complete_looking_run(tmp_path, capsys, monkeypatch):
     from gantry_twin import run as run_module
 
     out = tmp_path / "out"
     args = ["run", str(shipped("no_load_circle")), *SHORT, "--out", str(out)]
     assert run_main(args, capsys)[0] == 0
-    before = {p.name: p.read_bytes() for p in out.iterdir() if p.name != "run_info.json"}
+    before = _files(out)
+    assert "plots/eps_c.png" in before
 
     def broken_write_table(self, table, **kwargs):
         raise OSError("injected failure mid-write")
@@ -379,7 +405,7 @@ def test_failure_mid_write_leaves_no_complete_looking_run(tmp_path, capsys, monk
         code, _, err = run_main(args, capsys)
     assert code == 1
     assert_one_line_error(err, "run failed", "injected failure mid-write")
-    assert {p.name: p.read_bytes() for p in out.iterdir() if p.name != "run_info.json"} == before
+    assert _files(out) == before
 
     # Writing fails after the old summary.json is gone: no summary.json, no file of this run, no temporary file.
     def broken_text(path, text):

@@ -275,7 +275,7 @@ def test_default_output_directories_stay_under_runs(tmp_path, monkeypatch):
     code = cli.main(["run", str(path), "--controller", "pd", "--set", "estimates_window_s=[0, 0.01]", "--no-progress"])
     assert code == 0
     assert sorted(p.relative_to(tmp_path).as_posix() for p in tmp_path.glob("*")) == ["runs", "s.yaml"]
-    assert (tmp_path / "runs" / "here" / "summary.json").is_file()
+    assert (tmp_path / "runs" / "here" / "latest" / "summary.json").is_file()
 
 
 def test_exponent_without_a_decimal_point_is_a_number():

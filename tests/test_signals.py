@@ -25,7 +25,7 @@ pytestmark = [
 ]
 
 SRC = Path(__file__).resolve().parents[1] / "src"
-RUN_FILES = {"summary.json", "scenario.yaml", "trace.parquet", "run_info.json"}
+RUN_FILES = {"summary.json", "scenario.yaml", "trace.parquet", "run_info.json", "plots"}
 COMPILING = "compiling the 0.2 ms loop"
 
 

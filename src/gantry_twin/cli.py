@@ -1,4 +1,4 @@
-"""The command line: ``gantry-twin run | monitor | validate | report | sweep | export`` (docs/cli.md, docs/sweeps.md).
+"""The command line: ``gantry-twin run | monitor | validate | report | sweep | export | compare`` (docs/cli.md).
 
 Exit codes: 0 success; 2 bad input (one line on stderr naming the file, the
 field and what is allowed; nothing written), an output directory that
@@ -27,11 +27,16 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 from gantry_twin import export
+from gantry_twin.compare import CompareError
+from gantry_twin.compare import add_arguments as add_compare_arguments
+from gantry_twin.compare import command as compare_command
 from gantry_twin.events import touched_end_stop, travel_warnings
 from gantry_twin.monitor import Alarm
 from gantry_twin.ranges import shorten
-from gantry_twin.results import stop_signals_interrupt
+from gantry_twin.results import stop_signals_interrupt, whole_run_lines
 from gantry_twin.run import LARGE_TRACE_BYTES, RunWriter, trace_size
+from gantry_twin.rundirs import LATEST, new_run_dir, point_latest
+from gantry_twin.runplots import run_label
 from gantry_twin.scenario import (
     Scenario,
     ScenarioError,
@@ -120,7 +125,10 @@ def _progress(args: argparse.Namespace) -> ProgressBar:
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog=PROG, description="MuJoCo digital twin of a biaxial linear-motor gantry.")
     sub = parser.add_subparsers(
-        dest="command", required=True, metavar="{run,monitor,validate,report,sweep,export}", parser_class=_Parser
+        dest="command",
+        required=True,
+        metavar="{run,monitor,validate,report,sweep,export,compare}",
+        parser_class=_Parser,
     )
 
     run = sub.add_parser("run", help="run a scenario and write its results")
@@ -130,6 +138,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_controller(run)
     _add_set(run)
     _add_out(run)
+    _add_plots(run)
     _add_strict(run)
     _add_progress(run)
     add_telemetry_arguments(run)
@@ -139,6 +148,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_controller(monitor)
     _add_set(monitor)
     _add_out(monitor)
+    _add_plots(monitor)
     monitor.add_argument(
         "--fail-on-alarm", action="store_true", help=f"exit with status {EXIT_ALARM} if the monitor raised any alarm"
     )
@@ -174,6 +184,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_progress(sweep)
 
     export.add_arguments(sub.add_parser("export", help="write a run's trace as CSV (docs/cli.md)"))
+    compare = sub.add_parser("compare", help="the figures of runs side by side, and their plots overlaid")
+    add_compare_arguments(compare, RUNS_DIR)
     return parser
 
 
@@ -192,7 +204,20 @@ def _add_controller(parser: argparse.ArgumentParser) -> None:
 
 def _add_out(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
-        "--out", metavar="DIR", type=Path, help=f"output directory (default: {RUNS_DIR}/<scenario name>/)"
+        "--out",
+        metavar="DIR",
+        type=Path,
+        help=f"output directory (default: a new {RUNS_DIR}/<scenario name>/<UTC time>-<id>/, "
+        f"{RUNS_DIR}/<scenario name>/latest names the last complete run)",
+    )
+
+
+def _add_plots(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--plots",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="draw the run's figures into DIR/plots/ (default: on; --no-plots to skip)",
     )
 
 
@@ -223,8 +248,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                 return _sweep(args)
             if args.command == "export":
                 return export.command(args)
+            if args.command == "compare":
+                return compare_command(args)
             return _report(args)
-    except (ScenarioError, BadInput, TelemetryError, export.ExportError) as exc:
+    except (ScenarioError, BadInput, TelemetryError, export.ExportError, CompareError) as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except KeyboardInterrupt as exc:
@@ -253,8 +280,11 @@ def _validate(args: argparse.Namespace) -> int:
 
 
 def _out_dir(args: argparse.Namespace, scenario: Scenario) -> Path:
-    out = args.out or RUNS_DIR / (scenario.outputs.dir or str(scenario.name))  # labels (ranges.Label): under runs/
-    return _checked_out(out)
+    """--out, else a new run directory under runs/<name>/ (gantry_twin.rundirs)."""
+    if args.out is not None:
+        return _checked_out(args.out)
+    base = _checked_out(RUNS_DIR / (scenario.outputs.dir or str(scenario.name)))  # labels (ranges.Label): under runs/
+    return new_run_dir(base)
 
 
 def _checked_out(out: Path) -> Path:
@@ -273,10 +303,10 @@ def _failed(what: str, exc: Exception) -> int:
     return EXIT_RUN_FAILED
 
 
-def _writer(out: Path, built: Any) -> RunWriter:
+def _writer(out: Path, built: Any, args: argparse.Namespace) -> RunWriter:
     """The run's writer: BadInput (exit 2) if ``out`` cannot be made or written, before anything runs."""
     try:
-        return RunWriter(out, built)
+        return RunWriter(out, built, args.overrides, args.controller, plots=args.plots)
     except OSError as exc:
         raise BadInput(f"--out {out}: cannot write there ({exc.strerror or exc})") from None
 
@@ -303,7 +333,7 @@ def _run(args: argparse.Namespace) -> int:
     scenario = load_scenario(path, overrides, args.controller)
     built = build(scenario, str(path))
     out = _out_dir(args, scenario)
-    with _writer(out, built) as writer:
+    with _writer(out, built, args) as writer:
         telemetry = telemetry_observers(args)  # checks every option before anything runs
         _announce_large_trace(built)
         if loop_needs_compiling(built.controller):
@@ -323,7 +353,11 @@ def _run(args: argparse.Namespace) -> int:
                     file=sys.stderr,
                 )
                 return EXIT_RUN_FAILED
+            if args.out is None:
+                _point_latest(out)
             print(format_summary(outcome.summary, outcome.wall_time_s, out, outcome.files), flush=True)
+    if writer.plots_skipped is not None:
+        print(f"{PROG}: note: no plots: {writer.plots_skipped}", file=sys.stderr)
     for line in travel_warnings(outcome.summary):
         print(f"{PROG}: warning: {line}", file=sys.stderr)
     if args.strict and touched_end_stop(outcome.summary):
@@ -333,14 +367,22 @@ def _run(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _point_latest(out: Path) -> None:
+    """runs/<name>/latest -> this run (a warning if it cannot be: the run itself is complete)."""
+    try:
+        point_latest(out)
+    except OSError as exc:
+        print(f"{PROG}: warning: {out.parent / LATEST} not updated ({exc.strerror or exc})", file=sys.stderr)
+
+
 def format_summary(data: dict[str, Any], wall_time_s: float, out: Path | None = None, files: Sequence[str] = ()) -> str:
     """The short human summary ``run`` prints (``files``: those written into ``out``)."""
     c = data["contour_error_um"]
     lines = [
-        f"{data['scenario']} with {data['controller']}: {data['duration_s']:g} s simulated "
-        f"({data['steps']} steps) in {wall_time_s:.1f} s",
-        f"contour error eps_c over [{c['window_s'][0]:.3f}, {c['window_s'][1]:.3f}] s: "
+        f"{run_label(data)}: {data['duration_s']:g} s simulated ({data['steps']} steps) in {wall_time_s:.1f} s",
+        f"contour error eps_c over [{c['window_s'][0]:.3f}, {c['window_s'][1]:.3f}] s (window_s): "
         f"rms {c['rms']:.3f} um, max {c['max']:.3f} um",
+        *whole_run_lines(data),
     ]
     if "estimates" in data:
         w = data["estimates_window_s"]

@@ -21,6 +21,7 @@ import pyarrow.parquet as pq
 
 from gantry_twin.results import atomic_write
 from gantry_twin.run import TRACE_FILE
+from gantry_twin.rundirs import resolve_run
 
 #: The CSV's name beside the trace when --out is not given.
 CSV_FILE = "trace.csv"
@@ -41,8 +42,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def trace_path(run: str | Path) -> Path:
-    """The trace.parquet of ``run`` (a run directory or the file itself); ExportError if there is none."""
-    path = Path(run)
+    """The trace.parquet of ``run`` (a run directory, ``runs/<name>`` or its ``latest`` as ``compare`` takes them,
+    or the file itself); ExportError if there is none."""
+    path = resolve_run(Path(run))
     if path.is_dir():
         if not (path / TRACE_FILE).is_file():
             raise ExportError(f"RUN {path}: no {TRACE_FILE} in it (a run written with outputs.trace: false?)")

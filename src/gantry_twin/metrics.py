@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -88,20 +89,80 @@ def steady_true_parameters(trace: Trace, window_s: tuple[float, float]) -> np.nd
     return WindowMean(window_s).add(trace.t_s, trace.true_parameters_t()).mean()
 
 
+def carried_sum(carry: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """``carry`` (k,) plus the rows (n, k) added one after another, row by row.
+
+    Sequential (``np.cumsum``, not numpy's pairwise sum), so a series summed in
+    pieces gives the same bits as the whole series summed at once.
+    """
+    if rows.shape[0] == 0:
+        return carry
+    return np.cumsum(np.concatenate([carry[None, :], rows]), axis=0)[-1]
+
+
+@dataclass(frozen=True)
+class WholeRunMetrics:
+    """What a run did after its first period, and its commands over the whole run.
+
+    window_s: [start of the paper's window (by default t0 + T), end of the run];
+    contour_rms_um, contour_max_um: rms and max of abs(eps_c) over it;
+    axial_rms_um (X, Y): rms of e = q - q_d over it, micrometres;
+    command_window_s: [0, end]; max_abs_command_v (X, Y): largest abs(u) of the
+    command as applied, volts (its saturation: :class:`gantry_twin.events.TravelWatch`);
+    periods_start_s, period_s, period_rms_um: rms of abs(eps_c) over each period
+    [start + k T, start + (k + 1) T) from the end of the start ramp, the last
+    one up to the end of the run (shorter when the run is not whole periods).
+    """
+
+    window_s: tuple[float, float]
+    contour_rms_um: float
+    contour_max_um: float
+    axial_rms_um: tuple[float, float]
+    command_window_s: tuple[float, float]
+    max_abs_command_v: tuple[float, float]
+    periods_start_s: float
+    period_s: float
+    period_rms_um: tuple[float, ...]
+
+
 class RunMetrics:
     """What summary.json judges a run by, gathered chunk by chunk (an Observer): the contour error over
-    ``contour_window_s`` and the mean estimate and true theta over ``estimate_window_s``.
+    ``contour_window_s``, the mean estimate and true theta over ``estimate_window_s`` and, when ``run_window_s``
+    and ``periods_s`` are given, the figures of :class:`WholeRunMetrics`.
 
-    Holds the window's eps_c (8 bytes per sample in it) and two running sums,
+    Holds the window's eps_c (8 bytes per sample in it), two running sums, and
+    for the whole run a few running sums and maxima plus two numbers per period,
     so a run held in pieces is judged as a whole trace would be, to the bit.
     """
 
-    def __init__(self, contour_window_s: tuple[float, float], estimate_window_s: tuple[float, float]) -> None:
+    def __init__(
+        self,
+        contour_window_s: tuple[float, float],
+        estimate_window_s: tuple[float, float],
+        run_window_s: tuple[float, float] | None = None,
+        periods_s: tuple[float, float] | None = None,
+    ) -> None:
         self.contour_window_s, self.estimate_window_s = contour_window_s, estimate_window_s
+        self.run_window_s, self.periods_s = run_window_s, periods_s
         self._eps_c: list[np.ndarray] = []
         self._theta = WindowMean(estimate_window_s)
         self._true = WindowMean(estimate_window_s)
         self._estimated = False
+        # Whole run: sums of squares (um^2) of eps_c and e_x, e_y in run_window_s, their count, max abs(eps_c).
+        self._run_sq = np.zeros(3)
+        self._run_count = 0
+        self._run_max_um = 0.0
+        self._max_abs_u_v = np.zeros(2)
+        self._period_sq: list[np.ndarray] = []  # per period: [sum of eps_c^2 um^2]
+        self._period_count: list[int] = []
+
+    @classmethod
+    def for_scenario(cls, scenario: Any) -> RunMetrics:
+        """The metrics summary.json holds for a :class:`gantry_twin.scenario.Scenario`: its windows, the whole
+        run from the start of its contour window, its periods from the end of the start ramp."""
+        window = scenario.metric_window_s
+        periods = (scenario.timing_law().settled_s, scenario.period_s)
+        return cls(window, scenario.estimate_window_s, (window[0], float(scenario.duration_s)), periods)
 
     def on_start(self, run: object, trace: Trace) -> None:
         pass
@@ -110,12 +171,44 @@ class RunMetrics:
         rows = trace.rows(start, stop)
         t = trace.t_s[rows]
         w = self.contour_window_s
-        self._eps_c.append(trace.eps_c_m[rows][(t >= w[0]) & (t < w[1])])
+        eps_c_m = trace.eps_c_m[rows]
+        self._eps_c.append(eps_c_m[(t >= w[0]) & (t < w[1])])
         theta = trace.controller_state.get("theta_hat")
         if theta is not None:
             self._estimated = True
             self._theta.add(t, theta[rows])
             self._true.add(t, trace.true_parameters_t()[rows])
+        if self.run_window_s is not None:
+            self._whole_run(t, eps_c_m, trace.e_m[rows], trace.u_v[rows])
+
+    def _whole_run(self, t: np.ndarray, eps_c_m: np.ndarray, e_m: np.ndarray, u_v: np.ndarray) -> None:
+        if t.size == 0:
+            return
+        self._max_abs_u_v = np.maximum(self._max_abs_u_v, np.abs(u_v).max(axis=0))
+        a, b = self.run_window_s
+        inside = (t >= a) & (t < b)
+        eps_um = eps_c_m * 1e6
+        if inside.any():
+            sq = np.column_stack([eps_um[inside], e_m[inside] * 1e6]) ** 2
+            self._run_sq = carried_sum(self._run_sq, sq)
+            self._run_count += int(np.count_nonzero(inside))
+            self._run_max_um = max(self._run_max_um, float(np.abs(eps_um[inside]).max()))
+        if self.periods_s is None:
+            return
+        start, period = self.periods_s
+        after = t >= start
+        index = np.floor((t[after] - start) / period).astype(np.int64)
+        sq = (eps_um[after] ** 2)[:, None]
+        bounds = np.flatnonzero(np.diff(index)) + 1
+        for seg_index, seg in zip(np.split(index, bounds), np.split(sq, bounds), strict=True):
+            if seg_index.size == 0:
+                continue
+            k = int(seg_index[0])
+            while len(self._period_sq) <= k:
+                self._period_sq.append(np.zeros(1))
+                self._period_count.append(0)
+            self._period_sq[k] = carried_sum(self._period_sq[k], seg)
+            self._period_count[k] += seg_index.size
 
     def on_end(self, trace: Trace) -> None:
         pass
@@ -131,6 +224,27 @@ class RunMetrics:
         if not self._estimated:
             return None
         return self._theta.mean(), self._true.mean()
+
+    def whole_run(self) -> WholeRunMetrics | None:
+        """The whole run's figures (None without ``run_window_s`` or when no sample fell in it)."""
+        if self.run_window_s is None or self._run_count == 0:
+            return None
+        rms = np.sqrt(self._run_sq / self._run_count)
+        start, period = self.periods_s if self.periods_s is not None else (self.run_window_s[0], 0.0)
+        per_period = tuple(
+            float(np.sqrt(sq[0] / n)) for sq, n in zip(self._period_sq, self._period_count, strict=True) if n
+        )
+        return WholeRunMetrics(
+            window_s=self.run_window_s,
+            contour_rms_um=float(rms[0]),
+            contour_max_um=self._run_max_um,
+            axial_rms_um=(float(rms[1]), float(rms[2])),
+            command_window_s=(0.0, self.run_window_s[1]),
+            max_abs_command_v=(float(self._max_abs_u_v[0]), float(self._max_abs_u_v[1])),
+            periods_start_s=float(start),
+            period_s=float(period),
+            period_rms_um=per_period,
+        )
 
 
 def error_pct(estimate: float, true: float) -> float | None:

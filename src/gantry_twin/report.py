@@ -30,6 +30,7 @@ from gantry_twin.metrics import contour_metrics, error_pct, steady_estimates, st
 from gantry_twin.plant import THETA_NAMES
 from gantry_twin.results import atomic_write, atomic_write_text
 from gantry_twin.run import execute
+from gantry_twin.runplots import envelope
 from gantry_twin.scenario import build, load_scenario, shipped
 
 SET_SCENARIOS = {1: "no_load", 2: "load_5kg", 3: "step_disturbance"}
@@ -149,16 +150,6 @@ def _load(case: Case) -> Any:
     return load_scenario(case.scenario_path, case.overrides, case.controller)
 
 
-def _envelope(t: np.ndarray, x: np.ndarray, bin_size: int) -> tuple[np.ndarray, np.ndarray]:
-    """Per bin of samples, the time and value of the largest |x| (spikes survive decimation)."""
-    n = (x.size // bin_size) * bin_size
-    if n == 0:
-        return t.copy(), x.copy()
-    xb = x[:n].reshape(-1, bin_size)
-    idx = np.argmax(np.abs(xb), axis=1) + np.arange(xb.shape[0]) * bin_size
-    return t[idx], x[idx]
-
-
 def run_case(case: Case) -> CaseResult:
     """Run one case (in a worker process) and keep what the report needs."""
     scenario = _load(case)
@@ -168,7 +159,7 @@ def run_case(case: Case) -> CaseResult:
     wall = time.perf_counter() - started
     metrics = contour_metrics(trace, scenario.metric_window_s)
     est = steady_estimates(trace, scenario.estimate_window_s)
-    t_eps, eps = _envelope(trace.t_s, trace.eps_c_m * 1e6, EPS_BIN)
+    t_eps, eps = envelope(trace.t_s[: trace.filled], trace.eps_c_m[: trace.filled] * 1e6, EPS_BIN)
     theta = trace.controller_state.get("theta_hat")
     return CaseResult(
         case=case,

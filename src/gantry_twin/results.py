@@ -22,7 +22,7 @@ import os
 import signal
 import tempfile
 import threading
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
@@ -31,7 +31,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from gantry_twin.metrics import RunMetrics, estimate_errors_pct
+from gantry_twin.metrics import RunMetrics, WholeRunMetrics, estimate_errors_pct
 from gantry_twin.plant import AXES, THETA_NAMES
 from gantry_twin.scenario import Scenario
 from gantry_twin.trace import RunInfo, Trace
@@ -107,6 +107,32 @@ def atomic_write(path: Path, write: Callable[[IO[bytes]], None]) -> None:
         raise
 
 
+def remove_tree(path: Path) -> None:
+    """Remove a directory and what it holds, if it exists."""
+    import shutil
+
+    shutil.rmtree(path, ignore_errors=True)
+
+
+def atomic_write_dir(path: Path, write: Callable[[Path], None]) -> None:
+    """Fill a directory via a hidden ``.<name>.*.part`` directory beside it renamed to ``path`` (an earlier
+    ``path`` is removed first); on error no directory appears."""
+    path = Path(path)
+    tmp = None
+    try:
+        with signals_held():
+            tmp = Path(tempfile.mkdtemp(dir=path.parent, prefix=f".{path.name}.", suffix=".part"))
+        os.chmod(tmp, 0o777 & ~_umask())
+        write(tmp)
+        remove_tree(path)
+        os.replace(tmp, path)
+        _fsync_dir(path.parent)
+    except BaseException:
+        if tmp is not None:
+            remove_tree(tmp)
+        raise
+
+
 def _umask() -> int:
     mask = os.umask(0)
     os.umask(mask)
@@ -138,7 +164,7 @@ def summary(scenario: Scenario, trace: Trace, controller_name: str, health: Any 
     section is added only when given). Estimates are judged against the mean
     true theta over the same window (it moves when the scenario has changes).
     """
-    metrics = RunMetrics(scenario.metric_window_s, scenario.estimate_window_s)
+    metrics = RunMetrics.for_scenario(scenario)
     metrics.on_chunk(trace, trace.first, trace.filled)
     return run_summary(scenario, controller_name, trace.sample_period_s, trace.filled, metrics, health)
 
@@ -160,13 +186,18 @@ def run_summary(
     metrics: RunMetrics,
     health: Any = None,
     failure: Failure | None = None,
+    overrides: Sequence[str] = (),
+    controller_option: str | None = None,
 ) -> dict[str, Any]:
     """:func:`summary` from what the run's observers gathered; ``failure``: the run stopped early (status failed,
-    no contour error or estimates: they judge a whole run)."""
+    no contour error or estimates: they judge a whole run). ``overrides``, ``controller_option``: the command
+    line's ``--set KEY=VALUE`` and ``--controller`` (already in the resolved scenario; kept to say how it was made)."""
     out: dict[str, Any] = {
         "schema_version": SUMMARY_SCHEMA_VERSION,
         "scenario": scenario.name,
         "controller": controller_name,
+        "overrides": list(overrides),
+        "controller_option": controller_option,
         "duration_s": scenario.duration_s,
         "sample_period_s": sample_period_s,
         "steps": int(steps),
@@ -177,6 +208,9 @@ def run_summary(
     else:
         contour = metrics.contour()
         out["contour_error_um"] = {"rms": contour.rms_um, "max": contour.max_um, "window_s": list(contour.window_s)}
+        whole = metrics.whole_run()
+        if whole is not None:
+            out.update(whole_run_summary(whole))
         estimates = metrics.estimates()
         if estimates is not None and estimates[0].shape == (len(THETA_NAMES),):  # a plug-in may log another
             estimate, true = estimates
@@ -189,6 +223,59 @@ def run_summary(
     if health is not None:
         out["health"] = health_summary(health)
     return out
+
+
+def whole_run_summary(whole: WholeRunMetrics) -> dict[str, Any]:
+    """The ``whole_run`` and ``contour_error_per_period_um`` sections (docs/cli.md)."""
+    return {
+        "whole_run": {
+            "window_s": list(whole.window_s),
+            "contour_error_um": {"rms": whole.contour_rms_um, "max": whole.contour_max_um},
+            "axial_error_rms_um": dict(zip(AXES, whole.axial_rms_um, strict=True)),
+            "command_window_s": list(whole.command_window_s),
+            "max_abs_command_v": dict(zip(AXES, whole.max_abs_command_v, strict=True)),
+        },
+        "contour_error_per_period_um": {
+            "start_s": whole.periods_start_s,
+            "period_s": whole.period_s,
+            "rms": list(whole.period_rms_um),
+        },
+    }
+
+
+#: The printed summary lists the rms of each period when the run has at most this many (else the first and last).
+PERIODS_PRINTED = 12
+
+
+def whole_run_lines(data: dict[str, Any]) -> list[str]:
+    """The printed lines of summary.json's whole-run figures, each with its window (none for an older summary)."""
+    whole, periods = data.get("whole_run"), data.get("contour_error_per_period_um")
+    lines = []
+    if whole is not None:
+        (a, b), (ca, cb) = whole["window_s"], whole["command_window_s"]
+        c, e, u = whole["contour_error_um"], whole["axial_error_rms_um"], whole["max_abs_command_v"]
+        lines += [
+            f"contour error eps_c over [{a:.3f}, {b:.3f}] s (whole run from the start of window_s): "
+            f"rms {c['rms']:.3f} um, max {c['max']:.3f} um",
+            f"axial error e over [{a:.3f}, {b:.3f}] s: rms " + ", ".join(f"{k} {v:.3f} um" for k, v in e.items()),
+            f"command u over [{ca:.3f}, {cb:.3f}] s: max |u| " + ", ".join(f"{k} {v:.3f} V" for k, v in u.items()),
+        ]
+        saturation = data.get("saturation")
+        if saturation:
+            lines[-1] += "; at the limit " + ", ".join(
+                f"{k} {100 * s['fraction']:.2f} %" for k, s in saturation.items()
+            )
+    if periods is not None and periods["rms"]:
+        rms = periods["rms"]
+        shown = " ".join(f"{v:.3f}" for v in rms)
+        if len(rms) > PERIODS_PRINTED:
+            half = PERIODS_PRINTED // 2
+            shown = " ".join(f"{v:.3f}" for v in rms[:half]) + " ... " + " ".join(f"{v:.3f}" for v in rms[-half:])
+        lines.append(
+            f"rms eps_c per period of {periods['period_s']:.3f} s from {periods['start_s']:.3f} s "
+            f"({len(rms)} period{'' if len(rms) == 1 else 's'}, the last up to the end): {shown} um"
+        )
+    return lines
 
 
 def health_summary(report: Any) -> dict[str, Any]:

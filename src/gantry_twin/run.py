@@ -5,7 +5,8 @@ holds exactly one complete run. :class:`RunWriter` keeps it: it checks that
 the directory can be written before anything runs, writes the trace as the
 run goes (a hidden temporary file), and at the end deletes the old
 summary.json, puts the new files in place, removes the files of an earlier
-run that this run does not write, and writes summary.json last. An
+run that this run does not write, and writes summary.json last (the figures,
+``plots/``, before it, when asked for: :mod:`gantry_twin.runplots`). An
 interrupted run removes its temporary files (and a directory it made and
 left empty); a run stopped by a fault (:class:`SimulationError`) is written
 with the trace up to the fault and ``status: failed``.
@@ -30,6 +31,7 @@ from gantry_twin.results import (
     TraceWriter,
     atomic_write_text,
     discard,
+    remove_tree,
     run_summary,
     signals_held,
     stored_row_bytes,
@@ -46,6 +48,8 @@ SCENARIO_FILE = "scenario.yaml"
 TRACE_FILE = "trace.parquet"
 RUN_INFO_FILE = "run_info.json"
 RUN_FILES = (SUMMARY_FILE, SCENARIO_FILE, TRACE_FILE, RUN_INFO_FILE)
+#: The directory of a run's figures (:mod:`gantry_twin.runplots`), written before summary.json when asked for.
+PLOTS_DIR = "plots"
 
 #: How much of a run :func:`run_and_write` holds in memory, s: the trace goes to disk a piece (row group) at a time.
 HOLD_S = 10.0
@@ -140,10 +144,20 @@ class RunWriter:
     trace during the run; :meth:`finish` writes the rest.
     """
 
-    def __init__(self, out: Path, built: BuiltRun) -> None:
+    def __init__(
+        self,
+        out: Path,
+        built: BuiltRun,
+        overrides: Sequence[str] = (),
+        controller_option: str | None = None,
+        plots: bool = False,
+    ) -> None:
         self.out, self.built = Path(out), built
+        self.overrides, self.controller_option, self.plots = tuple(overrides), controller_option, plots
+        #: Why the figures were not drawn (a run without trace, or the plotting raised), None if they were.
+        self.plots_skipped: str | None = None
         scenario = built.scenario
-        self.metrics = RunMetrics(scenario.metric_window_s, scenario.estimate_window_s)
+        self.metrics = RunMetrics.for_scenario(scenario)
         self.travel = TravelWatch(built.plant)  # events, end_stop_contacts, saturation (gantry_twin.events)
         self.trace: TraceWriter | None = None
         self._made = [p for p in (self.out, *self.out.parents) if not p.exists()]  # deepest first
@@ -187,10 +201,10 @@ class RunWriter:
 
     def finish(self, trace: Trace | None, wall_time_s: float, failure: Failure | None = None) -> RunOutcome:
         """Write the run whose observers saw ``trace`` (the last piece; None if it stopped before its first
-        sample): summary.json, the trace, scenario.yaml, run_info.json."""
+        sample): summary.json, the trace, scenario.yaml, run_info.json, and plots/ when asked for."""
         built, out = self.built, self.out
         scenario = built.scenario
-        data = _summary(built, trace, self.metrics, self.travel, failure)
+        data = _summary(built, trace, self.metrics, self.travel, failure, self.overrides, self.controller_option)
         written: list[str] = []
         try:
             (out / SUMMARY_FILE).unlink(missing_ok=True)  # from here the directory shows an incomplete run
@@ -201,18 +215,40 @@ class RunWriter:
             written.append(SCENARIO_FILE)
             atomic_write_text(out / RUN_INFO_FILE, json.dumps(_run_info(wall_time_s), indent=2) + "\n")
             written.append(RUN_INFO_FILE)
+            if self.plots and self._plot(data, TRACE_FILE in written):
+                written.append(PLOTS_DIR)
             for name in RUN_FILES:  # an earlier run's files that this run does not write
                 if name not in written:
                     (out / name).unlink(missing_ok=True)
+            if PLOTS_DIR not in written:
+                remove_tree(out / PLOTS_DIR)
             atomic_write_text(out / SUMMARY_FILE, summary_json(data))
         except BaseException:
             for name in written:  # not a complete run: none of it stays
-                (out / name).unlink(missing_ok=True)
+                if name == PLOTS_DIR:
+                    remove_tree(out / name)
+                else:
+                    (out / name).unlink(missing_ok=True)
             self.discard()
             raise
         self.discard()  # a trace writer that saw no sample
-        files = tuple(name for name in RUN_FILES if name in written or name == SUMMARY_FILE)
-        return RunOutcome(data, wall_time_s, files)
+        files = tuple(name for name in (*RUN_FILES, PLOTS_DIR) if name in written or name == SUMMARY_FILE)
+        return RunOutcome(data, wall_time_s, tuple(f"{f}/" if f == PLOTS_DIR else f for f in files))
+
+    def _plot(self, data: dict[str, Any], traced: bool) -> bool:
+        """Draw the run's figures into plots/ (:func:`gantry_twin.runplots.write_plots`); False, with
+        :attr:`plots_skipped` saying why, when there is no trace or the drawing raised (the run is kept)."""
+        from gantry_twin.runplots import write_plots
+
+        if not traced:
+            self.plots_skipped = "no trace.parquet to draw from (outputs.trace: false)"
+            return False
+        try:
+            write_plots(self.out, self.out / PLOTS_DIR, data)
+        except Exception as exc:  # a figure is not worth the run
+            self.plots_skipped = f"drawing them raised {type(exc).__name__}: {exc}"
+            return False
+        return True
 
     def discard(self) -> None:
         """Remove the temporary trace file, and the directories this writer made if they are empty."""
@@ -253,14 +289,22 @@ def write_run(out: Path, built: BuiltRun, trace: Trace, wall_time_s: float) -> d
 
 
 def _summary(
-    built: BuiltRun, trace: Trace | None, metrics: RunMetrics, travel: TravelWatch, failure: Failure | None = None
+    built: BuiltRun,
+    trace: Trace | None,
+    metrics: RunMetrics,
+    travel: TravelWatch,
+    failure: Failure | None = None,
+    overrides: Sequence[str] = (),
+    controller_option: str | None = None,
 ) -> dict[str, Any]:
     """summary.json's content from what a run's observers gathered (``trace``: its last piece, or None)."""
     scenario = built.scenario
     health = built.monitor.report() if built.monitor is not None else None
     steps = trace.filled if trace is not None else 0
     period = trace.sample_period_s if trace is not None else built.plant.timestep_s
-    data = run_summary(scenario, scenario.controller.name, period, steps, metrics, health, failure)
+    data = run_summary(
+        scenario, scenario.controller.name, period, steps, metrics, health, failure, overrides, controller_option
+    )
     data.update(travel.summary())
     return data
 
@@ -268,7 +312,7 @@ def _summary(
 def summarise(built: BuiltRun, trace: Trace) -> dict[str, Any]:
     """summary.json's content for a finished run's whole trace, as :class:`RunWriter` writes it (nothing written)."""
     scenario = built.scenario
-    metrics = RunMetrics(scenario.metric_window_s, scenario.estimate_window_s)
+    metrics = RunMetrics.for_scenario(scenario)
     travel = TravelWatch(built.plant)
     for observer in (metrics, travel):
         observer.on_chunk(trace, trace.first, trace.filled)

@@ -1,0 +1,291 @@
+"""``gantry-twin compare RUN RUN... [--out DIR]``: the figures of several runs side by side (docs/cli.md).
+
+Each RUN is a run directory (one holding ``summary.json``), ``runs/<name>/latest``,
+or ``runs/<name>`` (its ``latest``). The table (printed, and written as
+``compare.md`` and ``compare.json``) has a column per run and a row per figure,
+each row naming its window: the contour error over the paper's window and
+over the whole run after the first period, axial errors, commands and
+saturation, rms per period, estimates against the true values, health
+alarms, end-stop contacts. The overlay figures (``plots/``, drawn by
+:mod:`gantry_twin.runplots` from each run's trace.parquet) are those of a run
+with one line per run. A run written by an older gantry-twin lacks some
+figures: its cells say ``missing`` and a note under the table names them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import textwrap
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from gantry_twin.plant import AXES, THETA_NAMES
+from gantry_twin.results import atomic_write_dir, atomic_write_text
+from gantry_twin.rundirs import new_run_dir, resolve_run
+
+#: Where compare writes without --out: RUNS_DIR/compare/<UTC time>-<id>/ (RUNS_DIR of the command line).
+DEFAULT_SUBDIR = "compare"
+#: A run's label in the plots' legends is cut to this many characters.
+LABEL_CHARS = 48
+MISSING = "missing"
+
+
+class CompareError(Exception):
+    """Bad input to compare (exit code 2): one line naming the run directory or file and what is wrong."""
+
+
+@dataclass(frozen=True)
+class Run:
+    """One run to compare: its directory, summary.json's content, its column name (#1, #2, ...)."""
+
+    directory: Path
+    summary: dict[str, Any]
+    column: str
+
+
+def labels(runs: Sequence[Run]) -> list[str]:
+    """Legend labels: column, controller and the ``--set`` overrides not common to every run (shortened)."""
+    sets = [list(run.summary.get("overrides") or []) for run in runs]
+    common = set.intersection(*(set(s) for s in sets)) if sets else set()
+    return [
+        textwrap.shorten(
+            f"{run.column} {run.summary.get('controller', '?')} " + " ".join(o for o in s if o not in common),
+            LABEL_CHARS,
+            placeholder="...",
+        )
+        for run, s in zip(runs, sets, strict=True)
+    ]
+
+
+def add_arguments(parser: argparse.ArgumentParser, runs_dir: Path) -> None:
+    """compare's arguments (``runs_dir``: the command line's runs/ directory, for the default --out)."""
+    parser.add_argument("runs", nargs="+", metavar="RUN", help="run directory, runs/<name>/latest or runs/<name>")
+    default = runs_dir / DEFAULT_SUBDIR
+    parser.add_argument(
+        "--out", metavar="DIR", type=Path, help=f"output directory (default: a new {default}/<UTC time>-<id>/)"
+    )
+    parser.set_defaults(runs_dir=runs_dir)
+
+
+def load_run(arg: str, column: str) -> Run:
+    """The run a RUN argument names, its summary read (CompareError if it is not a run directory)."""
+    path = Path(arg)
+    if not path.exists():
+        raise CompareError(f"{arg}: no such run directory")
+    try:
+        directory = resolve_run(path)
+    except OSError as exc:
+        raise CompareError(f"{arg}: cannot read it ({exc.strerror or exc})") from None
+    if not directory.is_dir():
+        raise CompareError(f"{arg}: not a run directory (expected a directory holding summary.json)")
+    summary_path = directory / "summary.json"
+    if not summary_path.is_file():
+        raise CompareError(f"{arg}: not a run directory: no summary.json (a run that did not finish?)")
+    try:
+        summary = json.loads(summary_path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise CompareError(f"{summary_path}: not a readable summary.json ({exc})") from None
+    if not isinstance(summary, dict) or "scenario" not in summary or "controller" not in summary:
+        raise CompareError(f"{summary_path}: not a gantry-twin summary.json (no 'scenario' and 'controller')")
+    return Run(directory, summary, column)
+
+
+# ---------------------------------------------------------------------------
+# The table: one row per figure, a function of a run's summary giving its value (None: missing).
+
+
+def _get(data: Any, *keys: Any) -> Any:
+    for key in keys:
+        if not isinstance(data, dict) or key not in data:
+            return None
+        data = data[key]
+    return data
+
+
+def _window(w: Any) -> str | None:
+    return None if w is None else f"[{w[0]:.3f}, {w[1]:.3f}]"
+
+
+def _estimate(s: dict[str, Any], name: str) -> Any:
+    e = _get(s, "estimates", name)
+    if e is None:
+        return None
+    pct = "" if e["error_pct"] is None else f" ({e['error_pct']:+.2f} %)"
+    return f"{e['estimate']:.5f} / {e['true']:.4f}{pct}"
+
+
+def _periods(s: dict[str, Any]) -> Any:
+    rms = _get(s, "contour_error_per_period_um", "rms")
+    if not rms:
+        return None
+    worst = max(range(len(rms)), key=lambda i: rms[i])
+    return f"{rms[0]:.3f} / {rms[-1]:.3f} / {rms[worst]:.3f} (period {worst})"
+
+
+def _alarms(s: dict[str, Any]) -> Any:
+    if "health" not in s:
+        return "no monitor"
+    alarms = s["health"]["alarms"]
+    return f"{len(alarms)}" + (": " + ", ".join(a["parameter"] for a in alarms) if alarms else "")
+
+
+#: (row name, the summary.json section it reads (for the missing-figure note), value of a summary).
+ROWS: list[tuple[str, str, Callable[[dict[str, Any]], Any]]] = [
+    ("scenario", "scenario", lambda s: s.get("scenario")),
+    ("controller", "controller", lambda s: s.get("controller")),
+    ("--set overrides", "overrides", lambda s: None if "overrides" not in s else " ".join(s["overrides"]) or "-"),
+    ("duration (s)", "duration_s", lambda s: s.get("duration_s")),
+    ("status", "status", lambda s: s.get("status")),
+    ("paper's window window_s (s)", "contour_error_um", lambda s: _window(_get(s, "contour_error_um", "window_s"))),
+    ("eps_c rms over window_s (um)", "contour_error_um", lambda s: _get(s, "contour_error_um", "rms")),
+    ("eps_c max over window_s (um)", "contour_error_um", lambda s: _get(s, "contour_error_um", "max")),
+    ("whole run [window_s start, end] (s)", "whole_run", lambda s: _window(_get(s, "whole_run", "window_s"))),
+    ("eps_c rms, whole run (um)", "whole_run", lambda s: _get(s, "whole_run", "contour_error_um", "rms")),
+    ("eps_c max, whole run (um)", "whole_run", lambda s: _get(s, "whole_run", "contour_error_um", "max")),
+    *[
+        (f"e_{a} rms, whole run (um)", "whole_run", lambda s, a=a: _get(s, "whole_run", "axial_error_rms_um", a))
+        for a in AXES
+    ],
+    ("command window (s)", "whole_run", lambda s: _window(_get(s, "whole_run", "command_window_s"))),
+    *[
+        (
+            f"max abs(u_{a}), command window (V)",
+            "whole_run",
+            lambda s, a=a: _get(s, "whole_run", "max_abs_command_v", a),
+        )
+        for a in AXES
+    ],
+    *[
+        (
+            f"u_{a} at its limit, whole run (%)",
+            "saturation",
+            lambda s, a=a: None if _get(s, "saturation", a) is None else 100.0 * s["saturation"][a]["fraction"],
+        )
+        for a in AXES
+    ],
+    ("eps_c rms per period: first / last / largest (um)", "contour_error_per_period_um", _periods),
+    ("estimates window (s)", "estimates", lambda s: _window(s.get("estimates_window_s"))),
+    *[(f"{n} estimate / true (error)", "estimates", lambda s, n=n: _estimate(s, n)) for n in THETA_NAMES],
+    ("health alarms", "health", _alarms),
+    (
+        "end-stop contacts",
+        "end_stop_contacts",
+        lambda s: (
+            None if "end_stop_contacts" not in s else ", ".join(f"{a} {n}" for a, n in s["end_stop_contacts"].items())
+        ),
+    ),
+]
+
+
+def _why_absent(s: dict[str, Any], section: str) -> str | None:
+    """Why a run has no value for a row: None when the figure should be there (then it is missing)."""
+    if s.get("status") == "failed" and section in (
+        "contour_error_um",
+        "whole_run",
+        "contour_error_per_period_um",
+        "estimates",
+    ):
+        return "- (failed run)"
+    if section == "estimates" and "contour_error_um" in s and "estimates" not in s:
+        return "- (not estimated)"
+    return None
+
+
+def table(runs: Sequence[Run]) -> tuple[list[tuple[str, list[Any]]], list[str]]:
+    """The rows (name, one value per run) and the notes naming each run's missing figures."""
+    rows, missing = [], {run.column: [] for run in runs}
+    for name, section, value in ROWS:
+        cells = []
+        for run in runs:
+            v = value(run.summary)
+            if v is None:
+                v = _why_absent(run.summary, section)
+            if v is None:
+                v = MISSING
+                missing[run.column].append(name)
+            cells.append(v)
+        rows.append((name, cells))
+    notes = [
+        f"{run.column} ({run.directory}): summary.json lacks {', '.join(missing[run.column])} "
+        f"(written by an older gantry-twin?)"
+        for run in runs
+        if missing[run.column]
+    ]
+    return rows, notes
+
+
+def _cell(v: Any) -> str:
+    if isinstance(v, float):
+        return "-" if math.isnan(v) else f"{v:.3f}"
+    return str(v)
+
+
+def markdown(runs: Sequence[Run], rows: list[tuple[str, list[Any]]], notes: list[str]) -> str:
+    """The table as Markdown, the run directories above it and the notes below."""
+    lines = ["# Runs compared", ""]
+    lines += [f"- **{run.column}**: `{run.directory}`" for run in runs]
+    lines += ["", "| figure (window) | " + " | ".join(run.column for run in runs) + " |"]
+    lines.append("|---" * (len(runs) + 1) + "|")
+    lines += [f"| {name} | " + " | ".join(_cell(v).replace("|", "\\|") for v in cells) + " |" for name, cells in rows]
+    if notes:
+        lines += ["", "Notes:", "", *[f"- {n}" for n in notes]]
+    return "\n".join(lines) + "\n"
+
+
+def _json(runs: Sequence[Run], rows: list[tuple[str, list[Any]]], notes: list[str]) -> str:
+    data = {
+        "runs": [
+            {"column": run.column, "directory": str(run.directory), "figures": {n: c[i] for n, c in rows}}
+            for i, run in enumerate(runs)
+        ],
+        "missing": notes,
+    }
+    return json.dumps(data, indent=2, allow_nan=False) + "\n"
+
+
+def command(args: argparse.Namespace) -> int:
+    """Run ``compare``: CompareError on bad input (the command line exits 2), 0 when written."""
+    from gantry_twin.runplots import draw, read_series
+
+    if len(args.runs) < 2:
+        raise CompareError(f"compare needs two runs or more, got one: {args.runs[0]}")
+    runs = [load_run(arg, f"#{i + 1}") for i, arg in enumerate(args.runs)]
+    out = args.out if args.out is not None else new_run_dir(args.runs_dir / DEFAULT_SUBDIR)
+    if out.exists() and not out.is_dir():
+        raise CompareError(f"--out {out}: exists and is not a directory")
+    rows, notes = table(runs)
+    drawn = []
+    for run, label in zip(runs, labels(runs), strict=True):
+        try:
+            series = read_series(run.directory, run.summary, label)
+        except Exception as exc:  # a damaged trace: the table does not need it
+            notes.append(
+                f"{run.column} ({run.directory}): trace.parquet unreadable ({type(exc).__name__}), not in the plots"
+            )
+            continue
+        if series is None:
+            notes.append(f"{run.column} ({run.directory}): no trace.parquet, not in the plots")
+        else:
+            drawn.append(series)
+    text = markdown(runs, rows, notes)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(out / "compare.md", text)
+        atomic_write_text(out / "compare.json", _json(runs, rows, notes))
+        figures: list[str] = []
+        if drawn:
+            atomic_write_dir(out / "plots", lambda tmp: figures.extend(draw(drawn, tmp)))
+    except OSError as exc:
+        raise CompareError(f"--out {out}: cannot write there ({exc.strerror or exc})") from None
+    print(text, end="")
+    written = ["compare.md", "compare.json"] + [f"plots/{f}" for f in figures]
+    print(f"written to {out}/ ({', '.join(written)})", flush=True)
+    if notes:
+        for note in notes:
+            print(f"gantry-twin: note: {note}", file=sys.stderr)
+    return 0

@@ -1,0 +1,375 @@
+"""Figures of one run (``plots/*.png`` in its directory) and of several runs overlaid (``gantry-twin compare``).
+
+Drawn with matplotlib (Agg) from a run's ``trace.parquet`` and ``summary.json``,
+read a row group at a time so that a long run is drawn in bounded memory:
+each series is cut into at most :data:`PLOT_BINS` bins of consecutive rows
+and each bin keeps its row of largest abs(value) (:func:`envelope`: spikes
+survive), the estimates the first row of each bin. The trace's rows are every
+``outputs.trace_stride``-th sample; the times come from its ``t_s`` column.
+
+Figures (units on every axis; the window of each figure in its title):
+
+- ``eps_c.png``: the true contour error eps_c(t), um, the paper's window shaded;
+- ``axial_errors.png``: e_x, e_y = q - q_d (t), um;
+- ``commands.png``: u_x, u_y (t), V, with the motor's limits (``saturation.limit_v`` of summary.json);
+- ``estimates.png``: theta^ (t) of each parameter against its true value (dashed), volt units; only when
+  the controller logs ``theta_hat``;
+- ``contour.png``: the desired path, mm, and around it the contour error magnified: the points
+  q_d + k eps_c n (n the unit normal to the left of the direction of travel, the side where eps_c > 0),
+  k in the legend.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import textwrap
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from gantry_twin.plant import AXES, THETA_NAMES
+
+#: Each series is cut into at most this many bins (the points drawn per line).
+PLOT_BINS = 3000
+#: The unit of each theta (the paper's volt units): M in V s^2/m, B in V s/m, Af and dN in V.
+THETA_UNITS = {"M": "V s²/m", "B": "V s/m", "Af": "V", "dN": "V"}
+#: The contour figure magnifies eps_c so that its largest value is about this share of the path's size.
+MAGNIFIED_SHARE = 0.12
+#: A figure's title names the run in at most this many characters.
+TITLE_CHARS = 110
+#: Figure resolution, dots per inch.
+DPI = 90
+
+_TRACE_COLUMNS = ("t_s", "x_d_m", "y_d_m", "e_x_m", "e_y_m", "eps_c_m", "u_x_v", "u_y_v")
+
+
+def envelope(t: np.ndarray, x: np.ndarray, bin_size: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per bin of ``bin_size`` samples (the last one shorter), the time and value of the largest abs(x)."""
+    idx = _peaks(x, bin_size)
+    return t[idx], x[idx]
+
+
+def _peaks(x: np.ndarray, bin_size: int) -> np.ndarray:
+    """The index of the largest abs(x) of each bin of ``bin_size`` samples (the last bin may be shorter)."""
+    n = (x.size // bin_size) * bin_size
+    idx = np.argmax(np.abs(x[:n].reshape(-1, bin_size)), axis=1) + np.arange(n // bin_size) * bin_size
+    if n < x.size:
+        idx = np.append(idx, n + int(np.argmax(np.abs(x[n:]))))
+    return idx
+
+
+@dataclass
+class RunSeries:
+    """One run's series, binned for drawing: times s, errors um, commands V, positions m, estimates volt units."""
+
+    label: str
+    summary: dict[str, Any]
+    t_eps_s: np.ndarray
+    eps_c_um: np.ndarray
+    contour_m: np.ndarray  # (n, 4): x_d, y_d and the path's unit left normal at the eps_c peaks
+    axial: list[tuple[np.ndarray, np.ndarray]]  # per axis: t s, e um
+    command: list[tuple[np.ndarray, np.ndarray]]  # per axis: t s, u V
+    t_theta_s: np.ndarray | None = None
+    theta_hat: np.ndarray | None = None  # (n, 8)
+    true_theta: np.ndarray | None = None  # (n, 8)
+    notes: list[str] = field(default_factory=list)
+
+
+class _Bins:
+    """Gathers the binned series of a trace read a block of rows at a time."""
+
+    def __init__(self, bin_size: int, theta: bool) -> None:
+        self.bin_size, self.theta = bin_size, theta
+        self.parts: dict[str, list[np.ndarray]] = {}
+
+    def _add(self, key: str, values: np.ndarray) -> None:
+        self.parts.setdefault(key, []).append(values)
+
+    def block(self, c: dict[str, np.ndarray]) -> None:
+        """Rows of whole bins (the last block of the trace may end with a shorter bin)."""
+        t, b = c["t_s"], self.bin_size
+        peak = _peaks(c["eps_c_m"], b)
+        normal = _left_normal(c["x_d_m"], c["y_d_m"])
+        self._add("t_eps", t[peak])
+        self._add("eps", c["eps_c_m"][peak] * 1e6)
+        self._add("contour", np.column_stack([c["x_d_m"][peak], c["y_d_m"][peak], normal[peak]]))
+        for axis in AXES:
+            for key, scale in ((f"e_{axis}_m", 1e6), (f"u_{axis}_v", 1.0)):
+                i = _peaks(c[key], b)
+                self._add(f"t_{key}", t[i])
+                self._add(key, c[key][i] * scale)
+        if self.theta:
+            first = np.arange(0, t.size, b)
+            self._add("t_theta", t[first])
+            self._add("theta", np.column_stack([c[f"theta_hat_{n}"][first] for n in THETA_NAMES]))
+            if "true_theta_M1" in c:
+                self._add("true", np.column_stack([c[f"true_theta_{n}"][first] for n in THETA_NAMES]))
+
+    def get(self, key: str) -> np.ndarray:
+        return np.concatenate(self.parts[key])
+
+
+def _left_normal(x_m: np.ndarray, y_m: np.ndarray) -> np.ndarray:
+    """(n, 2) unit left normal of the path through the points (NaN where it does not move)."""
+    if x_m.size < 2:
+        return np.full((x_m.size, 2), np.nan)
+    tx, ty = np.gradient(x_m), np.gradient(y_m)
+    norm = np.hypot(tx, ty)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.column_stack([-ty / norm, tx / norm])
+
+
+def read_series(run_dir: Path, summary: dict[str, Any], label: str) -> RunSeries | None:
+    """A run's series binned for drawing, read from ``run_dir/trace.parquet`` (None if it has none)."""
+    import pyarrow.parquet as pq
+
+    path = Path(run_dir) / "trace.parquet"
+    if not path.is_file():
+        return None
+    pf = pq.ParquetFile(path)
+    names = set(pf.schema_arrow.names)
+    theta = all(f"theta_hat_{n}" in names for n in THETA_NAMES)
+    columns = list(_TRACE_COLUMNS)
+    if theta:
+        columns += [f"theta_hat_{n}" for n in THETA_NAMES]
+        columns += [f"true_theta_{n}" for n in THETA_NAMES if f"true_theta_{n}" in names]
+    rows = pf.metadata.num_rows
+    if rows == 0:
+        return None
+    bins = _Bins(max(1, math.ceil(rows / PLOT_BINS)), theta)
+    carry: dict[str, np.ndarray] | None = None
+    for group in range(pf.metadata.num_row_groups):  # one at a time: memory bounded by a row group
+        table = pf.read_row_group(group, columns=columns, use_threads=False)
+        block = {name: table.column(name).to_numpy() for name in columns}
+        del table
+        if carry is not None:
+            block = {name: np.concatenate([carry[name], block[name]]) for name in columns}
+        whole = (block["t_s"].size // bins.bin_size) * bins.bin_size
+        if whole:
+            bins.block({name: v[:whole] for name, v in block.items()})
+        carry = {name: v[whole:] for name, v in block.items()}
+    if carry is not None and carry["t_s"].size:
+        bins.block(carry)
+    series = RunSeries(
+        label=label,
+        summary=summary,
+        t_eps_s=bins.get("t_eps"),
+        eps_c_um=bins.get("eps"),
+        contour_m=bins.get("contour"),
+        axial=[(bins.get(f"t_e_{a}_m"), bins.get(f"e_{a}_m")) for a in AXES],
+        command=[(bins.get(f"t_u_{a}_v"), bins.get(f"u_{a}_v")) for a in AXES],
+    )
+    if theta:
+        series.t_theta_s, series.theta_hat = bins.get("t_theta"), bins.get("theta")
+        if "true" in bins.parts:
+            series.true_theta = bins.get("true")
+        else:  # the plant did not change: the true theta at t = 0, in the schema metadata
+            meta = json.loads((pf.schema_arrow.metadata or {}).get(b"true_theta", b"{}"))
+            if all(n in meta for n in THETA_NAMES):
+                row = np.array([meta[n] for n in THETA_NAMES])
+                series.true_theta = np.broadcast_to(row, series.theta_hat.shape)
+    return series
+
+
+# ---------------------------------------------------------------------------
+# The figures: each takes one run's series or several (overlaid, labelled).
+
+
+def _window(summary: dict[str, Any]) -> tuple[float, float] | None:
+    w = summary.get("contour_error_um", {}).get("window_s")
+    return (float(w[0]), float(w[1])) if w else None
+
+
+def _legend(ax: Any, runs: Sequence[RunSeries]) -> None:
+    if len(runs) > 1 or ax.get_legend_handles_labels()[0]:
+        ax.legend(loc="upper right", fontsize=7)
+
+
+def _title(runs: Sequence[RunSeries], what: str) -> str:
+    """``what``, and below it the run's label (one run; several are told apart by their legend labels)."""
+    if len(runs) > 1:
+        return what
+    return what + "\n" + textwrap.shorten(runs[0].label, TITLE_CHARS, placeholder=" ...")
+
+
+def _name(runs: Sequence[RunSeries], r: RunSeries, what: str) -> str:
+    """A line's legend label: ``what`` for one run, the run's label (and ``what``) for several."""
+    return what if len(runs) == 1 else f"{r.label} {what}".strip()
+
+
+def fig_eps_c(plt: Any, runs: Sequence[RunSeries]) -> Any:
+    """eps_c(t), um, with the paper's window (the first run's) shaded."""
+    fig, ax = plt.subplots(figsize=(9, 3.6))
+    fig.subplots_adjust(left=0.08, right=0.98, bottom=0.14, top=0.85)
+    for r in runs:
+        ax.plot(r.t_eps_s, r.eps_c_um, lw=0.7, label=_name(runs, r, "" if len(runs) > 1 else "eps_c"))
+    window = _window(runs[0].summary)
+    if window is not None:
+        ax.axvspan(*window, color="0.85", zorder=0, label=f"paper's window [{window[0]:.2f}, {window[1]:.2f}] s")
+    ax.axhline(0.0, color="0.4", lw=0.5)
+    ax.set(xlabel="time t (s)", ylabel="contour error eps_c (um)")
+    ax.set_title(_title(runs, "true contour error eps_c (largest |eps_c| of each bin)"), fontsize=9)
+    _legend(ax, runs)
+    return fig
+
+
+def fig_axial(plt: Any, runs: Sequence[RunSeries]) -> Any:
+    """e_x(t), e_y(t), um."""
+    fig, axes = plt.subplots(2, 1, figsize=(9, 5), sharex=True)
+    fig.subplots_adjust(left=0.09, right=0.98, bottom=0.1, top=0.89, hspace=0.08)
+    for i, (ax, axis) in enumerate(zip(axes, AXES, strict=True)):
+        for r in runs:
+            t, e = r.axial[i]
+            ax.plot(t, e, lw=0.7, label=_name(runs, r, ""))
+        ax.axhline(0.0, color="0.4", lw=0.5)
+        ax.set_ylabel(f"e_{axis} = {axis} - {axis}_d (um)")
+        if len(runs) > 1:
+            _legend(ax, runs)
+    axes[-1].set_xlabel("time t (s)")
+    axes[0].set_title(_title(runs, "axial tracking errors (largest |e| of each bin)"), fontsize=9)
+    return fig
+
+
+def fig_commands(plt: Any, runs: Sequence[RunSeries]) -> Any:
+    """u_x(t), u_y(t), V, with the motor's limits."""
+    fig, axes = plt.subplots(2, 1, figsize=(9, 5), sharex=True)
+    fig.subplots_adjust(left=0.09, right=0.98, bottom=0.1, top=0.89, hspace=0.08)
+    for i, (ax, axis) in enumerate(zip(axes, AXES, strict=True)):
+        for r in runs:
+            t, u = r.command[i]
+            ax.plot(t, u, lw=0.7, label=_name(runs, r, ""))
+        limit = runs[0].summary.get("saturation", {}).get(axis, {}).get("limit_v")
+        if limit:
+            for v in limit:
+                ax.axhline(v, color="tab:red", lw=0.8, ls="--")
+            label = f"limits {limit[0]:+g} / {limit[1]:+g} V"
+            ax.text(0.005, 0.96, label, transform=ax.transAxes, va="top", fontsize=7, color="tab:red")
+        ax.set_ylabel(f"command u_{axis} (V)")
+        if len(runs) > 1:
+            _legend(ax, runs)
+    axes[-1].set_xlabel("time t (s)")
+    axes[0].set_title(_title(runs, "commands as applied (largest |u| of each bin)"), fontsize=9)
+    return fig
+
+
+def fig_estimates(plt: Any, runs: Sequence[RunSeries]) -> Any | None:
+    """theta^(t) per parameter with the true value dashed; None when no run has estimates."""
+    runs = [r for r in runs if r.theta_hat is not None]
+    if not runs:
+        return None
+    fig, axes = plt.subplots(4, 2, figsize=(10, 8.5), sharex=True)
+    fig.subplots_adjust(left=0.09, right=0.98, bottom=0.06, top=0.92, wspace=0.28, hspace=0.1)
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for j, (ax, name) in enumerate(zip(axes.T.ravel(), THETA_NAMES, strict=True)):
+        low, high = [], []
+        for k, r in enumerate(runs):
+            colour = colours[k % len(colours)]
+            ax.plot(r.t_theta_s, r.theta_hat[:, j], lw=0.9, color=colour, label=_name(runs, r, "estimate"))
+            low.append(np.nanmin(r.theta_hat[:, j]))
+            high.append(np.nanmax(r.theta_hat[:, j]))
+            if r.true_theta is not None:
+                ax.plot(r.t_theta_s, r.true_theta[:, j], lw=0.9, ls="--", color=colour, label=_name(runs, r, "true"))
+                low.append(np.nanmin(r.true_theta[:, j]))
+                high.append(np.nanmax(r.true_theta[:, j]))
+        lo, hi = float(np.nanmin(low)), float(np.nanmax(high))
+        margin = 0.1 * max(hi - lo, 0.05 * max(abs(lo), abs(hi)), 1e-3)
+        ax.set_ylim(lo - margin, hi + margin)  # the true value inside, with a margin
+        unit = THETA_UNITS[name.rstrip("12")]
+        ax.set_ylabel(f"{name} ({unit})")
+    for ax in axes[-1]:
+        ax.set_xlabel("time t (s)")
+    axes[0, 0].legend(loc="upper right", fontsize=6)
+    fig.suptitle(_title(runs, "parameter estimates theta^ (solid) and true values (dashed), volt units"), fontsize=9)
+    return fig
+
+
+def magnification(runs: Sequence[RunSeries]) -> float:
+    """A round factor (1, 2 or 5 x 10^n) that makes the largest eps_c about MAGNIFIED_SHARE of the path's size."""
+    size = max(float(np.ptp(r.contour_m[:, :2], axis=0).max()) for r in runs)
+    peak = max(float(np.nanmax(np.abs(r.eps_c_um))) * 1e-6 for r in runs)
+    if peak <= 0.0 or size <= 0.0:
+        return 1.0
+    raw = MAGNIFIED_SHARE * size / peak
+    decade = 10.0 ** math.floor(math.log10(raw))
+    return max(f * decade for f in (1.0, 2.0, 5.0) if f * decade <= raw)
+
+
+def fig_contour(plt: Any, runs: Sequence[RunSeries]) -> Any:
+    """The desired path (mm) and q_d + k eps_c n around it, one factor k for every run."""
+    k = magnification(runs)
+    fig, ax = plt.subplots(figsize=(6.5, 6.5))
+    fig.subplots_adjust(left=0.13, right=0.97, bottom=0.09, top=0.9)
+    path = runs[0].contour_m
+    order = np.argsort(np.arctan2(path[:, 1] - path[:, 1].mean(), path[:, 0] - path[:, 0].mean()))
+    ax.plot(path[order, 0] * 1e3, path[order, 1] * 1e3, color="0.5", lw=0.8, label="desired path q_d")
+    for r in runs:
+        c = r.contour_m
+        points = c[:, :2] + k * (r.eps_c_um * 1e-6)[:, None] * c[:, 2:4]
+        ax.plot(points[:, 0] * 1e3, points[:, 1] * 1e3, ".", ms=1.2, label=_name(runs, r, f"q_d + {k:g} eps_c n"))
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set(xlabel="x (mm)", ylabel="y (mm)")
+    ax.set_title(
+        _title(runs, f"contour error magnified {k:g}x around the path (eps_c > 0: left of the travel)"), fontsize=9
+    )
+    ax.legend(loc="upper right", fontsize=7, markerscale=6)
+    return fig
+
+
+#: The figure files and what draws them.
+FIGURES: dict[str, Callable[[Any, Sequence[RunSeries]], Any]] = {
+    "eps_c.png": fig_eps_c,
+    "axial_errors.png": fig_axial,
+    "commands.png": fig_commands,
+    "estimates.png": fig_estimates,
+    "contour.png": fig_contour,
+}
+
+
+def pyplot() -> Any:
+    """matplotlib's pyplot on the Agg backend (no display needed)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def draw(runs: Sequence[RunSeries], directory: Path) -> list[str]:
+    """Write each figure of ``runs`` (overlaid) into ``directory``; the file names written."""
+    plt = pyplot()
+    written = []
+    for name, draw_one in FIGURES.items():
+        fig = draw_one(plt, runs)
+        if fig is None:
+            continue
+        fig.savefig(directory / name, dpi=DPI)
+        plt.close(fig)
+        written.append(name)
+    return written
+
+
+def write_plots(run_dir: Path, plots_dir: Path, summary: dict[str, Any]) -> list[str]:
+    """The figures of the run in ``run_dir`` (its trace.parquet, its summary ``summary``) into ``plots_dir``,
+    written as one directory (:func:`gantry_twin.results.atomic_write_dir`); the file names."""
+    from gantry_twin.results import atomic_write_dir
+
+    series = read_series(run_dir, summary, run_label(summary))
+    if series is None:
+        raise FileNotFoundError(f"{run_dir}/trace.parquet: no trace to draw")
+    names: list[str] = []
+    atomic_write_dir(plots_dir, lambda tmp: names.extend(draw([series], tmp)))
+    return names
+
+
+def run_label(summary: dict[str, Any]) -> str:
+    """``<scenario> with <controller>`` and the command line's overrides: how the printed header names a run."""
+    label = f"{summary.get('scenario', '?')} with {summary.get('controller', '?')}"
+    overrides = summary.get("overrides") or []
+    if overrides:
+        label += " (" + " ".join(f"--set {o}" for o in overrides) + ")"
+    return label
