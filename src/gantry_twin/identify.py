@@ -1,0 +1,176 @@
+"""Identify the plant from logs: M, B, Af per axis by least squares on filtered signals (issue 17).
+
+The model (control-spec section 1), per axis, in volts:
+
+    M q'' + B q' + Af sign(q') + dN = u           (while the axis slides)
+
+Both sides pass through the estimator's filter Hf(s) = wn^2 / (s^2 + 2 z wn s
++ wn^2), discretised exactly as DIARC's estimator does it
+(:func:`gantry_twin.excitation.filter_axis`: the position with a first-order
+hold, u, the friction shape and the constant held), which gives the linear
+regression of eq. (25), one row per sample:
+
+    u_f = [x_f'', x_f', Sf_f, -1_f] [M, B, Af, dN]^T
+
+Offline, two things are done better than on line:
+
+* the friction shape Sf is that of a smoothed, centred velocity (the
+  difference over ``velocity_half_width`` samples each side: the encoder's
+  0.5 um steps then resolve 0.3 mm/s instead of 2.5 mm/s), with a steep slope
+  (MuJoCo's and a machine's dry friction is sign(v), not the controller's
+  atan model);
+* samples whose filter memory (``stick_memory_s``) holds a slow sample
+  (|v| below ``sliding_speed_m_s``: the axis may stick, where friction is any
+  force up to Af) are left out.
+
+dN is estimated with the rest (a constant force: cable carriers, a tilt)
+and reported. The 95 % intervals come from the regression with a
+heteroscedasticity and autocorrelation consistent covariance (Newey-West,
+Bartlett weights over ``hac_lag_s``): the filtered residuals are correlated
+over the filter's memory, and the ordinary formula would claim intervals
+several times too narrow. They cover the noise of the data, not a model
+that does not fit (the fit report's residuals show that).
+
+``--friction lugre`` (the LuGre parameters, a nonlinear fit) needs the LuGre
+friction of issue 15 in the model; :data:`FRICTION_MODELS` is where it goes.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from gantry_twin.estimation import discretise_filter, friction_shape
+from gantry_twin.excitation import filter_axis, filter_steady_state
+from gantry_twin.logs import Log
+from gantry_twin.plant import AXES, THETA_NAMES, THETA_UNITS
+
+#: Columns of one axis' regression, in THETA_NAMES' per-axis order.
+COLUMNS = ("M", "B", "Af", "dN")
+#: The two-sided 95 % quantile of the normal distribution.
+Z95 = 1.959963984540054
+
+
+@dataclass(frozen=True)
+class IdentifySettings:
+    """How :func:`identify` filters and selects the samples (module docstring).
+
+    filter_hz: Hf per axis, Hz (the recommended estimator's 50 Hz keeps the
+    encoder's quantisation out of x_f''); filter_zeta: its damping.
+    friction_slope_s_m: slope of Sf(v) = (2/pi) atan(slope v), s/m.
+    velocity_half_width: samples each side of the centred velocity.
+    sliding_speed_m_s, stick_memory_s: the samples left out (module docstring).
+    hac_lag_s: the lag over which the residuals are taken as correlated, s.
+    """
+
+    filter_hz: tuple[float, float] = (50.0, 50.0)
+    filter_zeta: float = 0.7
+    friction_slope_s_m: float = 1.0e6
+    velocity_half_width: int = 5
+    sliding_speed_m_s: float = 2.0e-3
+    stick_memory_s: float = 0.03
+    hac_lag_s: float = 0.05
+
+
+@dataclass(frozen=True)
+class AxisRegression:
+    """One axis' filtered regression over the samples kept: rows X (n, 4), target y (n,), and the log's index."""
+
+    x: np.ndarray
+    y: np.ndarray
+    log_index: np.ndarray
+
+
+@dataclass(frozen=True)
+class Identified:
+    """The result: theta (8,) in THETA_NAMES' order, volt units; ci95 (8, 2); samples used per axis; settings."""
+
+    theta: np.ndarray
+    ci95: np.ndarray
+    samples_used: tuple[int, int]
+    residual_rms_v: tuple[float, float]
+    settings: IdentifySettings
+
+    def parameters(self) -> dict[str, dict[str, object]]:
+        """identified.json's ``parameters``: {name: {value, ci95: [lo, hi], unit}}."""
+        return {
+            name: {"value": float(self.theta[j]), "ci95": [float(x) for x in self.ci95[j]], "unit": THETA_UNITS[j]}
+            for j, name in enumerate(THETA_NAMES)
+        }
+
+
+def centred_velocity(q_m: np.ndarray, half_width: int, sample_period_s: float) -> np.ndarray:
+    """Velocity over the sample before each one (k-1 -> k), m/s: the difference of positions half_width
+    samples before and after that interval (fewer at the ends); entry 0 is that of the first interval."""
+    n = q_m.shape[0]
+    k = np.arange(1, n)
+    hi = np.minimum(k - 1 + half_width, n - 1)
+    lo = np.maximum(k - half_width, 0)
+    span_s = ((hi - lo) * sample_period_s).reshape((-1,) + (1,) * (q_m.ndim - 1))
+    v = (q_m[hi] - q_m[lo]) / span_s
+    return np.concatenate([v[:1], v])
+
+
+def axis_regressions(logs: Sequence[Log], settings: IdentifySettings) -> list[AxisRegression]:
+    """The filtered regression of each axis over all logs, the samples left out removed (module docstring)."""
+    rows: list[list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = [[], []]
+    for index, log in enumerate(logs):
+        ts = log.sample_period_s
+        v = centred_velocity(log.q_m, settings.velocity_half_width, ts)  # (N, 2); v[k]: interval k-1 -> k
+        memory = max(1, int(round(settings.stick_memory_s / ts)))
+        for axis in range(2):
+            disc = discretise_filter(2.0 * np.pi * settings.filter_hz[axis], settings.filter_zeta, ts)
+            q, u = log.q_m[:, axis], log.u_v[:, axis]
+            sf = friction_shape(v[:, axis], settings.friction_slope_s_m)
+            z = filter_steady_state(disc, q[0], v[0, axis], (sf[0], 1.0, u[0]))
+            held = np.stack([sf[1:], np.ones(q.size - 1), u[:-1]], axis=1)  # over interval k-1 -> k: u[k-1]
+            acc, vel, filtered = filter_axis(z, disc, q[1:], q[:-1], held, ts)
+            x = np.stack([acc, vel, filtered[:, 0], -filtered[:, 1]], axis=1)
+            slow = (np.abs(v[1:, axis]) < settings.sliding_speed_m_s).astype(float)
+            recent = np.convolve(slow, np.ones(memory + 1))[: slow.size] > 0.0  # a slow sample within memory
+            keep = ~recent
+            keep[: 4 * memory] = False  # the filters' start
+            rows[axis].append((x[keep], filtered[keep, 2], np.full(int(keep.sum()), index)))
+    return [AxisRegression(*(np.concatenate([r[i] for r in rows[a]]) for i in range(3))) for a in range(2)]
+
+
+def hac_covariance(x: np.ndarray, residual: np.ndarray, groups: np.ndarray, lag: int) -> np.ndarray:
+    """Newey-West covariance of the least-squares solution (Bartlett weights up to ``lag``), per group summed."""
+    bread = np.linalg.inv(x.T @ x)
+    meat = np.zeros((x.shape[1], x.shape[1]))
+    for g in np.unique(groups):
+        h = x[groups == g] * residual[groups == g][:, None]
+        meat += h.T @ h
+        for j in range(1, min(lag, h.shape[0] - 1) + 1):
+            c = h[j:].T @ h[:-j]
+            meat += (1.0 - j / (lag + 1.0)) * (c + c.T)
+    return bread @ meat @ bread
+
+
+def identify(logs: Sequence[Log], settings: IdentifySettings | None = None) -> Identified:
+    """M, B, Af, dN of both axes from the logs (module docstring)."""
+    settings = settings or IdentifySettings()
+    theta, ci = np.zeros(8), np.zeros((8, 2))
+    used, rms = [], []
+    ts = min(log.sample_period_s for log in logs)
+    for axis, reg in enumerate(axis_regressions(logs, settings)):
+        if reg.y.size < 10 * len(COLUMNS):
+            raise ValueError(
+                f"{AXES[axis]} axis: only {reg.y.size} samples while sliding; the logs must move the axis "
+                f"faster than {settings.sliding_speed_m_s * 1e3:g} mm/s both ways"
+            )
+        scale = np.sqrt((reg.x**2).mean(axis=0))  # columns of unit rms: a well-conditioned solve
+        solution, *_ = np.linalg.lstsq(reg.x / scale, reg.y, rcond=None)
+        beta = solution / scale
+        residual = reg.y - reg.x @ beta
+        cov = hac_covariance(reg.x, residual, reg.log_index, max(1, int(round(settings.hac_lag_s / ts))))
+        half = Z95 * np.sqrt(np.clip(np.diag(cov), 0.0, None))
+        for c in range(len(COLUMNS)):
+            j = 2 * c + axis
+            theta[j] = beta[c]
+            ci[j] = (beta[c] - half[c], beta[c] + half[c])
+        used.append(int(reg.y.size))
+        rms.append(float(np.sqrt(np.mean(residual**2))))
+    return Identified(theta, ci, (used[0], used[1]), (rms[0], rms[1]), settings)
