@@ -37,15 +37,21 @@ friction of issue 15 in the model; :data:`FRICTION_MODELS` is where it goes.
 
 from __future__ import annotations
 
+import argparse
+import json
+import sys
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
+from pathlib import Path
 
 import numpy as np
 
 from gantry_twin.estimation import discretise_filter, friction_shape
 from gantry_twin.excitation import filter_axis, filter_steady_state
-from gantry_twin.logs import Log
-from gantry_twin.plant import AXES, THETA_NAMES, THETA_UNITS
+from gantry_twin.fit_report import WINDOW_S, Replay, replay, write_figures
+from gantry_twin.logs import Log, centred_velocity, read_log
+from gantry_twin.plant import AXES, THETA_NAMES, THETA_UNITS, Plant, build_spec, moving_masses_kg
+from gantry_twin.results import atomic_write_text
 
 #: Columns of one axis' regression, in THETA_NAMES' per-axis order.
 COLUMNS = ("M", "B", "Af", "dN")
@@ -99,18 +105,6 @@ class Identified:
             name: {"value": float(self.theta[j]), "ci95": [float(x) for x in self.ci95[j]], "unit": THETA_UNITS[j]}
             for j, name in enumerate(THETA_NAMES)
         }
-
-
-def centred_velocity(q_m: np.ndarray, half_width: int, sample_period_s: float) -> np.ndarray:
-    """Velocity over the sample before each one (k-1 -> k), m/s: the difference of positions half_width
-    samples before and after that interval (fewer at the ends); entry 0 is that of the first interval."""
-    n = q_m.shape[0]
-    k = np.arange(1, n)
-    hi = np.minimum(k - 1 + half_width, n - 1)
-    lo = np.maximum(k - half_width, 0)
-    span_s = ((hi - lo) * sample_period_s).reshape((-1,) + (1,) * (q_m.ndim - 1))
-    v = (q_m[hi] - q_m[lo]) / span_s
-    return np.concatenate([v[:1], v])
 
 
 def axis_regressions(logs: Sequence[Log], settings: IdentifySettings) -> list[AxisRegression]:
@@ -174,3 +168,151 @@ def identify(logs: Sequence[Log], settings: IdentifySettings | None = None) -> I
         used.append(int(reg.y.size))
         rms.append(float(np.sqrt(np.mean(residual**2))))
     return Identified(theta, ci, (used[0], used[1]), (rms[0], rms[1]), settings)
+
+
+# -- the plant file -------------------------------------------------------------------------------
+
+
+def plant_xml(theta: np.ndarray, note: str = "", model_path: Path | None = None) -> str:
+    """The MJCF of the gantry with identified M, B, Af (volt units), as text.
+
+    The moving masses are met by changing the carriages' masses (X: M1 gear;
+    Y, which carries X: M2 gear in all), damping = B gear, frictionloss =
+    Af gear. dN has no place in the model (the twin has no constant force):
+    it is reported, not written. ValueError if the masses cannot be met
+    (M2 <= M1: the Y axis moves the X carriage too).
+    """
+    spec = build_spec(None, model_path)
+    model = spec.compile()
+    dofs = np.array([model.joint(a).dofadr[0] for a in AXES])
+    gear = model.actuator_gear[[model.actuator(f"{a}_motor").id for a in AXES], 0]
+    target_kg = theta[0:2] * gear
+    now_kg = moving_masses_kg(model, dofs)
+    dx = target_kg[0] - now_kg[0]
+    dy = target_kg[1] - now_kg[1] - dx
+    x_body, y_body = spec.body("x_carriage"), spec.body("y_carriage")
+    if x_body.mass + dx <= 0.0 or y_body.mass + dy <= 0.0:
+        raise ValueError(f"M1 = {theta[0]:.4g}, M2 = {theta[1]:.4g} V/(m/s^2): no positive carriage masses give them")
+    x_body.mass += dx
+    y_body.mass += dy
+    for i, axis in enumerate(AXES):
+        joint = spec.joint(axis)
+        damping = np.array(joint.damping, dtype=float)  # MuJoCo keeps room for more terms: the first is viscous
+        damping[0] = theta[2 + i] * gear[i]
+        joint.damping = damping
+        joint.frictionloss = float(theta[4 + i] * gear[i])
+    comment = (note or "identified plant").replace("--", "- -")
+    return f"<!-- {comment} -->\n{spec.to_xml()}"
+
+
+# -- the command ----------------------------------------------------------------------------------
+
+IDENTIFIED_FILE = "identified.json"
+PLANT_FILE = "plant.xml"
+REPORT_FILE = "fit_report.md"
+#: The friction models ``--friction`` names: coulomb (this module). lugre: the LuGre parameters by a
+#: nonlinear fit over the LuGre dcmotor of issue 15, not yet in the model.
+FRICTION_MODELS = ("coulomb", "lugre")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("logs", nargs="+", metavar="LOG", help="log files (parquet or CSV, docs/logs.md)")
+    parser.add_argument("--out", metavar="DIR", type=Path, required=True, help="output directory")
+    parser.add_argument(
+        "--friction", choices=FRICTION_MODELS, default="coulomb", help="friction model to identify (default coulomb)"
+    )
+    parser.add_argument(
+        "--filter-hz", type=float, default=IdentifySettings.filter_hz[0], help="Hf's natural frequency, Hz"
+    )
+    parser.add_argument("--window-s", type=float, default=WINDOW_S, help="replay window of the fit report, s")
+
+
+def command(args: argparse.Namespace) -> int:
+    """``gantry-twin identify``: exit 0, or 2 with one line on stderr for a bad log or option."""
+    try:
+        if args.friction != "coulomb":
+            raise ValueError(
+                f"--friction {args.friction}: needs the LuGre friction model in models/gantry.xml (issue 15); "
+                "only coulomb is available"
+            )
+        if not (5.0 <= args.filter_hz <= 500.0):
+            raise ValueError(f"--filter-hz: must be in [5, 500] Hz, got {args.filter_hz:g}")
+        if not (0.0 < args.window_s <= 3600.0):
+            raise ValueError(f"--window-s: must be in (0, 3600] s, got {args.window_s:g}")
+        if args.out.exists() and not args.out.is_dir():
+            raise ValueError(f"--out {args.out}: exists and is not a directory")
+        logs = [read_log(p) for p in args.logs]
+        settings = IdentifySettings(filter_hz=(args.filter_hz, args.filter_hz))
+        result = identify(logs, settings)
+        note = "gantry-twin identify from " + ", ".join(str(p) for p in args.logs)
+        xml = plant_xml(result.theta, note)
+    except ValueError as exc:  # LogError included
+        print(f"gantry-twin: error: {str(exc).splitlines()[0]}", file=sys.stderr)
+        return 2
+    out: Path = args.out
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(out / PLANT_FILE, xml)
+    plant = Plant(model_path=out / PLANT_FILE)
+    replays = [replay(plant, log, args.window_s) for log in logs]
+    figures = write_figures(replays, out)
+    data = identified_json(result, logs, replays, figures)
+    atomic_write_text(out / IDENTIFIED_FILE, json.dumps(data, indent=2) + "\n")
+    atomic_write_text(out / REPORT_FILE, fit_markdown(data))
+    print(format_identified(data, out))
+    return 0
+
+
+def identified_json(
+    result: Identified, logs: Sequence[Log], replays: Sequence[Replay], figures: Sequence[str]
+) -> dict[str, object]:
+    """identified.json's content (docs/logs.md)."""
+    return {
+        "parameters": result.parameters(),
+        "friction": "coulomb",
+        "plant_file": PLANT_FILE,
+        "scenario": {"plant": {"file": PLANT_FILE}},
+        "logs": [
+            {
+                "path": log.path,
+                "samples": log.samples,
+                "sample_period_s": log.sample_period_s,
+                "duration_s": log.duration_s,
+            }
+            for log in logs
+        ],
+        "samples_used": dict(zip(AXES, result.samples_used, strict=True)),
+        "regression_residual_rms_v": dict(zip(AXES, result.residual_rms_v, strict=True)),
+        "settings": asdict(result.settings),
+        "fit": [
+            {"path": r.path, "window_s": r.window_s, "rms_um": r.rms_um(), "max_um": r.max_um(), "figure": f}
+            for r, f in zip(replays, figures, strict=True)
+        ],
+    }
+
+
+def format_identified(data: dict, out: Path) -> str:
+    lines = ["parameter        value        ci95                      unit"]
+    for name, p in data["parameters"].items():
+        lo, hi = p["ci95"]
+        lines.append(f"  {name:<4} {p['value']:14.6g}  [{lo:.6g}, {hi:.6g}]  {p['unit']}")
+    for f in data["fit"]:
+        rms = ", ".join(f"{a} {v:.3g}" for a, v in f["rms_um"].items())
+        lines.append(f"replay of {Path(f['path']).name} in {f['window_s']:g} s windows: residual rms {rms} um")
+    files = [IDENTIFIED_FILE, PLANT_FILE, REPORT_FILE, *(f["figure"] for f in data["fit"])]
+    lines.append(f"results in {out}/ ({', '.join(files)})")
+    return "\n".join(lines)
+
+
+def fit_markdown(data: dict) -> str:
+    """fit_report.md: the parameters and the replay of each log."""
+    lines = ["# Identified plant", "", "| parameter | value | ci95 | unit |", "|---|---|---|---|"]
+    for name, p in data["parameters"].items():
+        lines.append(f"| {name} | {p['value']:.6g} | [{p['ci95'][0]:.6g}, {p['ci95'][1]:.6g}] | {p['unit']} |")
+    lines += ["", f"Plant file: `{PLANT_FILE}` (a scenario uses it with `plant: {{file: {PLANT_FILE}}}`).", ""]
+    lines += ["## Replay of the logged commands", "", "| log | window s | rms x um | rms y um | max x um | max y um |"]
+    lines.append("|---|---|---|---|---|---|")
+    for f in data["fit"]:
+        r, m = f["rms_um"], f["max_um"]
+        lines.append(f"| {f['path']} | {f['window_s']:g} | {r['x']:.3g} | {r['y']:.3g} | {m['x']:.3g} | {m['y']:.3g} |")
+    lines += [""] + [f"![{f['path']}]({f['figure']})" for f in data["fit"]]
+    return "\n".join(lines) + "\n"

@@ -328,6 +328,18 @@ def _validated(path: str, batches, columns: list[str]) -> Log:
     )
 
 
+def centred_velocity(q_m: np.ndarray, half_width: int, sample_period_s: float) -> np.ndarray:
+    """Velocity over the sample before each one (k-1 -> k), m/s: the difference of positions half_width
+    samples before and after that interval (fewer at the ends); entry 0 is that of the first interval."""
+    n = q_m.shape[0]
+    k = np.arange(1, n)
+    hi = np.minimum(k - 1 + half_width, n - 1)
+    lo = np.maximum(k - half_width, 0)
+    span_s = ((hi - lo) * sample_period_s).reshape((-1,) + (1,) * (q_m.ndim - 1))
+    v = (q_m[hi] - q_m[lo]) / span_s
+    return np.concatenate([v[:1], v])
+
+
 def write_log(path: str | Path, t_s: np.ndarray, u_v: np.ndarray, q_m: np.ndarray, q_d_m: np.ndarray | None) -> None:
     """Write a log (parquet, or CSV when the name ends in .csv), columns in LOG_COLUMNS' order."""
     cols = {"t_s": t_s, "u_x_v": u_v[:, 0], "u_y_v": u_v[:, 1], "x_m": q_m[:, 0], "y_m": q_m[:, 1]}
