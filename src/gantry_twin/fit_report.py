@@ -18,8 +18,6 @@ from pathlib import Path
 
 import mujoco
 import numpy as np
-from mujoco import rollout
-from scipy.signal import savgol_coeffs
 
 from gantry_twin.logs import Log
 from gantry_twin.plant import AXES, Plant
@@ -56,6 +54,9 @@ class Replay:
 
 def replay(plant: Plant, log: Log, window_s: float = WINDOW_S) -> Replay:
     """Replay ``log``'s commands through ``plant`` in windows started from the measured state (module docstring)."""
+    from mujoco import rollout
+    from scipy.signal import savgol_coeffs
+
     model = plant.model
     if abs(model.opt.timestep - log.sample_period_s) > 1e-9 * log.sample_period_s:
         model.opt.timestep = log.sample_period_s  # one physics step per logged sample (ZOH of u)
