@@ -10,10 +10,10 @@ then go through the same :class:`gantry_twin.monitor.MachineMonitor` as a
 simulated run's, with the scenario's estimator and monitor settings, and
 give the same ``health`` section of summary.json and the same printed alarms.
 
-On a twin's trace the estimates are those the run logged, up to the
-first sample's velocity (a trace does not record it: the backward
-difference of the first two samples is used), which only moves the
-filters' start.
+On a twin's trace (float64 columns) the estimates are those the run
+logged, to rounding (tests/test_logmonitor.py). The first sample's
+velocity, which a log does not hold, is taken as the backward difference of
+the first two samples; it only sets the filters' start.
 """
 
 from __future__ import annotations
