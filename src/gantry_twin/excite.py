@@ -185,12 +185,20 @@ def perturbed_plant(
     return plant
 
 
+def random_plant(rng: np.random.Generator) -> Plant:
+    """A twin drawn as issue 17's acceptance draws them: payload uniform in 0-10 kg, each axis' B and Af
+    uniform within +-30 % of the model's."""
+    payload = float(rng.uniform(0.0, 10.0))
+    return perturbed_plant(payload, tuple(rng.uniform(0.7, 1.3, 2)), tuple(rng.uniform(0.7, 1.3, 2)))
+
+
 def run_on_twin(path: Multisine, plant: Plant, sensing=None):
     """Run the trajectory on the twin under PD control (module docstring); the trace."""
     from gantry_twin.controllers import create
     from gantry_twin.simulate import simulate
 
-    return simulate(plant, path, TimingLaw(1.0), create("pd"), duration_s=path.duration_s, sensing=sensing)
+    with np.errstate(invalid="ignore", divide="ignore"):  # the tangent angle at rest (both axes stopped) is 0/0
+        return simulate(plant, path, TimingLaw(1.0), create("pd"), duration_s=path.duration_s, sensing=sensing)
 
 
 def log_of(trace) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

@@ -24,10 +24,9 @@ from typing import Any
 
 import numpy as np
 
-from gantry_twin._jit import kernel
 from gantry_twin.controllers import DIARC
-from gantry_twin.controllers.arc import estimator_start, estimator_update
 from gantry_twin.controllers.base import U_MAX_V, Measurement, RunContext
+from gantry_twin.estimator_replay import estimator_replay
 from gantry_twin.logs import Log, read_log
 from gantry_twin.monitor import MachineMonitor, MonitorReport
 from gantry_twin.plant import THETA_NAMES
@@ -36,16 +35,6 @@ from gantry_twin.trace import Trace
 
 #: summary.json's estimates: the mean over the log's last ESTIMATE_WINDOW_S (at most half the log), s.
 ESTIMATE_WINDOW_S = 10.0
-
-
-@kernel
-def estimator_replay(params, theta, est, q_m, dq_m_s, u_v, theta_out):  # pragma: no cover
-    """DIARC's estimator over a log: q_m, dq_m_s, u_v (n, 2); theta^ after each sample into theta_out (n, 8)."""
-    estimator_start(params, est, q_m[0], dq_m_s[0], u_v[0])
-    theta_out[0] = theta
-    for k in range(1, q_m.shape[0]):
-        estimator_update(params, theta, est, q_m[k], dq_m_s[k], u_v[k - 1])
-        theta_out[k] = theta
 
 
 def estimates(controller: DIARC, log: Log) -> np.ndarray:
