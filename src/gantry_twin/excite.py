@@ -223,23 +223,34 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def command(args: argparse.Namespace) -> int:
     """Write DIR/trajectory.csv and (unless --no-run) DIR/log.parquet from the twin. Exit code."""
+    from gantry_twin.trace import SimulationError
+
+    out: Path = args.out
     try:
         path = design(args.duration_s, args.fade_s)
         payload = Payload(mass_kg=args.payload_kg)
-    except ValueError as exc:
+        try:
+            plant = Plant(payload, model_path=args.plant)
+        except (ValueError, KeyError) as exc:
+            raise ValueError(f"--plant {args.plant}: not a gantry model ({str(exc).splitlines()[0]})") from None
+        if out.exists() and not out.is_dir():
+            raise ValueError(f"--out {out}: exists and is not a directory")
+    except ValueError as exc:  # a bad option, or a --plant file that is not a gantry model
         print(f"gantry-twin: error: {str(exc).splitlines()[0]}", file=sys.stderr)
         return 2
-    out: Path = args.out
-    if out.exists() and not out.is_dir():
-        print(f"gantry-twin: error: --out {out}: exists and is not a directory", file=sys.stderr)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        write_columns(out / "trajectory.csv", trajectory_table(path, plant.timestep_s))
+        print(f"trajectory ({path.duration_s:g} s) in {out / 'trajectory.csv'}")
+        if args.no_run:
+            return 0
+        trace = run_on_twin(path, plant)
+        write_log(out / "log.parquet", *log_of(trace))
+    except OSError as exc:
+        print(f"gantry-twin: error: --out {out}: cannot write there ({exc.strerror or exc})", file=sys.stderr)
         return 2
-    out.mkdir(parents=True, exist_ok=True)
-    plant = Plant(payload, model_path=args.plant)
-    write_columns(out / "trajectory.csv", trajectory_table(path, plant.timestep_s))
-    print(f"trajectory ({path.duration_s:g} s) in {out / 'trajectory.csv'}")
-    if args.no_run:
-        return 0
-    trace = run_on_twin(path, plant)
-    write_log(out / "log.parquet", *log_of(trace))
+    except SimulationError as exc:
+        print(f"gantry-twin: run failed: {exc}", file=sys.stderr)
+        return 1
     print(f"log of the twin running it in {out / 'log.parquet'}")
     return 0

@@ -250,14 +250,18 @@ def command(args: argparse.Namespace) -> int:
         print(f"gantry-twin: error: {str(exc).splitlines()[0]}", file=sys.stderr)
         return 2
     out: Path = args.out
-    out.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(out / PLANT_FILE, xml)
-    plant = Plant(model_path=out / PLANT_FILE)
-    replays = [replay(plant, log, args.window_s) for log in logs]
-    figures = write_figures(replays, out)
-    data = identified_json(result, logs, replays, figures)
-    atomic_write_text(out / IDENTIFIED_FILE, json.dumps(data, indent=2) + "\n")
-    atomic_write_text(out / REPORT_FILE, fit_markdown(data))
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(out / PLANT_FILE, xml)
+        plant = Plant(model_path=out / PLANT_FILE)
+        replays = [replay(plant, log, args.window_s) for log in logs]
+        figures = write_figures(replays, out)
+        data = identified_json(result, logs, replays, figures)
+        atomic_write_text(out / IDENTIFIED_FILE, json.dumps(data, indent=2) + "\n")
+        atomic_write_text(out / REPORT_FILE, fit_markdown(data))
+    except OSError as exc:
+        print(f"gantry-twin: error: --out {out}: cannot write there ({exc.strerror or exc})", file=sys.stderr)
+        return 2
     print(format_identified(data, out))
     return 0
 
