@@ -21,6 +21,7 @@ refused within its first few kilobytes.
 
 from __future__ import annotations
 
+import functools
 import os
 import stat
 from dataclasses import dataclass
@@ -32,6 +33,7 @@ import pyarrow.compute as pc
 import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 
+from gantry_twin.plant import AXES, Plant
 from gantry_twin.ranges import VOLTS_MAX_V, shorten
 
 #: The columns every log has (SI units and volts).
@@ -40,10 +42,8 @@ LOG_COLUMNS: tuple[str, ...] = ("t_s", "u_x_v", "u_y_v", "x_m", "y_m")
 DESIRED_COLUMNS: tuple[str, ...] = ("x_d_m", "y_d_m")
 #: The twin's trace.parquet: its encoder readings are the log's positions.
 TRACE_POSITION_COLUMNS = {"x_m": "x_meas_m", "y_m": "y_meas_m"}
-#: Travel of each axis, m (the Anorad HERC-510-510: 510 mm; models/gantry.xml's joint range). A
-#: position column spanning more than TRAVEL_SPAN_M * (1 + TRAVEL_SLACK), or farther than that from 0,
-#: is not in metres (millimetres, most likely).
-TRAVEL_SPAN_M = 0.51
+#: A position column spanning more than the travel (:func:`travel_span_m`) times 1 + TRAVEL_SLACK, or
+#: farther than that from 0, is not in metres (millimetres, most likely).
 TRAVEL_SLACK = 0.1
 #: Fastest believable carriage speed between two samples, m/s (a position log in mm moves 1000x faster).
 SPEED_MAX_M_S = 10.0
@@ -56,6 +56,14 @@ HEADER_MAX_BYTES = 64 * 1024
 #: Rows per CSV batch read (pyarrow's block size, bytes).
 CSV_BLOCK_BYTES = 1 << 20
 PARQUET_MAGIC = b"PAR1"
+
+
+@functools.cache
+def travel_span_m() -> float:
+    """The longest axis travel of the shipped model (its joint ranges), m: 510 mm on the Anorad HERC-510-510."""
+    plant = Plant()
+    ranges = plant.model.jnt_range[[plant.model.joint(a).id for a in AXES]]
+    return float(np.max(ranges[:, 1] - ranges[:, 0]))
 
 
 class LogError(ValueError):
@@ -284,13 +292,13 @@ def _validated(path: str, batches, columns: list[str]) -> Log:
             q = batch[c]
             lo, hi = extent[c]
             extent[c] = [min(lo, float(q.min())), max(hi, float(q.max()))]
-            limit = TRAVEL_SPAN_M * (1.0 + TRAVEL_SLACK)
+            limit = travel_span_m() * (1.0 + TRAVEL_SLACK)
             far = np.abs(q) > limit
             if far.any() or extent[c][1] - extent[c][0] > limit:
                 i = int(np.argmax(far)) if far.any() else int(np.argmax(q) if q.max() == extent[c][1] else np.argmin(q))
                 raise _fail(
                     path,
-                    f"column {c}, row {rows + i + 1}: {q[i]:.6g} is beyond the {TRAVEL_SPAN_M:g} m travel "
+                    f"column {c}, row {rows + i + 1}: {q[i]:.6g} is beyond the {travel_span_m():g} m travel "
                     f"(the column spans {extent[c][0]:.6g} to {extent[c][1]:.6g}): positions must be metres "
                     "(millimetres given?)",
                 )
