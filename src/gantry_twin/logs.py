@@ -29,8 +29,6 @@ from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
-import pyarrow.compute as pc
-import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 
 from gantry_twin.plant import AXES, Plant
@@ -159,6 +157,8 @@ def _parquet_batches(path: str):
 
 
 def _csv_batches(path: str, head: bytes):
+    import pyarrow.csv as pacsv  # here, not at the top: the command line's start-up does not pay for it
+
     if b"\0" in head:
         raise _fail(path, "is neither parquet nor a CSV text file (binary content in its first bytes)")
     lines = head.splitlines(keepends=True)
@@ -211,6 +211,8 @@ class _BadValue(Exception):
 def _floats(path: str, column, name: str) -> np.ndarray:
     """A column as float64; CSV text is parsed here (spaces around numbers allowed), _BadValue on a non-number."""
     if pa.types.is_string(column.type) or pa.types.is_large_string(column.type):
+        import pyarrow.compute as pc
+
         try:
             column = pc.cast(pc.utf8_trim_whitespace(column), pa.float64())
         except pa.ArrowInvalid:
@@ -358,6 +360,8 @@ def write_log(path: str | Path, t_s: np.ndarray, u_v: np.ndarray, q_m: np.ndarra
 
 def write_columns(path: str | Path, columns: dict[str, np.ndarray]) -> None:
     """Float64 columns to parquet, or to CSV when the name ends in .csv."""
+    import pyarrow.csv as pacsv
+
     table = pa.table({k: pa.array(np.ascontiguousarray(v, dtype=np.float64)) for k, v in columns.items()})
     if str(path).endswith(".csv"):
         pacsv.write_csv(table, str(path))
