@@ -41,6 +41,28 @@ def test_estimates_over_a_log_are_those_the_run_logged(tmp_path):
     np.testing.assert_allclose(theta, logged, rtol=0, atol=1e-9)
 
 
+def test_monitor_log_with_a_baseline_from_an_earlier_log(tmp_path, capsys):
+    """``--baseline``: an earlier log's summary.json (its mean estimates) is the baseline, as a scenario's
+    monitor.baseline_summary would make it."""
+    _, built = _built("no_load_circle", "duration_s=2", "window_s=[0.5, 1.5]", "estimates_window_s=[1, 2]")
+    trace = execute(built)
+    write_log(tmp_path / "log.parquet", trace.t_s, trace.u_v, trace.q_meas_m, trace.q_d_m)
+    log = str(tmp_path / "log.parquet")
+    first, second = tmp_path / "first", tmp_path / "second"
+    judged = ["--set", "monitor.judge_from_s=0.5"]
+    assert main(["monitor", "--log", log, "--out", str(first), *judged]) == 0
+    commissioning = json.loads((first / "summary.json").read_text())
+    assert commissioning["health"]["status"]["M1"] == "baseline"  # a 2 s log never reaches the 20-30 s window
+    assert (
+        main(["monitor", "--log", log, "--baseline", str(first / "summary.json"), "--out", str(second), *judged]) == 0
+    )
+    health = json.loads((second / "summary.json").read_text())["health"]
+    assert health["baseline"]["source"].startswith("commissioning run")
+    assert health["baseline"]["M1"] == commissioning["estimates"]["M1"]["estimate"]
+    assert health["status"]["M1"] != "baseline"
+    assert "baseline: commissioning run" in capsys.readouterr().out
+
+
 def test_monitor_log_without_diarc_is_bad_input(tmp_path, capsys):
     t = np.arange(100) * 2e-4
     write_log(tmp_path / "log.csv", t, np.zeros((100, 2)), np.zeros((100, 2)), None)
