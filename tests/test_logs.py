@@ -107,13 +107,16 @@ def _replace(row: int, column: int, value: str) -> list[str]:
 
 BAD_LOGS = {
     "missing column": (_csv([r.rsplit(",", 1)[0] for r in GOOD_ROWS], "t_s,u_x_v,u_y_v,x_m"), "missing column y_m"),
-    "time not increasing": (_csv(_replace(3, 0, "0.0004")), "column t_s, row 4"),
-    "NaN": (_csv(_replace(2, 3, "nan")), "column x_m, row 3"),
+    "time not increasing": (_csv(_replace(3, 0, "0.0004")), "column t_s, row 4: time 0.0004 s is not after"),
+    "NaN": (_csv(_replace(2, 3, "nan")), "column x_m, row 3: nan is not a finite number"),
     "not a number": (_csv(_replace(4, 2, "abc")), "column u_y_v, row 5"),
-    "positions in mm": (_csv([f"{k * 0.0002:.4f},0.1,-0.1,{120 + k * 0.01:.3f},0" for k in range(6)]), "column x_m"),
+    "positions in mm": (
+        _csv([f"{k * 0.0002:.4f},0.1,-0.1,{120 + k * 0.01:.3f},0" for k in range(6)]),
+        "column x_m, row 1: 120 is beyond the 0.51 m travel",
+    ),
     "mixed sample periods": (
         _csv(GOOD_ROWS + [f"{0.001 + k * 0.001:.4f},0.1,-0.1,0.00005,-0.00005" for k in range(1, 4)]),
-        "column t_s, row 7",
+        "column t_s, row 7: step 0.001 s differs from the sample period",
     ),
     "volts beyond the DAC": (_csv(_replace(1, 1, "25")), "column u_x_v, row 2"),
     "empty": ("", "is empty"),
