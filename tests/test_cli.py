@@ -51,6 +51,7 @@ MALFORMED = [
     ("top_level_scalar", "circle\n", "top level", "mapping of fields"),
     ("unknown_top_key", "durations: 3\n", "durations", "allowed: name, description, contour"),
     ("unknown_nested_key", "payload: {mass: 5}\n", "payload.mass", "allowed: mass_kg, offset_m"),
+    ("plant_file_missing", "plant: {file: no_such_model.xml}\n", "plant.file", "no such file"),
     ("mass_wrong_type", "payload: {mass_kg: heavy}\n", "payload.mass_kg", "valid number"),
     ("mass_negative", "payload: {mass_kg: -1}\n", "payload.mass_kg", "[0, 20] kg"),
     ("mass_absurd", "payload: {mass_kg: 5000}\n", "payload.mass_kg", "[0, 20] kg"),

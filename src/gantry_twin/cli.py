@@ -1,4 +1,5 @@
-"""The command line: ``gantry-twin run | monitor | validate | report | sweep | export | compare`` (docs/cli.md).
+"""The command line: ``gantry-twin run | monitor | validate | report | sweep | export | compare | identify |
+excite`` (docs/cli.md, docs/sweeps.md, docs/logs.md).
 
 Exit codes: 0 success; 2 bad input (one line on stderr naming the file, the
 field and what is allowed; nothing written), an output directory that
@@ -26,11 +27,14 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, NoReturn
 
+from gantry_twin import excite as excite_command
 from gantry_twin import export
+from gantry_twin import identify as identify_command
 from gantry_twin.compare import CompareError
 from gantry_twin.compare import add_arguments as add_compare_arguments
 from gantry_twin.compare import command as compare_command
 from gantry_twin.events import touched_end_stop, travel_warnings
+from gantry_twin.logs import LogError
 from gantry_twin.monitor import Alarm
 from gantry_twin.ranges import shorten
 from gantry_twin.results import stop_signals_interrupt, whole_run_lines
@@ -127,7 +131,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(
         dest="command",
         required=True,
-        metavar="{run,monitor,validate,report,sweep,export,compare}",
+        metavar="{run,monitor,validate,report,sweep,export,compare,identify,excite}",
         parser_class=_Parser,
     )
 
@@ -144,7 +148,9 @@ def build_parser() -> argparse.ArgumentParser:
     add_telemetry_arguments(run)
 
     monitor = sub.add_parser("monitor", help="run a scenario with the health monitor and report its alarms")
-    monitor.add_argument("scenario", help="scenario YAML file or shipped scenario name")
+    monitor.add_argument("scenario", nargs="?", help="scenario YAML file or shipped scenario name")
+    monitor.add_argument("--log", metavar="LOG", help="monitor a recorded log instead of a run (docs/logs.md)")
+    monitor.add_argument("--baseline", metavar="SUMMARY", help="with --log: a healthy run's summary.json")
     _add_controller(monitor)
     _add_set(monitor)
     _add_out(monitor)
@@ -171,6 +177,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     _add_set(report, "override a field in every scenario of the matrix, e.g. duration_s=10")
     _add_progress(report)
+
+    identify = sub.add_parser("identify", help="identify M, B, Af from logs; a plant file and a fit report")
+    identify_command.add_arguments(identify)
+    excite = sub.add_parser("excite", help="write an identification trajectory and run it on the twin")
+    excite_command.add_arguments(excite)
 
     sweep = sub.add_parser("sweep", help="run a sweep or Monte Carlo study on a Dask cluster (docs/sweeps.md)")
     sweep.add_argument("file", help="sweep YAML file or shipped sweep name (sweeps/)")
@@ -240,8 +251,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         return int(exc.code or 0)
     try:
         with stop_signals_interrupt():
+            if args.command == "monitor" and args.log is not None:
+                return _monitor_log(args)
             if args.command in ("run", "monitor"):
                 return _run(args)
+            if args.command == "identify":
+                return identify_command.command(args)
+            if args.command == "excite":
+                return excite_command.command(args)
             if args.command == "validate":
                 return _validate(args)
             if args.command == "sweep":
@@ -251,7 +268,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             if args.command == "compare":
                 return compare_command(args)
             return _report(args)
-    except (ScenarioError, BadInput, TelemetryError, export.ExportError, CompareError) as exc:
+    except (ScenarioError, BadInput, TelemetryError, export.ExportError, CompareError, LogError) as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except KeyboardInterrupt as exc:
@@ -325,7 +342,31 @@ def _announce_large_trace(built: Any) -> None:
         )
 
 
+def _monitor_log(args: argparse.Namespace) -> int:
+    """``monitor --log``: DIARC's estimator and the health monitor over a log (gantry_twin.logmonitor)."""
+    from gantry_twin.logmonitor import command
+
+    # runs never overwrite: a new directory under runs/<log>-monitor/ unless --out names one (gantry_twin.rundirs)
+    out = (
+        _checked_out(args.out)
+        if args.out is not None
+        else new_run_dir(_checked_out(RUNS_DIR / f"{Path(args.log).stem}-monitor"))
+    )
+    try:
+        data = command(args, None if args.scenario is None else _scenario_path(args.scenario), out)
+    except ValueError as exc:
+        raise BadInput(str(exc).splitlines()[0]) from None
+    if args.out is None:
+        point_latest(out)
+    print("\n".join([*format_health(data["health"]), f"results in {out}/ (summary.json)"]), flush=True)
+    return EXIT_ALARM if args.fail_on_alarm and data["health"]["alarms"] else EXIT_OK
+
+
 def _run(args: argparse.Namespace) -> int:
+    if args.scenario is None and args.command == "monitor":
+        raise BadInput("monitor: give a SCENARIO to run, or --log LOG")
+    if getattr(args, "baseline", None) is not None:
+        raise BadInput("--baseline: only with --log (a scenario names its baseline in monitor.baseline_summary)")
     path = _scenario_path(args.scenario)
     overrides = list(args.overrides)
     if args.command == "monitor":

@@ -32,12 +32,19 @@ and judges the estimates only where it finds enough excitation.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Protocol
 
 import numpy as np
 
 from gantry_twin._jit import kernel
-from gantry_twin.estimation import discretise_filter, filter_run, filtered_acceleration, friction_shape
+from gantry_twin.estimation import (
+    FilterDiscretisation,
+    discretise_filter,
+    filter_run,
+    filtered_acceleration,
+    friction_shape,
+)
 
 #: Parameter j belongs to axis AXIS_OF[j] and is column COLUMN_OF[j] of that axis' 4x4 block.
 AXIS_OF = np.array([0, 1, 0, 1, 0, 1, 0, 1])
@@ -121,27 +128,53 @@ class FilteredRegressors:
     def _start(self, q: np.ndarray, v: np.ndarray) -> None:
         sf = friction_shape(v, self.slope)
         for axis, disc in enumerate(self.discs):
-            lag = 2.0 * disc.zeta / disc.wn_rad_s
-            self.z[axis] = [[q[axis] - lag * v[axis], sf[axis], 1.0], [v[axis], 0.0, 0.0]]
+            self.z[axis] = filter_steady_state(disc, q[axis], v[axis], (sf[axis], 1.0))
 
     def _regressors(self, q, prev, velocity) -> tuple[np.ndarray, np.ndarray]:
         """The one place the estimator's filter functions are used (control-spec section 7)."""
         n = q.shape[0]
         g = np.empty((n, 2, 4))
         sf = friction_shape(velocity, self.slope)
-        zero, one = np.zeros(n), np.ones(n)
-        zq, zs, zc = (np.empty((n, 2)) for _ in range(3))
         for axis, disc in enumerate(self.discs):
-            z = self.z[axis]  # (2, 3): columns q, Sf, 1, as the estimator keeps them
-            ramp_q = (q[:, axis] - prev[:, axis]) / self.ts
-            filter_run(z, 0, disc.phi, disc.hold, disc.ramp, np.ascontiguousarray(prev[:, axis]), ramp_q, zq)
-            filter_run(z, 1, disc.phi, disc.hold, disc.ramp, np.ascontiguousarray(sf[:, axis]), zero, zs)
-            filter_run(z, 2, disc.phi, disc.hold, disc.ramp, one, zero, zc)
-            g[:, axis, 0] = filtered_acceleration(zq[:, 0], zq[:, 1], disc.wn_rad_s, disc.zeta, q[:, axis])
-            g[:, axis, 1] = zq[:, 1]
-            g[:, axis, 2] = zs[:, 0]
-            g[:, axis, 3] = -zc[:, 0]
+            held = np.stack([sf[:, axis], np.ones(n)], axis=1)
+            acc, vel, filtered = filter_axis(self.z[axis], disc, q[:, axis], prev[:, axis], held, self.ts)
+            g[:, axis, 0] = acc
+            g[:, axis, 1] = vel
+            g[:, axis, 2] = filtered[:, 0]
+            g[:, axis, 3] = -filtered[:, 1]
         return g, np.abs(g[:, :, 1])
+
+
+def filter_steady_state(disc: FilterDiscretisation, q_m: float, v_m_s: float, held: Sequence[float]) -> np.ndarray:
+    """Filter states (2, 1 + k) of one axis in steady state: the position moving at v, the k inputs held.
+
+    Columns as :func:`filter_axis` keeps them: [q, held...]; rows [w_f, w_f'].
+    """
+    lag = 2.0 * disc.zeta / disc.wn_rad_s
+    z = np.zeros((2, 1 + len(held)))
+    z[:, 0] = (q_m - lag * v_m_s, v_m_s)
+    z[0, 1:] = held
+    return z
+
+
+def filter_axis(
+    z: np.ndarray, disc: FilterDiscretisation, q: np.ndarray, prev: np.ndarray, held: np.ndarray, ts: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Advance one axis' filter states z (2, 1 + k) in place through n samples, as DIARC's estimator does.
+
+    Sample j: the position rises linearly from prev[j] to q[j] (first-order
+    hold), the k inputs held[j] (n, k) are held (zero-order hold). Returns
+    x_f'' (n,) at the sample time, x_f' (n,) and the filtered inputs (n, k).
+    """
+    n = q.shape[0]
+    zq, scratch = np.empty((n, 2)), np.empty((n, 2))
+    filtered = np.empty((n, held.shape[1]))
+    zero = np.zeros(n)
+    filter_run(z, 0, disc.phi, disc.hold, disc.ramp, np.ascontiguousarray(prev), (q - prev) / ts, zq)
+    for j in range(held.shape[1]):
+        filter_run(z, 1 + j, disc.phi, disc.hold, disc.ramp, np.ascontiguousarray(held[:, j]), zero, scratch)
+        filtered[:, j] = scratch[:, 0]
+    return filtered_acceleration(zq[:, 0], zq[:, 1], disc.wn_rad_s, disc.zeta, q), zq[:, 1].copy(), filtered
 
 
 def normalised_excitation(info: np.ndarray, scale: np.ndarray, window_s: float) -> tuple[np.ndarray, np.ndarray]:

@@ -49,7 +49,7 @@ def build(scenario: Scenario, source: str = "<scenario>") -> BuiltRun:
     """Compile the plant, make the controller and check the contour fits the travel."""
     changes = None if scenario.changes.empty else scenario.changes
     payload_body = changes is not None and bool(changes.payload_change)
-    plant = Plant(scenario.payload, payload_body=payload_body)
+    plant = _plant(scenario, payload_body, source)
     path = scenario.contour.path()
     _check_travel(plant, path, source)
     _check_samples(scenario, plant.timestep_s, source)
@@ -65,6 +65,22 @@ def build(scenario: Scenario, source: str = "<scenario>") -> BuiltRun:
     return BuiltRun(
         scenario, plant, path, scenario.timing_law(), controller, scenario.sensing, disturbance, changes, monitor
     )
+
+
+def _plant(scenario: Scenario, payload_body: bool, source: str) -> Plant:
+    """The compiled plant: the shipped model, or ``plant.file`` (relative to the scenario file)."""
+    if scenario.plant.file is None:
+        return Plant(scenario.payload, payload_body=payload_body)
+    path = Path(scenario.plant.file)
+    if not path.is_absolute() and Path(source).is_file():
+        path = Path(source).parent / path
+    if not path.is_file():
+        raise ScenarioError(source, "plant.file", f"{quote(str(path))}: no such file; give an MJCF model of the gantry")
+    try:
+        return Plant(scenario.payload, model_path=path, payload_body=payload_body)
+    except (ValueError, KeyError, TypeError) as exc:  # mujoco's errors, a missing named element
+        why = shorten(str(exc).splitlines()[0] if str(exc) else type(exc).__name__, 120)
+        raise ScenarioError(source, "plant.file", f"{quote(str(path))} is not a gantry model ({why})") from None
 
 
 def make_monitor(scenario: Scenario, controller: Controller, source: str = "<scenario>") -> MachineMonitor:

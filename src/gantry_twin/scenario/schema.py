@@ -237,6 +237,13 @@ class MonitorSpec(_Model):
     filter_hz: FilterHz | None = None
 
 
+class PlantSpec(_Model):
+    """The machine: ``file`` an MJCF model in place of models/gantry.xml (e.g. ``gantry-twin identify``'s
+    plant.xml), relative to the scenario file; None: the shipped model."""
+
+    file: str | None = None
+
+
 class OutputsSpec(_Model):
     """Where and what ``gantry-twin run`` writes: ``runs/<dir>/`` (default ``runs/<name>/``) unless ``--out``."""
 
@@ -255,6 +262,7 @@ class Scenario(_Model):
     name: Label | None = None
     description: str = ""
     contour: ContourSpec = CircleSpec()
+    plant: PlantSpec = PlantSpec()
     payload: Payload = Payload()
     disturbance: DisturbanceSpec = DisturbanceSpec()
     controller: ControllerSpec = ControllerSpec()

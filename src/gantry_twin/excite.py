@@ -1,0 +1,256 @@
+"""An identification trajectory, and running it on the twin: ``gantry-twin excite`` (docs/logs.md, issue 17).
+
+The trajectory is a multisine per axis, faded in and out, starting and
+ending at rest at the centre of travel:
+
+    x_d(t) = w(t) sum_k A_k sin(2 pi f_k t + phi_k)
+
+with the frequencies of the two axes interleaved (no common frequency, so
+the axes' responses are not correlated), equal velocity amplitudes
+(A_k proportional to 1 / f_k: every speed from zero up is visited, which
+separates viscous from Coulomb friction), Schroeder phases (a low crest
+factor) and w(t) a quintic smoothstep over ``fade_s`` at each end. Each
+axis is then scaled to the tightest of three limits: position within the
+travel less a margin, speed, and the nominal command (a budget below the
+10 V DAC range computed with the heaviest parameters the trajectory must
+cope with, so that the real machine has headroom for its feedback).
+
+The twin runs it in closed loop on the PD controller (its feed-forward at
+the nominal parameters, its feedback stiff enough to keep the carriages on
+the trajectory within micrometres): this is how a user runs it on a
+machine, whose controller must stay in charge for safety; an open-loop
+drive would need its own position guard and drifts with any friction
+mismatch. The log it writes has the encoder positions, the commands and
+the desired positions.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from gantry_twin.logs import write_columns, write_log
+from gantry_twin.paths import TimingLaw
+from gantry_twin.plant import Payload, Plant
+
+#: Position limit of the trajectory, m: the 255 mm half travel less a margin for the tracking error.
+POSITION_LIMIT_M = 0.2
+#: Speed limit, m/s.
+SPEED_LIMIT_M_S = 0.5
+#: Nominal command budget, V: M a + B v + Af of the heaviest machine the trajectory is sized for
+#: (:func:`budget_theta`), leaving the rest of the +-10 V DAC range to the feedback.
+COMMAND_BUDGET_V = 6.0
+#: The frequencies of the multisine, Hz, as multiples of 1 / duration: X takes the odd entries, Y the even.
+FREQUENCY_RANGE_HZ = (0.2, 5.0)
+FREQUENCIES_PER_AXIS = 8
+#: The payload, kg, of the heaviest machine the command budget is computed for.
+BUDGET_PAYLOAD_KG = 10.0
+
+
+@dataclass(frozen=True)
+class Multisine:
+    """A path p(phi) with phi the time in seconds (``TimingLaw(1.0)``): the trajectory of the module docstring.
+
+    frequencies_hz, amplitudes_m, phases_rad: (2, K) per axis; duration_s, fade_s: the fade window.
+    """
+
+    frequencies_hz: np.ndarray
+    amplitudes_m: np.ndarray
+    phases_rad: np.ndarray
+    duration_s: float
+    fade_s: float
+
+    @property
+    def period_rad(self) -> float:
+        return self.duration_s
+
+    def derivatives(self, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """p, p', p'', p''' (..., 2) at times phi (s): the sines times the fade window (Leibniz' rule)."""
+        t = np.asarray(phi, dtype=float)
+        s = _sines(self, t)
+        w = _window(t, self.duration_s, self.fade_s)
+        p = w[0][..., None] * s[0]
+        dp = w[1][..., None] * s[0] + w[0][..., None] * s[1]
+        ddp = w[2][..., None] * s[0] + 2 * w[1][..., None] * s[1] + w[0][..., None] * s[2]
+        dddp = w[3][..., None] * s[0] + 3 * w[2][..., None] * s[1] + 3 * w[1][..., None] * s[2] + w[0][..., None] * s[3]
+        return p, dp, ddp, dddp
+
+
+def _sines(m: Multisine, t: np.ndarray) -> list[np.ndarray]:
+    """The sum of sines per axis and its first three time derivatives, each (..., 2)."""
+    omega = 2.0 * np.pi * m.frequencies_hz  # (2, K)
+    arg = t[..., None, None] * omega + m.phases_rad  # (..., 2, K)
+    sin, cos = np.sin(arg), np.cos(arg)
+    a = m.amplitudes_m
+    return [
+        (a * sin).sum(-1),
+        (a * omega * cos).sum(-1),
+        (-a * omega**2 * sin).sum(-1),
+        (-a * omega**3 * cos).sum(-1),
+    ]
+
+
+def _window(t: np.ndarray, duration_s: float, fade_s: float) -> list[np.ndarray]:
+    """w, w', w'', w''': a quintic smoothstep up over [0, fade] and down over [duration - fade, duration]."""
+    up = _smoothstep(t / fade_s, fade_s)
+    down = _smoothstep((duration_s - t) / fade_s, fade_s)
+    # w = up * down (they never overlap when duration >= 2 fade); down's derivatives change sign with t.
+    d = [down[0], -down[1], down[2], -down[3]]
+    return [
+        up[0] * d[0],
+        up[1] * d[0] + up[0] * d[1],
+        up[2] * d[0] + 2 * up[1] * d[1] + up[0] * d[2],
+        up[3] * d[0] + 3 * up[2] * d[1] + 3 * up[1] * d[2] + up[0] * d[3],
+    ]
+
+
+def _smoothstep(tau: np.ndarray, scale_s: float) -> list[np.ndarray]:
+    """10 tau^3 - 15 tau^4 + 6 tau^5 on [0, 1] (0 before, 1 after) and its time derivatives (tau = t / scale)."""
+    x = np.clip(tau, 0.0, 1.0)
+    inside = (tau > 0.0) & (tau < 1.0)
+    return [
+        10 * x**3 - 15 * x**4 + 6 * x**5,
+        np.where(inside, (30 * x**2 - 60 * x**3 + 30 * x**4) / scale_s, 0.0),
+        np.where(inside, (60 * x - 180 * x**2 + 120 * x**3) / scale_s**2, 0.0),
+        np.where(inside, (60 - 360 * x + 360 * x**2) / scale_s**3, 0.0),
+    ]
+
+
+def budget_theta() -> np.ndarray:
+    """The heaviest machine the trajectory is sized for: the twin's with a BUDGET_PAYLOAD_KG payload and
+    B, Af +30 % (volt units, theta order)."""
+    theta = Plant(Payload(mass_kg=BUDGET_PAYLOAD_KG)).true_parameters()
+    theta[2:6] *= 1.3
+    return theta
+
+
+def design(duration_s: float = 20.0, fade_s: float = 1.0, theta: np.ndarray | None = None) -> Multisine:
+    """The multisine of the module docstring for a run of ``duration_s``, scaled to the limits."""
+    if not (math.isfinite(duration_s) and duration_s >= 4.0 * fade_s and fade_s > 0.0):
+        raise ValueError(f"duration_s: must be at least 4 fade_s = {4 * fade_s:g} s, got {duration_s:g}")
+    theta = budget_theta() if theta is None else theta
+    base = 1.0 / duration_s
+    lo, hi = FREQUENCY_RANGE_HZ
+    grid = np.unique(np.round(np.geomspace(lo, hi, 2 * FREQUENCIES_PER_AXIS) / base)) * base
+    grid = grid[: 2 * (grid.size // 2)]
+    freqs = np.stack([grid[0::2], grid[1::2]])
+    k = np.arange(freqs.shape[1])
+    phases = np.stack([-np.pi * k * (k + 1) / k.size, -np.pi * k * (k + 1) / k.size + np.pi / 3])  # Schroeder
+    amps = 1.0 / (2.0 * np.pi * freqs)  # equal velocity amplitude per component
+    shape = Multisine(freqs, amps, phases, duration_s, fade_s)
+    t = np.arange(0.0, duration_s, 1e-3)
+    p, dp, ddp, _ = shape.derivatives(t)
+    volts = theta[0:2] * np.abs(ddp) + theta[2:4] * np.abs(dp) + theta[4:6]
+    scale = np.minimum.reduce(
+        [
+            POSITION_LIMIT_M / np.abs(p).max(axis=0),
+            SPEED_LIMIT_M_S / np.abs(dp).max(axis=0),
+            (COMMAND_BUDGET_V - theta[4:6]) / (volts - theta[4:6]).max(axis=0),
+        ]
+    )
+    return Multisine(freqs, amps * scale[:, None], phases, duration_s, fade_s)
+
+
+def trajectory_table(path: Multisine, sample_period_s: float) -> dict[str, np.ndarray]:
+    """The trajectory users run on their machine: t_s, x_d_m, y_d_m and its velocity and acceleration."""
+    t = np.arange(int(round(path.duration_s / sample_period_s)) + 1) * sample_period_s
+    p, dp, ddp, _ = path.derivatives(t)
+    return {
+        "t_s": t,
+        "x_d_m": p[:, 0],
+        "y_d_m": p[:, 1],
+        "vx_d_m_s": dp[:, 0],
+        "vy_d_m_s": dp[:, 1],
+        "ax_d_m_s2": ddp[:, 0],
+        "ay_d_m_s2": ddp[:, 1],
+    }
+
+
+def perturbed_plant(
+    payload_kg: float = 0.0,
+    viscous_scale: tuple[float, float] = (1.0, 1.0),
+    coulomb_scale: tuple[float, float] = (1.0, 1.0),
+    model_path: Path | None = None,
+) -> Plant:
+    """The twin with a payload and its joint damping (B) and frictionloss (Af) scaled per axis (X, Y)."""
+    plant = Plant(Payload(mass_kg=payload_kg), model_path=model_path)
+    dofs = plant.dof_index
+    plant.model.dof_damping[dofs] *= np.asarray(viscous_scale, dtype=float)
+    plant.model.dof_frictionloss[dofs] *= np.asarray(coulomb_scale, dtype=float)
+    return plant
+
+
+def random_plant(rng: np.random.Generator) -> Plant:
+    """A twin drawn as issue 17's acceptance draws them: payload uniform in 0-10 kg, each axis' B and Af
+    uniform within +-30 % of the model's."""
+    payload = float(rng.uniform(0.0, 10.0))
+    return perturbed_plant(payload, tuple(rng.uniform(0.7, 1.3, 2)), tuple(rng.uniform(0.7, 1.3, 2)))
+
+
+def run_on_twin(path: Multisine, plant: Plant, sensing=None):
+    """Run the trajectory on the twin under PD control (module docstring); the trace."""
+    from gantry_twin.controllers import create
+    from gantry_twin.simulate import simulate
+
+    with np.errstate(invalid="ignore", divide="ignore"):  # the tangent angle at rest (both axes stopped) is 0/0
+        return simulate(plant, path, TimingLaw(1.0), create("pd"), duration_s=path.duration_s, sensing=sensing)
+
+
+def log_of(trace) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A trace as a log's columns: t_s, u_v, encoder positions, desired positions."""
+    n = trace.filled
+    return trace.t_s[:n], trace.u_v[:n], trace.q_meas_m[:n], trace.q_d_m[:n]
+
+
+# -- the command ---------------------------------------------------------------------------------
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--out", metavar="DIR", type=Path, required=True, help="output directory")
+    parser.add_argument("--duration-s", type=float, default=20.0, help="length of the trajectory, s (default 20)")
+    parser.add_argument("--fade-s", type=float, default=1.0, help="fade in and out, s (default 1)")
+    parser.add_argument(
+        "--payload-kg", type=float, default=0.0, help="payload of the twin that runs it, kg (default 0)"
+    )
+    parser.add_argument("--plant", metavar="XML", type=Path, help="the twin's MJCF (e.g. an identified plant.xml)")
+    parser.add_argument("--no-run", action="store_true", help="write the trajectory only")
+
+
+def command(args: argparse.Namespace) -> int:
+    """Write DIR/trajectory.csv and (unless --no-run) DIR/log.parquet from the twin. Exit code."""
+    from gantry_twin.trace import SimulationError
+
+    out: Path = args.out
+    try:
+        path = design(args.duration_s, args.fade_s)
+        payload = Payload(mass_kg=args.payload_kg)
+        try:
+            plant = Plant(payload, model_path=args.plant)
+        except (ValueError, KeyError) as exc:
+            raise ValueError(f"--plant {args.plant}: not a gantry model ({str(exc).splitlines()[0]})") from None
+        if out.exists() and not out.is_dir():
+            raise ValueError(f"--out {out}: exists and is not a directory")
+    except ValueError as exc:  # a bad option, or a --plant file that is not a gantry model
+        print(f"gantry-twin: error: {str(exc).splitlines()[0]}", file=sys.stderr)
+        return 2
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        write_columns(out / "trajectory.csv", trajectory_table(path, plant.timestep_s))
+        print(f"trajectory ({path.duration_s:g} s) in {out / 'trajectory.csv'}")
+        if args.no_run:
+            return 0
+        trace = run_on_twin(path, plant)
+        write_log(out / "log.parquet", *log_of(trace))
+    except OSError as exc:
+        print(f"gantry-twin: error: --out {out}: cannot write there ({exc.strerror or exc})", file=sys.stderr)
+        return 2
+    except SimulationError as exc:
+        print(f"gantry-twin: run failed: {exc}", file=sys.stderr)
+        return 1
+    print(f"log of the twin running it in {out / 'log.parquet'}")
+    return 0

@@ -1,0 +1,322 @@
+"""Identify the plant from logs: M, B, Af per axis by least squares on filtered signals (issue 17).
+
+The model (control-spec section 1), per axis, in volts:
+
+    M q'' + B q' + Af sign(q') + dN = u           (while the axis slides)
+
+Both sides pass through the estimator's filter Hf(s) = wn^2 / (s^2 + 2 z wn s
++ wn^2), discretised exactly as DIARC's estimator does it
+(:func:`gantry_twin.excitation.filter_axis`: the position with a first-order
+hold, u, the friction shape and the constant held), which gives the linear
+regression of eq. (25), one row per sample:
+
+    u_f = [x_f'', x_f', Sf_f, -1_f] [M, B, Af, dN]^T
+
+Offline, two things are done better than on line:
+
+* the friction shape Sf is that of a smoothed, centred velocity (the
+  difference over ``velocity_half_width`` samples each side: the encoder's
+  0.5 um steps then resolve 0.3 mm/s instead of 2.5 mm/s), with a steep slope
+  (MuJoCo's and a machine's dry friction is sign(v), not the controller's
+  atan model);
+* samples whose filter memory (``stick_memory_s``) holds a slow sample
+  (|v| below ``sliding_speed_m_s``: the axis may stick, where friction is any
+  force up to Af) are left out.
+
+dN is estimated with the rest (a constant force: cable carriers, a tilt)
+and reported. The 95 % intervals come from the regression with a
+heteroscedasticity and autocorrelation consistent covariance (Newey-West,
+Bartlett weights over ``hac_lag_s``): the filtered residuals are correlated
+over the filter's memory, and the ordinary formula would claim intervals
+several times too narrow. They cover the noise of the data, not a model
+that does not fit (the fit report's residuals show that).
+
+``--friction lugre`` (the LuGre parameters, a nonlinear fit) needs the LuGre
+friction of issue 15 in the model; :data:`FRICTION_MODELS` is where it goes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from gantry_twin.estimation import discretise_filter, friction_shape
+from gantry_twin.excitation import filter_axis, filter_steady_state
+from gantry_twin.fit_report import WINDOW_S, Replay, replay, write_figures
+from gantry_twin.logs import Log, centred_velocity, read_log
+from gantry_twin.plant import AXES, THETA_NAMES, THETA_UNITS, Plant, build_spec, moving_masses_kg
+from gantry_twin.results import atomic_write_text
+
+#: Columns of one axis' regression, in THETA_NAMES' per-axis order.
+COLUMNS = ("M", "B", "Af", "dN")
+#: The two-sided 95 % quantile of the normal distribution.
+Z95 = 1.959963984540054
+
+
+@dataclass(frozen=True)
+class IdentifySettings:
+    """How :func:`identify` filters and selects the samples (module docstring).
+
+    filter_hz: Hf per axis, Hz (the recommended estimator's 50 Hz keeps the
+    encoder's quantisation out of x_f''); filter_zeta: its damping.
+    friction_slope_s_m: slope of Sf(v) = (2/pi) atan(slope v), s/m.
+    velocity_half_width: samples each side of the centred velocity.
+    sliding_speed_m_s, stick_memory_s: the samples left out (module docstring).
+    hac_lag_s: the lag over which the residuals are taken as correlated, s.
+    """
+
+    filter_hz: tuple[float, float] = (50.0, 50.0)
+    filter_zeta: float = 0.7
+    friction_slope_s_m: float = 1.0e6
+    velocity_half_width: int = 5
+    sliding_speed_m_s: float = 2.0e-3
+    stick_memory_s: float = 0.03
+    hac_lag_s: float = 0.05
+
+
+@dataclass(frozen=True)
+class AxisRegression:
+    """One axis' filtered regression over the samples kept: rows X (n, 4), target y (n,), and the log's index."""
+
+    x: np.ndarray
+    y: np.ndarray
+    log_index: np.ndarray
+
+
+@dataclass(frozen=True)
+class Identified:
+    """The result: theta (8,) in THETA_NAMES' order, volt units; ci95 (8, 2); samples used per axis; settings."""
+
+    theta: np.ndarray
+    ci95: np.ndarray
+    samples_used: tuple[int, int]
+    residual_rms_v: tuple[float, float]
+    settings: IdentifySettings
+
+    def parameters(self) -> dict[str, dict[str, object]]:
+        """identified.json's ``parameters``: {name: {value, ci95: [lo, hi], unit}}."""
+        return {
+            name: {"value": float(self.theta[j]), "ci95": [float(x) for x in self.ci95[j]], "unit": THETA_UNITS[j]}
+            for j, name in enumerate(THETA_NAMES)
+        }
+
+
+def axis_regressions(logs: Sequence[Log], settings: IdentifySettings) -> list[AxisRegression]:
+    """The filtered regression of each axis over all logs, the samples left out removed (module docstring)."""
+    rows: list[list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = [[], []]
+    for index, log in enumerate(logs):
+        ts = log.sample_period_s
+        v = centred_velocity(log.q_m, settings.velocity_half_width, ts)  # (N, 2); v[k]: interval k-1 -> k
+        memory = max(1, int(round(settings.stick_memory_s / ts)))
+        for axis in range(2):
+            disc = discretise_filter(2.0 * np.pi * settings.filter_hz[axis], settings.filter_zeta, ts)
+            q, u = log.q_m[:, axis], log.u_v[:, axis]
+            sf = friction_shape(v[:, axis], settings.friction_slope_s_m)
+            z = filter_steady_state(disc, q[0], v[0, axis], (sf[0], 1.0, u[0]))
+            held = np.stack([sf[1:], np.ones(q.size - 1), u[:-1]], axis=1)  # over interval k-1 -> k: u[k-1]
+            acc, vel, filtered = filter_axis(z, disc, q[1:], q[:-1], held, ts)
+            x = np.stack([acc, vel, filtered[:, 0], -filtered[:, 1]], axis=1)
+            slow = (np.abs(v[1:, axis]) < settings.sliding_speed_m_s).astype(float)
+            recent = np.convolve(slow, np.ones(memory + 1))[: slow.size] > 0.0  # a slow sample within memory
+            keep = ~recent
+            keep[: 4 * memory] = False  # the filters' start
+            rows[axis].append((x[keep], filtered[keep, 2], np.full(int(keep.sum()), index)))
+    return [AxisRegression(*(np.concatenate([r[i] for r in rows[a]]) for i in range(3))) for a in range(2)]
+
+
+def hac_covariance(x: np.ndarray, residual: np.ndarray, groups: np.ndarray, lag: int) -> np.ndarray:
+    """Newey-West covariance of the least-squares solution (Bartlett weights up to ``lag``), per group summed."""
+    bread = np.linalg.inv(x.T @ x)
+    meat = np.zeros((x.shape[1], x.shape[1]))
+    for g in np.unique(groups):
+        h = x[groups == g] * residual[groups == g][:, None]
+        meat += h.T @ h
+        for j in range(1, min(lag, h.shape[0] - 1) + 1):
+            c = h[j:].T @ h[:-j]
+            meat += (1.0 - j / (lag + 1.0)) * (c + c.T)
+    return bread @ meat @ bread
+
+
+def identify(logs: Sequence[Log], settings: IdentifySettings | None = None) -> Identified:
+    """M, B, Af, dN of both axes from the logs (module docstring)."""
+    settings = settings or IdentifySettings()
+    theta, ci = np.zeros(8), np.zeros((8, 2))
+    used, rms = [], []
+    ts = min(log.sample_period_s for log in logs)
+    for axis, reg in enumerate(axis_regressions(logs, settings)):
+        if reg.y.size < 10 * len(COLUMNS):
+            raise ValueError(
+                f"{AXES[axis]} axis: only {reg.y.size} samples while sliding; the logs must move the axis "
+                f"faster than {settings.sliding_speed_m_s * 1e3:g} mm/s both ways"
+            )
+        scale = np.sqrt((reg.x**2).mean(axis=0))  # columns of unit rms: a well-conditioned solve
+        solution, *_ = np.linalg.lstsq(reg.x / scale, reg.y, rcond=None)
+        beta = solution / scale
+        residual = reg.y - reg.x @ beta
+        cov = hac_covariance(reg.x, residual, reg.log_index, max(1, int(round(settings.hac_lag_s / ts))))
+        half = Z95 * np.sqrt(np.clip(np.diag(cov), 0.0, None))
+        for c in range(len(COLUMNS)):
+            j = 2 * c + axis
+            theta[j] = beta[c]
+            ci[j] = (beta[c] - half[c], beta[c] + half[c])
+        used.append(int(reg.y.size))
+        rms.append(float(np.sqrt(np.mean(residual**2))))
+    return Identified(theta, ci, (used[0], used[1]), (rms[0], rms[1]), settings)
+
+
+# -- the plant file -------------------------------------------------------------------------------
+
+
+def plant_xml(theta: np.ndarray, note: str = "", model_path: Path | None = None) -> str:
+    """The MJCF of the gantry with identified M, B, Af (volt units), as text.
+
+    The moving masses are met by changing the carriages' masses (X: M1 gear;
+    Y, which carries X: M2 gear in all), damping = B gear, frictionloss =
+    Af gear. dN has no place in the model (the twin has no constant force):
+    it is reported, not written. ValueError if the masses cannot be met
+    (M2 <= M1: the Y axis moves the X carriage too).
+    """
+    spec = build_spec(None, model_path)
+    model = spec.compile()
+    dofs = np.array([model.joint(a).dofadr[0] for a in AXES])
+    gear = model.actuator_gear[[model.actuator(f"{a}_motor").id for a in AXES], 0]
+    target_kg = theta[0:2] * gear
+    now_kg = moving_masses_kg(model, dofs)
+    dx = target_kg[0] - now_kg[0]
+    dy = target_kg[1] - now_kg[1] - dx
+    x_body, y_body = spec.body("x_carriage"), spec.body("y_carriage")
+    if x_body.mass + dx <= 0.0 or y_body.mass + dy <= 0.0:
+        raise ValueError(f"M1 = {theta[0]:.4g}, M2 = {theta[1]:.4g} V/(m/s^2): no positive carriage masses give them")
+    x_body.mass += dx
+    y_body.mass += dy
+    for i, axis in enumerate(AXES):
+        joint = spec.joint(axis)
+        damping = np.array(joint.damping, dtype=float)  # MuJoCo keeps room for more terms: the first is viscous
+        damping[0] = theta[2 + i] * gear[i]
+        joint.damping = damping
+        joint.frictionloss = float(theta[4 + i] * gear[i])
+    comment = (note or "identified plant").replace("--", "- -")
+    return f"<!-- {comment} -->\n{spec.to_xml()}"
+
+
+# -- the command ----------------------------------------------------------------------------------
+
+IDENTIFIED_FILE = "identified.json"
+PLANT_FILE = "plant.xml"
+REPORT_FILE = "fit_report.md"
+#: The friction models ``--friction`` names: coulomb (this module). lugre: the LuGre parameters by a
+#: nonlinear fit over the LuGre dcmotor of issue 15, not yet in the model.
+FRICTION_MODELS = ("coulomb", "lugre")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("logs", nargs="+", metavar="LOG", help="log files (parquet or CSV, docs/logs.md)")
+    parser.add_argument("--out", metavar="DIR", type=Path, required=True, help="output directory")
+    parser.add_argument(
+        "--friction", choices=FRICTION_MODELS, default="coulomb", help="friction model to identify (default coulomb)"
+    )
+    parser.add_argument(
+        "--filter-hz", type=float, default=IdentifySettings.filter_hz[0], help="Hf's natural frequency, Hz"
+    )
+    parser.add_argument("--window-s", type=float, default=WINDOW_S, help="replay window of the fit report, s")
+
+
+def command(args: argparse.Namespace) -> int:
+    """``gantry-twin identify``: exit 0, or 2 with one line on stderr for a bad log or option."""
+    try:
+        if args.friction != "coulomb":
+            raise ValueError(
+                f"--friction {args.friction}: needs the LuGre friction model in models/gantry.xml (issue 15); "
+                "only coulomb is available"
+            )
+        if not (5.0 <= args.filter_hz <= 500.0):
+            raise ValueError(f"--filter-hz: must be in [5, 500] Hz, got {args.filter_hz:g}")
+        if not (0.0 < args.window_s <= 3600.0):
+            raise ValueError(f"--window-s: must be in (0, 3600] s, got {args.window_s:g}")
+        if args.out.exists() and not args.out.is_dir():
+            raise ValueError(f"--out {args.out}: exists and is not a directory")
+        logs = [read_log(p) for p in args.logs]
+        settings = IdentifySettings(filter_hz=(args.filter_hz, args.filter_hz))
+        result = identify(logs, settings)
+        note = "gantry-twin identify from " + ", ".join(str(p) for p in args.logs)
+        xml = plant_xml(result.theta, note)
+    except ValueError as exc:  # LogError included
+        print(f"gantry-twin: error: {str(exc).splitlines()[0]}", file=sys.stderr)
+        return 2
+    out: Path = args.out
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(out / PLANT_FILE, xml)
+        plant = Plant(model_path=out / PLANT_FILE)
+        replays = [replay(plant, log, args.window_s) for log in logs]
+        figures = write_figures(replays, out)
+        data = identified_json(result, logs, replays, figures)
+        atomic_write_text(out / IDENTIFIED_FILE, json.dumps(data, indent=2) + "\n")
+        atomic_write_text(out / REPORT_FILE, fit_markdown(data))
+    except OSError as exc:
+        print(f"gantry-twin: error: --out {out}: cannot write there ({exc.strerror or exc})", file=sys.stderr)
+        return 2
+    print(format_identified(data, out))
+    return 0
+
+
+def identified_json(
+    result: Identified, logs: Sequence[Log], replays: Sequence[Replay], figures: Sequence[str]
+) -> dict[str, object]:
+    """identified.json's content (docs/logs.md)."""
+    return {
+        "parameters": result.parameters(),
+        "friction": "coulomb",
+        "plant_file": PLANT_FILE,
+        "scenario": {"plant": {"file": PLANT_FILE}},
+        "logs": [
+            {
+                "path": log.path,
+                "samples": log.samples,
+                "sample_period_s": log.sample_period_s,
+                "duration_s": log.duration_s,
+            }
+            for log in logs
+        ],
+        "samples_used": dict(zip(AXES, result.samples_used, strict=True)),
+        "regression_residual_rms_v": dict(zip(AXES, result.residual_rms_v, strict=True)),
+        "settings": asdict(result.settings),
+        "fit": [
+            {"path": r.path, "window_s": r.window_s, "rms_um": r.rms_um(), "max_um": r.max_um(), "figure": f}
+            for r, f in zip(replays, figures, strict=True)
+        ],
+    }
+
+
+def format_identified(data: dict, out: Path) -> str:
+    lines = ["parameter        value        ci95                      unit"]
+    for name, p in data["parameters"].items():
+        lo, hi = p["ci95"]
+        lines.append(f"  {name:<4} {p['value']:14.6g}  [{lo:.6g}, {hi:.6g}]  {p['unit']}")
+    for f in data["fit"]:
+        rms = ", ".join(f"{a} {v:.3g}" for a, v in f["rms_um"].items())
+        lines.append(f"replay of {Path(f['path']).name} in {f['window_s']:g} s windows: residual rms {rms} um")
+    files = [IDENTIFIED_FILE, PLANT_FILE, REPORT_FILE, *(f["figure"] for f in data["fit"])]
+    lines.append(f"results in {out}/ ({', '.join(files)})")
+    return "\n".join(lines)
+
+
+def fit_markdown(data: dict) -> str:
+    """fit_report.md: the parameters and the replay of each log."""
+    lines = ["# Identified plant", "", "| parameter | value | ci95 | unit |", "|---|---|---|---|"]
+    for name, p in data["parameters"].items():
+        lines.append(f"| {name} | {p['value']:.6g} | [{p['ci95'][0]:.6g}, {p['ci95'][1]:.6g}] | {p['unit']} |")
+    lines += ["", f"Plant file: `{PLANT_FILE}` (a scenario uses it with `plant: {{file: {PLANT_FILE}}}`).", ""]
+    lines += ["## Replay of the logged commands", "", "| log | window s | rms x um | rms y um | max x um | max y um |"]
+    lines.append("|---|---|---|---|---|---|")
+    for f in data["fit"]:
+        r, m = f["rms_um"], f["max_um"]
+        lines.append(f"| {f['path']} | {f['window_s']:g} | {r['x']:.3g} | {r['y']:.3g} | {m['x']:.3g} | {m['y']:.3g} |")
+    lines += [""] + [f"![{f['path']}]({f['figure']})" for f in data["fit"]]
+    return "\n".join(lines) + "\n"
