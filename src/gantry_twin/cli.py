@@ -1,4 +1,4 @@
-"""The command line: ``gantry-twin run | monitor | validate | report | sweep`` (docs/cli.md, docs/sweeps.md).
+"""The command line: ``gantry-twin run | monitor | validate | report | sweep | scenarios`` (docs/cli.md, sweeps.md).
 
 Exit codes: 0 success; 2 bad input (one line on stderr naming the file, the
 field and what is allowed; nothing written), an output directory that
@@ -26,6 +26,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, NoReturn
 
+from gantry_twin.compiling import compile_notice
+from gantry_twin.controllers import available
 from gantry_twin.events import touched_end_stop, travel_warnings
 from gantry_twin.monitor import Alarm
 from gantry_twin.ranges import shorten
@@ -36,9 +38,10 @@ from gantry_twin.scenario import (
     ScenarioError,
     build,
     load_scenario,
+    resolve_scenario,
     shipped,
 )
-from gantry_twin.simulate import loop_needs_compiling
+from gantry_twin.scenario import listing as scenario_listing
 from gantry_twin.telemetry import TelemetryError, add_telemetry_arguments, telemetry_observers
 from gantry_twin.trace import RunInfo, Trace
 
@@ -119,12 +122,14 @@ def _progress(args: argparse.Namespace) -> ProgressBar:
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog=PROG, description="MuJoCo digital twin of a biaxial linear-motor gantry.")
     sub = parser.add_subparsers(
-        dest="command", required=True, metavar="{run,monitor,validate,report,sweep}", parser_class=_Parser
+        dest="command", required=True, metavar="{run,monitor,validate,report,sweep,scenarios}", parser_class=_Parser
     )
 
     run = sub.add_parser("run", help="run a scenario and write its results")
     run.add_argument(
-        "scenario", nargs="?", help=f"scenario YAML file or shipped scenario name (default: {DEFAULT_SCENARIO})"
+        "scenario",
+        nargs="?",
+        help=f"scenario YAML file or shipped scenario name ({PROG} scenarios lists them; default: {DEFAULT_SCENARIO})",
     )
     _add_controller(run)
     _add_set(run)
@@ -134,7 +139,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_telemetry_arguments(run)
 
     monitor = sub.add_parser("monitor", help="run a scenario with the health monitor and report its alarms")
-    monitor.add_argument("scenario", help="scenario YAML file or shipped scenario name")
+    monitor.add_argument("scenario", help=f"scenario YAML file or shipped scenario name ({PROG} scenarios lists them)")
     _add_controller(monitor)
     _add_set(monitor)
     _add_out(monitor)
@@ -171,6 +176,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sweep.add_argument("--resume", action="store_true", help="run only the points DIR/results.parquet lacks")
     _add_progress(sweep)
+
+    scenario_listing.add_arguments(sub.add_parser("scenarios", help="list the shipped scenarios, one line each"))
     return parser
 
 
@@ -184,7 +191,8 @@ def _add_progress(parser: argparse.ArgumentParser) -> None:
 
 
 def _add_controller(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--controller", metavar="NAME", help="controller to use instead of the scenario's")
+    names = ", ".join(available())  # registered and entry-point names; no plug-in is imported
+    parser.add_argument("--controller", metavar="NAME", help=f"controller to use instead of the scenario's: {names}")
 
 
 def _add_out(parser: argparse.ArgumentParser) -> None:
@@ -218,6 +226,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                 return _validate(args)
             if args.command == "sweep":
                 return _sweep(args)
+            if args.command == "scenarios":
+                return scenario_listing.command(args)
             return _report(args)
     except (ScenarioError, BadInput, TelemetryError) as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
@@ -232,10 +242,10 @@ def _scenario_path(arg: str | None) -> Path:
     """A file path, or the name of a shipped scenario (``no_load_circle``) when no such file exists."""
     if arg is None:
         return shipped(DEFAULT_SCENARIO)
-    path = Path(arg)
-    if not path.exists() and "/" not in arg and shipped(arg).is_file():
-        return shipped(arg)
-    return path
+    try:
+        return resolve_scenario(arg)
+    except FileNotFoundError as exc:
+        raise BadInput(str(exc)) from None
 
 
 def _validate(args: argparse.Namespace) -> int:
@@ -301,11 +311,10 @@ def _run(args: argparse.Namespace) -> int:
     with _writer(out, built) as writer:
         telemetry = telemetry_observers(args)  # checks every option before anything runs
         _announce_large_trace(built)
-        if loop_needs_compiling(built.controller):
-            print(f"{PROG}: compiling the 0.2 ms loop for this machine, once (about 25 s)", file=sys.stderr, flush=True)
+        notice = compile_notice(built.controller, PROG)  # a line, and a count of seconds, if the loop compiles first
         with telemetry:
             try:
-                outcome = writer.run([_progress(args), *telemetry])
+                outcome = writer.run([notice, _progress(args), *telemetry])
             except Exception as exc:  # the run or the writing failed: not the user's input
                 return _failed("run", exc)
             if outcome.failed:
