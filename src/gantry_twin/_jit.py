@@ -110,13 +110,13 @@ def is_cached(function: Callable[..., Any]) -> bool:
     and compiles. Any argument types count (a loop's types are fixed by its
     controller's step).
     """
-    cache = getattr(function, "_cache", None)
-    index = getattr(cache, "_cache_file", None)
-    if index is None:  # not a cached kernel, or numba's cache internals changed: assume a compile
+    try:
+        cache = function._cache
+        codegen = function.targetctx.codegen()
+        wanted = cache._index_key(None, codegen)[1:]  # (machine, (bytecode hash, closure hash)); [0]: the signature
+        return any(key[1:] == wanted for key in cache._cache_file._load_index())
+    except (AttributeError, TypeError, OSError):  # not a cached kernel, or numba's internals changed: assume a compile
         return False
-    codegen = function.targetctx.codegen()
-    wanted = cache._index_key(None, codegen)[1:]  # (machine, (bytecode hash, closure hash)); [0] is the signature
-    return any(key[1:] == wanted for key in index._load_index())
 
 
 _reference_functions: dict[int, types.FunctionType] = {}

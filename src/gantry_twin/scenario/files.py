@@ -48,7 +48,7 @@ def resolve_scenario(arg: str) -> Path:
     nearest shipped name if one is close (``no_load_circl``).
     """
     path = Path(arg)
-    if path.exists() or "/" in arg:
+    if path.exists() or path.is_symlink() or "/" in arg:  # a file (a broken link too: reading it says why)
         return path
     if shipped(arg).is_file():
         return shipped(arg)
