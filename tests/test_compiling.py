@@ -109,5 +109,7 @@ def test_a_fresh_install_path_announces_its_compile(tmp_path):
     assert compile_message("gantry-twin") in runs[0].stderr
     assert "compiling" not in runs[1].stderr
     second = _install(tmp_path / "b")
-    assert _python(second, cache, NEEDS).stdout.split() == ["True"]  # the first path's cache is not this one's
     assert _python(first, cache, NEEDS).stdout.split() == ["False"]
+    assert _python(second, cache, NEEDS).stdout.split() == ["True"]  # the first path's cache is not this one's
+    again = _python(second, cache, RUN, *args, "--out", str(tmp_path / "out2"))  # the same cache, another install
+    assert again.returncode == 0 and compile_message("gantry-twin") in again.stderr
