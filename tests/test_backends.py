@@ -270,22 +270,23 @@ def test_plant_changes_compiled_equals_reference_and_restore_the_model():
     assert a.true_theta_t[-1, 3] == pytest.approx(0.91) and a.true_theta_t[-1, 0] == pytest.approx(0.12 + 5 / 69)
 
 
-def test_loop_needs_compiling_reads_the_kernel_cache(tmp_path, monkeypatch):
-    """An empty cache means a compile before the first step; numba's index file of the chunk kernel means none."""
-    from gantry_twin import _jit
+def test_loop_needs_compiling_asks_the_cache_for_the_controllers_chunk_kernel(monkeypatch):
+    """A compile is announced when numba's cache lacks this controller's chunk kernel (the cache check itself:
+    tests/test_compiling.py); a subclass with the same compiled step shares its kernel."""
+    import importlib
+
     from gantry_twin.controllers.base import compiled_step_of
     from gantry_twin.simulate import chunk_kernel, compiled_available, loop_needs_compiling
 
     if not compiled_available():
         pytest.skip("no compiled backend on this machine")
-    monkeypatch.setattr(_jit, "_CACHE_DIR", str(tmp_path))
-    assert loop_needs_compiling(DIARC()) and loop_needs_compiling(PD()) and loop_needs_compiling(DRC())
-    qualname = chunk_kernel(DIARC.compiled).py_func.__qualname__
-    index = tmp_path / "gantry_twin_0123" / f"simulate.{qualname}-400.py311.nbi"
-    index.parent.mkdir()
-    index.write_bytes(b"")
+    monkeypatch.setattr(
+        importlib.import_module("gantry_twin.simulate"),
+        "is_cached",
+        lambda function: function is chunk_kernel(DIARC.compiled),
+    )
     assert not loop_needs_compiling(DIARC())
-    assert loop_needs_compiling(PD()) and loop_needs_compiling(DRC())  # their own chunk kernels are not cached yet
+    assert loop_needs_compiling(PD()) and loop_needs_compiling(DRC())  # their own chunk kernels are not cached
 
     class MyDIARC(DIARC):  # the same compiled step: the same kernel
         pass

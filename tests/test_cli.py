@@ -339,7 +339,7 @@ def test_shipped_scenarios_can_be_named_without_a_path(tmp_path, capsys, monkeyp
     assert str(shipped("load_5kg_circle")) in out
     code, _, err = run_main(["validate", "no_such_scenario"], capsys)
     assert code == 2
-    assert_one_line_error(err, "no_such_scenario", "no such file")
+    assert_one_line_error(err, "no such scenario file or shipped scenario 'no_such_scenario'", "shipped: ")
 
 
 def test_set_overrides_reach_the_run(tmp_path, capsys):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 
 import numpy as np
 import pyarrow.parquet as pq
@@ -149,3 +150,37 @@ def test_findings_apply_the_issue_thresholds():
     assert got["circle C2: Set 3 rms below 4 um"] is False
     assert got["Set 1: DIARC recommended estimates of M, B, Af within 5 %"] is True  # dN is not judged
     assert got["Set 2: DIARC recommended estimates of M, B, Af within 5 %"] is False  # Af2 -6 %
+
+
+def _with_series(result, t_s, eps_um, theta=None):
+    result.t_eps_s, result.eps_c_um = t_s, eps_um
+    if theta is not None:
+        result.t_theta_s, result.theta_hat = t_s, theta
+    return result
+
+
+def test_figures_share_one_y_scale_and_label_every_axis_with_a_unit():
+    """Fig. 3 draws C1..C3 on one y scale (the paper's comparison); every axis label names its unit in brackets;
+    an estimate plot shows the true value inside its y range."""
+    t = np.linspace(0.0, 2.0, 200)
+    true = [0.12, 0.5, 0.5, 0.7, 0.1, 0.15, 0.0, 0.0]
+    theta = np.tile(true, (t.size, 1)) + 0.01 * np.outer(np.sin(t), np.ones(8)) + 0.03  # all above the truth
+    results = [
+        _with_series(_fake(2, "ellipse", "C1", 1.0, 2.0), t, 2.0 * np.sin(t)),
+        _with_series(_fake(2, "ellipse", "C2", 1.0, 4.0), t, 4.0 * np.cos(t)),
+        _with_series(_fake(2, "ellipse", "C3", 1.0, 15.0), t, -15.0 * t / 2.0),
+        _with_series(_fake(1, "circle", "C2", 1.0, 2.0, est=true, true=true), t, np.sin(t), theta),
+    ]
+    made = report.figures({(r.case.set_id, r.case.contour, r.case.label): r for r in results})
+    by_name = {name: fig for fig, name, _ in made}
+    assert set(by_name) == {"fig3_set2_ellipse_contour_error.png", "fig4_set1_y_estimates.png"}
+    limits = [ax.get_ylim() for ax in by_name["fig3_set2_ellipse_contour_error.png"].axes]
+    assert len(limits) == 3 and all(lim == limits[0] for lim in limits)
+    assert limits[0][0] <= -15.0 and limits[0][1] >= 4.0
+    for fig in by_name.values():
+        labels = [a.get_ylabel() for a in fig.axes] + [a.get_xlabel() for a in fig.axes if a.get_xlabel()]
+        assert labels and all(re.search(r"\[[^\]]+\]$", label) for label in labels), labels
+    for ax, j in zip(by_name["fig4_set1_y_estimates.png"].axes, (1, 3, 5, 7), strict=True):
+        lo, hi = ax.get_ylim()
+        span = theta[:, j].max() - true[j]
+        assert lo <= true[j] - 0.09 * span and theta[:, j].max() + 0.09 * span <= hi, (j, lo, hi)

@@ -63,7 +63,8 @@ def diarc_recording(tmp_path_factory):
 def test_recording_holds_every_sample_of_the_trace(diarc_recording):
     trace, path = diarc_recording
     reader = rr.chunk.RrdReader(path)
-    assert len(reader.recordings()) == 1 and len(reader.blueprints()) == 1
+    assert len(reader.recordings()) == 1  # the layout may be sent more than once (plot ranges widened)
+    assert 1 <= len(reader.blueprints()) <= 4
     data = read_rrd(path)
     expected = {
         "errors/contour/eps_c_um",

@@ -3,10 +3,11 @@
 The per-sample equations (task frame, control law, filters, least squares,
 projections) are written once, as small functions on floats and float64
 arrays that write into preallocated outputs. :func:`kernel` compiles such a
-function with numba (``cache=True``: compiled once per machine, then loaded
-from ``__pycache__``). :func:`reference` returns the *same* code run by the
-Python interpreter, with every kernel it calls also uncompiled, so the
-compiled loop can be checked against an implementation numba never touched.
+function with numba (``cache=True``: compiled once per install path, machine
+and version of the kernel sources, then loaded from :func:`cache_dir`).
+:func:`reference` returns the *same* code run by the Python interpreter,
+with every kernel it calls also uncompiled, so the compiled loop can be
+checked against an implementation numba never touched.
 
 :func:`borrowed` hands a kernel its arrays without their reference counts:
 numba counts references to every array it binds, with an atomic increment
@@ -99,10 +100,23 @@ def kernel(function: F | None = None, *, inline: bool = False) -> Any:
 
 
 def is_cached(function: Callable[..., Any]) -> bool:
-    """True if a compiled version of kernel ``function`` is in the cache (its first call loads, not compiles)."""
-    py = getattr(function, "py_func", function)
-    pattern = f"{py.__module__.rsplit('.', 1)[-1]}.{py.__qualname__}-*.nbi"  # numba's index file of the function
-    return any(Path(_CACHE_DIR).rglob(pattern))
+    """True if numba's cache holds kernel ``function`` compiled for this install and machine (its first call loads).
+
+    Asks the kernel's own numba cache, as its first call will: the index
+    file under the folder numba derives from the source file's path, valid
+    only for the source's current content (numba keeps its hash), with an
+    entry for this machine's code generator and this bytecode. Another
+    install of the package (another path) or an edited file has no entry
+    and compiles. Any argument types count (a loop's types are fixed by its
+    controller's step).
+    """
+    try:
+        cache = function._cache
+        codegen = function.targetctx.codegen()
+        wanted = cache._index_key(None, codegen)[1:]  # (machine, (bytecode hash, closure hash)); [0]: the signature
+        return any(key[1:] == wanted for key in cache._cache_file._load_index())
+    except (AttributeError, TypeError, OSError):  # not a cached kernel, or numba's internals changed: assume a compile
+        return False
 
 
 _reference_functions: dict[int, types.FunctionType] = {}

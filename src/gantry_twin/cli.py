@@ -1,5 +1,5 @@
-"""The command line: ``gantry-twin run | monitor | validate | report | sweep | export | compare | identify |
-excite`` (docs/cli.md, docs/sweeps.md, docs/logs.md).
+"""The command line: ``gantry-twin run | monitor | validate | report | sweep | scenarios | export | compare |
+identify | excite`` (docs/cli.md, docs/sweeps.md, docs/logs.md).
 
 Exit codes: 0 success; 2 bad input (one line on stderr naming the file, the
 field and what is allowed; nothing written), an output directory that
@@ -33,6 +33,8 @@ from gantry_twin import identify as identify_command
 from gantry_twin.compare import CompareError
 from gantry_twin.compare import add_arguments as add_compare_arguments
 from gantry_twin.compare import command as compare_command
+from gantry_twin.compiling import compile_notice
+from gantry_twin.controllers import available
 from gantry_twin.events import touched_end_stop, travel_warnings
 from gantry_twin.logs import LogError
 from gantry_twin.monitor import Alarm
@@ -46,9 +48,10 @@ from gantry_twin.scenario import (
     ScenarioError,
     build,
     load_scenario,
+    resolve_scenario,
     shipped,
 )
-from gantry_twin.simulate import loop_needs_compiling
+from gantry_twin.scenario import listing as scenario_listing
 from gantry_twin.telemetry import TelemetryError, add_telemetry_arguments, telemetry_observers
 from gantry_twin.trace import RunInfo, Trace
 
@@ -131,13 +134,15 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(
         dest="command",
         required=True,
-        metavar="{run,monitor,validate,report,sweep,export,compare,identify,excite}",
+        metavar="{run,monitor,validate,report,sweep,scenarios,export,compare,identify,excite}",
         parser_class=_Parser,
     )
 
     run = sub.add_parser("run", help="run a scenario and write its results")
     run.add_argument(
-        "scenario", nargs="?", help=f"scenario YAML file or shipped scenario name (default: {DEFAULT_SCENARIO})"
+        "scenario",
+        nargs="?",
+        help=f"scenario YAML file or shipped scenario name ({PROG} scenarios lists them; default: {DEFAULT_SCENARIO})",
     )
     _add_controller(run)
     _add_set(run)
@@ -148,7 +153,9 @@ def build_parser() -> argparse.ArgumentParser:
     add_telemetry_arguments(run)
 
     monitor = sub.add_parser("monitor", help="run a scenario with the health monitor and report its alarms")
-    monitor.add_argument("scenario", nargs="?", help="scenario YAML file or shipped scenario name")
+    monitor.add_argument(
+        "scenario", nargs="?", help=f"scenario YAML file or shipped scenario name ({PROG} scenarios lists them)"
+    )
     monitor.add_argument("--log", metavar="LOG", help="monitor a recorded log instead of a run (docs/logs.md)")
     monitor.add_argument("--baseline", metavar="SUMMARY", help="with --log: a healthy run's summary.json")
     _add_controller(monitor)
@@ -194,6 +201,7 @@ def build_parser() -> argparse.ArgumentParser:
     sweep.add_argument("--resume", action="store_true", help="run only the points DIR/results.parquet lacks")
     _add_progress(sweep)
 
+    scenario_listing.add_arguments(sub.add_parser("scenarios", help="list the shipped scenarios, one line each"))
     export.add_arguments(sub.add_parser("export", help="write a run's trace as CSV (docs/cli.md)"))
     compare = sub.add_parser("compare", help="the figures of runs side by side, and their plots overlaid")
     add_compare_arguments(compare, RUNS_DIR)
@@ -210,7 +218,8 @@ def _add_progress(parser: argparse.ArgumentParser) -> None:
 
 
 def _add_controller(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--controller", metavar="NAME", help="controller to use instead of the scenario's")
+    names = ", ".join(available())  # registered and entry-point names; no plug-in is imported
+    parser.add_argument("--controller", metavar="NAME", help=f"controller to use instead of the scenario's: {names}")
 
 
 def _add_out(parser: argparse.ArgumentParser) -> None:
@@ -263,6 +272,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                 return _validate(args)
             if args.command == "sweep":
                 return _sweep(args)
+            if args.command == "scenarios":
+                return scenario_listing.command(args)
             if args.command == "export":
                 return export.command(args)
             if args.command == "compare":
@@ -281,10 +292,10 @@ def _scenario_path(arg: str | None) -> Path:
     """A file path, or the name of a shipped scenario (``no_load_circle``) when no such file exists."""
     if arg is None:
         return shipped(DEFAULT_SCENARIO)
-    path = Path(arg)
-    if not path.exists() and "/" not in arg and shipped(arg).is_file():
-        return shipped(arg)
-    return path
+    try:
+        return resolve_scenario(arg)
+    except FileNotFoundError as exc:
+        raise BadInput(str(exc)) from None
 
 
 def _validate(args: argparse.Namespace) -> int:
@@ -377,11 +388,10 @@ def _run(args: argparse.Namespace) -> int:
     with _writer(out, built, args) as writer:
         telemetry = telemetry_observers(args)  # checks every option before anything runs
         _announce_large_trace(built)
-        if loop_needs_compiling(built.controller):
-            print(f"{PROG}: compiling the 0.2 ms loop for this machine, once (about 25 s)", file=sys.stderr, flush=True)
+        notice = compile_notice(built.controller, PROG)  # a line, and a count of seconds, if the loop compiles first
         with telemetry:
             try:
-                outcome = writer.run([_progress(args), *telemetry])
+                outcome = writer.run([notice, _progress(args), *telemetry])
             except Exception as exc:  # the run or the writing failed: not the user's input
                 return _failed("run", exc)
             if outcome.failed:

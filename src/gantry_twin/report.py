@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from gantry_twin.metrics import contour_metrics, error_pct, steady_estimates, steady_true_parameters
-from gantry_twin.plant import THETA_NAMES
+from gantry_twin.plant import THETA_NAMES, THETA_UNITS
 from gantry_twin.results import atomic_write, atomic_write_text
 from gantry_twin.run import execute
 from gantry_twin.runplots import envelope
@@ -301,33 +301,52 @@ def findings(by_key: dict[tuple[int, str, str], CaseResult]) -> list[tuple[bool,
 
 
 def _figures(by_key: dict[tuple[int, str, str], CaseResult], out: Path) -> list[tuple[str, str]]:
+    """Write :func:`figures` as PNG files into ``out``; (file name, caption) of each."""
+    import matplotlib.pyplot as plt
+
+    made: list[tuple[str, str]] = []
+    for fig, name, caption in figures(by_key):
+        buffer = io.BytesIO()
+        fig.savefig(buffer, format="png", dpi=110)
+        plt.close(fig)
+        data = buffer.getvalue()
+        atomic_write(out / name, lambda fh, data=data: fh.write(data))
+        made.append((name, caption))
+    return made
+
+
+def figures(by_key: dict[tuple[int, str, str], CaseResult]) -> list[tuple[Any, str, str]]:
+    """The report's figures (matplotlib, Agg) as (figure, file name, caption); every axis label gives its unit.
+
+    Figs. 2 and 3 share one y scale across the controllers they compare;
+    the estimate plots (Figs. 4 and 5) keep a 10 % margin around the
+    estimates and the true value.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    made: list[tuple[str, str]] = []
+    made: list[tuple[Any, str, str]] = []
 
     def save(fig: Any, name: str, caption: str) -> None:
-        buffer = io.BytesIO()
-        fig.savefig(buffer, format="png", dpi=110)
-        plt.close(fig)
-        atomic_write(out / name, lambda fh: fh.write(buffer.getvalue()))
-        made.append((name, caption))
+        made.append((fig, name, caption))
 
     for fig_no, set_id, contour, labels in ((2, 3, "circle", ("C1", "C2")), (3, 2, "ellipse", ("C1", "C2", "C3"))):
         runs = [(c, by_key.get((set_id, contour, c))) for c in labels]
         runs = [(c, r) for c, r in runs if r is not None]
         if not runs:
             continue
-        fig, axes = plt.subplots(len(runs), 1, figsize=(7, 1.9 * len(runs) + 0.6), sharex=True, squeeze=False)
+        fig, axes = plt.subplots(
+            len(runs), 1, figsize=(7, 1.9 * len(runs) + 0.6), sharex=True, sharey=True, squeeze=False
+        )
         t_end = min(10.0, max(float(r.t_eps_s[-1]) for _, r in runs))
         for ax, (c, r) in zip(axes[:, 0], runs, strict=True):
             keep = r.t_eps_s <= t_end
             ax.plot(r.t_eps_s[keep], r.eps_c_um[keep], lw=0.6)
-            ax.set_ylabel(f"{c} eps_c (um)")
+            ax.set_ylabel(f"{c} eps_c [um]")
             ax.grid(alpha=0.3)
-        axes[-1, 0].set_xlabel("t (s)")
+        axes[-1, 0].set_xlabel("t [s]")
         fig.suptitle(f"Fig. {fig_no}: {contour} contouring errors, Set {set_id}")
         fig.tight_layout()
         save(
@@ -348,11 +367,12 @@ def _figures(by_key: dict[tuple[int, str, str], CaseResult], out: Path) -> list[
             for c, r in runs:
                 ax.plot(r.t_theta_s, r.theta_hat[:, j], lw=0.9, label=CONTROLLERS[c][2])
             ax.axhline(runs[0][1].true_theta[j], ls="--", color="k", lw=0.9, label="true (model)")
-            ax.set_ylabel(name)
+            ax.set_ylabel(f"{name} [{THETA_UNITS[j]}]")
+            ax.margins(y=0.1)
             ax.ticklabel_format(axis="y", useOffset=False)
             ax.grid(alpha=0.3)
         axes[0].legend(fontsize=7, loc="best")
-        axes[-1].set_xlabel("t (s)")
+        axes[-1].set_xlabel("t [s]")
         label = "Y" if axis == 1 else "X"
         fig.suptitle(f"Fig. {fig_no}: {label}-axis parameter estimates, Set {set_id} circle (DIARC)")
         fig.tight_layout()

@@ -14,7 +14,7 @@ disturbance, quantised sensing, 30 s. The modules, in the order data flows:
 * :mod:`.building`: :func:`build` turns a scenario into the objects
   :func:`gantry_twin.simulate.simulate` takes, and checks what needs the
   compiled model (the contour inside the travel) and the controller.
-* :mod:`.files`: the shipped scenarios.
+* :mod:`.files`: the shipped scenarios; :mod:`.listing`: ``gantry-twin scenarios``.
 
 Every problem is raised as :class:`ScenarioError`, whose message is one line
 naming the file, the field path and what is allowed. docs/scenarios.md is the
@@ -23,7 +23,7 @@ reference of every field.
 
 from gantry_twin.scenario.building import BuiltRun, build, make_monitor
 from gantry_twin.scenario.errors import ScenarioError
-from gantry_twin.scenario.files import scenarios_dir, shipped, shipped_scenarios
+from gantry_twin.scenario.files import display_source, resolve_scenario, scenarios_dir, shipped, shipped_scenarios
 from gantry_twin.scenario.loading import (
     apply_overrides,
     controller_options,
@@ -42,11 +42,13 @@ __all__ = [
     "apply_overrides",
     "build",
     "controller_options",
+    "display_source",
     "dump_yaml",
     "load_scenario",
     "make_monitor",
     "parse_yaml",
     "read_scenario_file",
+    "resolve_scenario",
     "scenarios_dir",
     "shipped",
     "shipped_scenarios",

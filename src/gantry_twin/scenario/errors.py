@@ -8,19 +8,21 @@ from typing import Any, NoReturn
 from pydantic import ValidationError
 
 from gantry_twin.ranges import best_errors, describe, loc_text, more, quote
+from gantry_twin.scenario.files import display_source
 from gantry_twin.scenario.schema import CONTOUR_TYPES, EVENT_TYPES
 
 _UNION_TAGS = {*CONTOUR_TYPES, *EVENT_TYPES}
 
 
 class ScenarioError(ValueError):
-    """A scenario that cannot run; ``str()`` is one line: file, field, what is allowed."""
+    """A scenario that cannot run; ``str()`` is one line: file (a shipped one by name), field, what is allowed."""
 
     def __init__(self, source: str, field: str, message: str) -> None:
         self.source = source
         self.field = field
         self.message = message
-        where = f"{source}: {field}: " if field else f"{source}: "
+        name = display_source(source)
+        where = f"{name}: {field}: " if field else f"{name}: "
         super().__init__(where + message)
 
 

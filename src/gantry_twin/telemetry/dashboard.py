@@ -5,7 +5,8 @@ Nothing here logs: :mod:`gantry_twin.telemetry.observer` sends what these descri
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import mujoco
@@ -20,6 +21,11 @@ from gantry_twin.plant import Plant
 ERROR_MAGNIFICATION = 10_000.0
 #: The timeline every sample is logged on (a duration from the start of the run).
 TIMELINE = "sim_time"
+#: Margin added on each side of what a ranged plot must show, as a fraction of its span.
+RANGE_MARGIN = 0.1
+#: Most labelled ticks in a ranged plot: the viewer labels only ticks at powers of ten spaced about 20 px or more
+#: apart, so a small plot (an estimate, about 130 px tall) shows at most this many labels.
+RANGE_MAX_LABELS = 6
 
 
 # ---------------------------------------------------------------------------------------------
@@ -101,11 +107,46 @@ def magnified_contour_m(path, q_m: np.ndarray, phi_guess: np.ndarray, factor: fl
 # The dashboard
 
 
+def plot_range(lo: float, hi: float, margin: float = RANGE_MARGIN) -> tuple[float, float]:
+    """A y range showing [lo, hi] with ``margin`` of its span on each side, and at least two labelled ticks.
+
+    The viewer labels ticks at multiples of a power of ten d, and only when
+    they are far enough apart (an automatic range of a small signal can
+    show a single "0"), and not at the very edge. Here d is the smallest power
+    of ten with at most :data:`RANGE_MAX_LABELS` multiples in the range, the
+    ends are multiples of d / 10, widened until two multiples of d lie at
+    least d / 10 inside. A constant (lo == hi) gets a span of 10 % of its size (1 if 0).
+    """
+    span = hi - lo
+    if not span > 0:
+        span = 0.1 * abs(hi) or 1.0
+        lo, hi = lo - span / 2, hi + span / 2
+    lo, hi = lo - margin * span, hi + margin * span
+    fine = 10.0 ** math.floor(math.log10(hi - lo) - 1)
+    while True:  # in units of fine: ticks every 10
+        a, b = math.floor(lo / fine), math.ceil(hi / fine)
+        if (b - 1) // 10 - -((a + 1) // -10) + 1 <= RANGE_MAX_LABELS:
+            break
+        fine *= 10.0
+    while (b - 1) // 10 - -((a + 1) // -10) + 1 < 2:  # ticks at least one fine step inside the ends
+        b = 10 * ((b - 1) // 10 + 1) + 1
+        if (b - 1) // 10 - -((a + 1) // -10) + 1 < 2:
+            a = 10 * (-((a + 1) // -10) - 1) - 1
+    return a * fine, b * fine
+
+
+def panel_name(name: str, unit: str) -> str:
+    """A plot's title with its unit in brackets: ``Inputs [V]``."""
+    return f"{name} [{unit}]"
+
+
 def dashboard_blueprint(
     estimate_entities: Sequence[str] = (),
     magnification: float = ERROR_MAGNIFICATION,
     desired_mm: np.ndarray | None = None,
     health: bool = False,
+    ranges: Mapping[str, tuple[float, float]] | None = None,
+    titles: Mapping[str, str] | None = None,
 ) -> rrb.Blueprint:
     """Default layout: contour and 3D | errors and inputs | one plot per estimate (if any).
 
@@ -113,7 +154,17 @@ def dashboard_blueprint(
 
     The XY view shows every strip of the actual contour up to the time cursor
     (visible range from -infinity); ``desired_mm`` (N, 2) sets its bounds.
+    ``ranges``: the y range of a time-series plot by its origin (others scale
+    to their data; zooming stays free); ``titles``: an estimate plot's title
+    by its origin (default: the entity's name).
     """
+    ranges = ranges or {}
+    titles = titles or {}
+
+    def series(origin: str, name: str) -> rrb.TimeSeriesView:
+        axis = rrb.ScalarAxis(range=ranges[origin], zoom_lock=False) if origin in ranges else None
+        return rrb.TimeSeriesView(origin=origin, name=name, axis_y=axis)
+
     history = rrb.VisibleTimeRange(
         TIMELINE, start=rr.TimeRangeBoundary.infinite(), end=rr.TimeRangeBoundary.cursor_relative()
     )
@@ -128,30 +179,30 @@ def dashboard_blueprint(
     left = rrb.Vertical(
         rrb.Spatial2DView(
             origin="contour_mm",
-            name=f"XY contour, mm (error x{magnification:g})",
+            name=f"{panel_name('XY contour', 'mm')}, error x{magnification:g}",
             time_ranges=[history],
             visual_bounds=bounds,
         ),
         rrb.Spatial3DView(
             origin="gantry",
-            name="Gantry (3D, m)",
+            name=panel_name("Gantry 3D", "m"),
             eye_controls=rrb.EyeControls3D(position=[0.9, -1.3, 0.9], look_target=[0.0, 0.0, -0.08]),
         ),
     )
     middle_views = [
-        rrb.TimeSeriesView(origin="errors/contour", name="Contour error, um"),
-        rrb.TimeSeriesView(origin="errors/axial", name="Axial errors, um"),
-        rrb.TimeSeriesView(origin="inputs", name="Inputs, V"),
+        series("errors/contour", panel_name("Contour error", "um")),
+        series("errors/axial", panel_name("Axial errors", "um")),
+        series("inputs", panel_name("Inputs", "V")),
     ]
     if health:
         middle_views += [
-            rrb.TimeSeriesView(origin="health/excitation_V", name="Excitation per axis, V"),
+            series("health/excitation_V", panel_name("Excitation per axis", "V")),
             rrb.TextLogView(origin="health/alarms", name="Health alarms"),
         ]
     middle = rrb.Vertical(*middle_views)
     columns: list = [left, middle]
     if estimate_entities:
-        views = [rrb.TimeSeriesView(origin=e, name=e.removeprefix("estimates/")) for e in estimate_entities]
+        views = [series(e, titles.get(e, e.removeprefix("estimates/"))) for e in estimate_entities]
         columns.append(rrb.Grid(*views, grid_columns=2, name="Estimates"))
     shares = [1.0, 1.0, 1.2][: len(columns)]
     return rrb.Blueprint(

@@ -27,6 +27,12 @@ the nanosecond; units in the entity names):
     gantry/...                             base, carriages and payload as boxes (metres, 50 Hz)
     health/excitation_V, health/alarms     with a health monitor (:meth:`RerunObserver.watch`)
 
+Layout (:func:`~gantry_twin.telemetry.dashboard.dashboard_blueprint`): every
+plot titled with its unit in brackets; the estimate, dc^ and input plots get
+a y range that shows all their data so far (an estimate's true value
+included) with a margin and labelled ticks, sent again, widened, when data
+leaves it; eps_c is drawn wide in orange under eps_n thin in dark blue.
+
 Magnified contour: each actual point q is drawn at p + K (q - p), where p is
 the closest point of the desired curve (``paths.contour_error``), so a contour
 error of 1 um shows as K um; with the default K = 10 000, as 10 mm. (The
@@ -56,6 +62,8 @@ from gantry_twin.telemetry.dashboard import (
     dashboard_blueprint,
     gantry_bodies,
     magnified_contour_m,
+    panel_name,
+    plot_range,
 )
 from gantry_twin.telemetry.sinks import check_grpc_url, require_display, spawn_native_viewer
 from gantry_twin.trace import RunInfo, Trace
@@ -72,6 +80,10 @@ ESTIMATE_RATE_HZ = 1000.0
 _ESTIMATE_RGB = (230, 120, 30)
 _TRUE_RGB = (120, 120, 120)
 _X_RGB, _Y_RGB = (31, 119, 180), (214, 39, 40)
+#: eps_c (true) is drawn wide in orange, eps_n (the approximation) thin in dark blue on top: both show where they meet.
+_EPS_C_STYLE, _EPS_N_STYLE = ((230, 120, 30), 4.0), ((30, 30, 120), 1.0)
+#: Margin of a plot's range when data leaves it (a larger step than the first range's, so it is re-sent rarely).
+WIDEN_MARGIN = 0.25
 
 
 def unit_in_entity(unit: str) -> str:
@@ -208,6 +220,9 @@ class RerunObserver:
         self._last_point_mm: np.ndarray | None = None
         self._estimates: list[tuple[str, int]] = []  # (entity, index into theta_hat)
         self._styled = False
+        self._extents: dict[str, tuple[float, float]] = {}  # plot origin -> [min, max] of what it has had to show
+        self._ranges: dict[str, tuple[float, float]] = {}  # plot origin -> the y range in the blueprint sent
+        self._blueprint_sent = False
         self._bodies = gantry_bodies(run.plant)
         samples = run.samples or run.reference.t_s.size
         step = max(1, samples // 4000)
@@ -289,11 +304,14 @@ class RerunObserver:
         rec = self.recording
         self._styled = True
 
-        def lines(entity: str, names: Sequence[str], colors: Sequence[tuple[int, int, int]]) -> None:
-            rec.log(entity, rr.SeriesLines(names=list(names), colors=list(colors)), static=True)
+        def lines(
+            entity: str, names: Sequence[str], colors: Sequence[tuple[int, int, int]], width: float | None = None
+        ) -> None:
+            widths = None if width is None else [width] * len(names)
+            rec.log(entity, rr.SeriesLines(names=list(names), colors=list(colors), widths=widths), static=True)
 
-        lines("errors/contour/eps_c_um", ["eps_c (true)"], [_ESTIMATE_RGB])
-        lines("errors/contour/eps_n_um", ["eps_n (approx.)"], [_X_RGB])
+        lines("errors/contour/eps_c_um", ["eps_c (true)"], [_EPS_C_STYLE[0]], _EPS_C_STYLE[1])
+        lines("errors/contour/eps_n_um", ["eps_n (approx.)"], [_EPS_N_STYLE[0]], _EPS_N_STYLE[1])
         lines("errors/axial/e_x_um", ["e_x"], [_X_RGB])
         lines("errors/axial/e_y_um", ["e_y"], [_Y_RGB])
         lines("inputs/u_x_V", ["u_x"], [_X_RGB])
@@ -301,6 +319,7 @@ class RerunObserver:
         lines("inputs/disturbance_x_V", ["d_x"], [(120, 180, 230)])
         lines("inputs/disturbance_y_V", ["d_y"], [(240, 140, 140)])
         state = trace.controller_state
+        self._titles: dict[str, str] = {}
         theta = state.get("theta_hat")
         if theta is not None and theta.ndim == 2:
             names = (
@@ -309,25 +328,49 @@ class RerunObserver:
             for i, name in enumerate(names):
                 entity = theta_entity(name)
                 self._estimates.append((entity, i))
+                if name in THETA_NAMES:
+                    self._titles[entity] = panel_name(name, THETA_UNITS[THETA_NAMES.index(name)])
                 lines(f"{entity}/estimate", [f"{name}^"], [_ESTIMATE_RGB])
                 lines(f"{entity}/true", [f"{name} true"], [_TRUE_RGB])
         extra = []
         if "dc_hat" in state:
             lines("estimates/dc_hat_V", ["dc^_x", "dc^_y"], [_X_RGB, _Y_RGB])
             extra.append("estimates/dc_hat_V")
+            self._titles["estimates/dc_hat_V"] = panel_name("dc^", "V")
         if "gamma_lambda_max" in state:
             lines("estimates/gamma_lambda_max", ["lambda_max(Gamma)"], [(60, 160, 60)])
             extra.append("estimates/gamma_lambda_max")
-        rec.send_blueprint(
+            self._titles["estimates/gamma_lambda_max"] = panel_name("lambda_max(Gamma)", "-")  # as in the paper
+        self._plots = [e for e, _ in self._estimates] + extra
+
+    def _show(self, origin: str, *values: np.ndarray) -> None:
+        """Widen plot ``origin``'s y range if ``values`` (finite ones) leave it (:meth:`_send` re-sends the layout)."""
+        finite = [v[np.isfinite(v)] for v in (np.asarray(x, dtype=float).reshape(-1) for x in values)]
+        finite = [v for v in finite if v.size]
+        if not finite:
+            return
+        lo, hi = min(float(v.min()) for v in finite), max(float(v.max()) for v in finite)
+        old = self._extents.get(origin)
+        lo, hi = (lo, hi) if old is None else (min(lo, old[0]), max(hi, old[1]))
+        self._extents[origin] = (lo, hi)
+        shown = self._ranges.get(origin)
+        if shown is None or lo < shown[0] or hi > shown[1]:
+            self._ranges[origin] = plot_range(lo, hi) if shown is None else plot_range(lo, hi, WIDEN_MARGIN)
+
+    def _send_blueprint(self) -> None:
+        self.recording.send_blueprint(
             dashboard_blueprint(
-                [e for e, _ in self._estimates] + extra,
+                self._plots,
                 self.error_magnification,
                 self._desired_mm,
                 health=self._monitor is not None,
+                ranges=self._ranges,
+                titles=self._titles,
             ),
             make_active=True,
             make_default=True,
         )
+        self._blueprint_sent = True
 
     def _send(self, trace: Trace, start: int, stop: int) -> None:
         if stop <= start or self._run is None:
@@ -346,11 +389,14 @@ class RerunObserver:
         scalars("inputs/u_y_V", trace.u_v[rows, 1])
         scalars("inputs/disturbance_x_V", trace.disturbance_v[rows, 0])
         scalars("inputs/disturbance_y_V", trace.disturbance_v[rows, 1])
+        ranges_before = dict(self._ranges)
+        self._show("inputs", trace.u_v[rows], trace.disturbance_v[rows])
         state = trace.controller_state
         k = self._estimate_stride
         slow = np.arange(-(-start // k) * k, stop, k) - first  # the samples at estimate_rate_hz
         slow_times = [_TimeIndex(trace.t_s[slow])]
         if self._estimates:
+            theta = state["theta_hat"][rows]  # every sample sets the plot's range; every k-th is logged
             if trace.true_theta_t is None:  # constant: a line needs two points per send
                 at = np.array([start, stop - 1])
                 true = np.broadcast_to(trace.true_theta, (2, trace.true_theta.size))
@@ -368,10 +414,14 @@ class RerunObserver:
                     scalars(f"{entity}/estimate", state["theta_hat"][slow, i], slow_times)
                 if i < true.shape[1]:
                     scalars(f"{entity}/true", true[:, i], true_times)
+                self._show(entity, theta[:, i], true[:, i] if i < true.shape[1] else ())
         if "dc_hat" in state:
             scalars("estimates/dc_hat_V", state["dc_hat"][rows])
+            self._show("estimates/dc_hat_V", state["dc_hat"][rows])
         if "gamma_lambda_max" in state and slow.size:
             scalars("estimates/gamma_lambda_max", state["gamma_lambda_max"][slow], slow_times)
+        if self._styled and (not self._blueprint_sent or self._ranges != ranges_before):
+            self._send_blueprint()  # the first time, or data left a plot's range
         self._send_geometry(trace, start, stop)
         self._send_health()
         self._sent = stop

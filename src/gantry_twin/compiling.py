@@ -1,0 +1,97 @@
+"""The notice shown when a run's compiled loop will compile first: how long it should take, and the time so far.
+
+:func:`compile_notice` asks :func:`gantry_twin.simulate.loop_needs_compiling`
+(numba's own cache, for this install path and machine); when a compile will
+happen, the observer it returns writes one line on stderr as the run starts
+and, when stderr is a terminal, counts the elapsed seconds on that line until
+the first chunk of samples is done (the compile is over).
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+import time
+from typing import TextIO
+
+from gantry_twin.controllers import Controller
+from gantry_twin.simulate import loop_needs_compiling
+from gantry_twin.trace import RunInfo, Trace
+
+#: Expected wall time of a cold compile of one controller's loop, s: the figure measured in docs/performance.md
+#: ("First-run compile"), rounded up; the one place the notice takes it from.
+EXPECTED_COMPILE_S = 30
+
+
+def compile_message(prog: str) -> str:
+    """The line announcing a compile."""
+    return f"{prog}: compiling the 0.2 ms loop for this install, once (about {EXPECTED_COMPILE_S} s)"
+
+
+class CompileNotice:
+    """An Observer that announces a compile on ``on_start`` and, on a terminal, ticks until the first chunk.
+
+    Not a terminal: one plain line. A terminal: the same line followed by
+    the elapsed seconds, rewritten every ``tick_s`` by a thread, ended with
+    the total when the first chunk is recorded (or the run ends).
+    """
+
+    def __init__(self, prog: str, stream: TextIO | None = None, tick_s: float = 0.5) -> None:
+        self.prog = prog
+        self.stream = stream if stream is not None else sys.stderr
+        self.tick_s = tick_s
+        self._done = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._started = 0.0
+
+    def on_start(self, run: RunInfo, trace: Trace) -> None:
+        self._started = time.monotonic()
+        if not _is_terminal(self.stream):
+            print(compile_message(self.prog), file=self.stream, flush=True)
+            return
+        self._write(0.0)
+        self._thread = threading.Thread(target=self._tick, name="compile-notice", daemon=True)
+        self._thread.start()
+
+    def on_chunk(self, trace: Trace, start: int, stop: int) -> None:
+        self._finish()
+
+    def on_end(self, trace: Trace) -> None:
+        self._finish()
+
+    def _tick(self) -> None:
+        while not self._done.wait(self.tick_s):
+            self._write(time.monotonic() - self._started)
+
+    def _write(self, elapsed_s: float, end: str = "") -> None:
+        self.stream.write(f"\r{compile_message(self.prog)}: {elapsed_s:.0f} s{end}")
+        self.stream.flush()
+
+    def _finish(self) -> None:
+        if self._thread is None or self._done.is_set():
+            return
+        self._done.set()
+        self._thread.join()
+        self._write(time.monotonic() - self._started, " done\n")
+
+
+class _Quiet:
+    """The Observer used when nothing compiles."""
+
+    def on_start(self, run: RunInfo, trace: Trace) -> None: ...
+
+    def on_chunk(self, trace: Trace, start: int, stop: int) -> None: ...
+
+    def on_end(self, trace: Trace) -> None: ...
+
+
+def compile_notice(controller: Controller, prog: str) -> CompileNotice | _Quiet:
+    """A :class:`CompileNotice` if running ``controller`` will first compile its loop, else a quiet observer."""
+    return CompileNotice(prog) if loop_needs_compiling(controller) else _Quiet()
+
+
+def _is_terminal(stream: TextIO) -> bool:
+    try:
+        return stream.isatty()
+    except (AttributeError, ValueError):
+        return False
