@@ -16,6 +16,7 @@ import numpy as np
 
 from gantry_twin.changes import PlantChanges
 from gantry_twin.controllers import Controller, EstimatorSettings, create
+from gantry_twin.friction import FrictionError
 from gantry_twin.monitor import Baseline, ExcitationSettings, HealthSettings, MachineMonitor
 from gantry_twin.paths import Ellipse, TimingLaw
 from gantry_twin.plant import AXES, Plant
@@ -49,7 +50,10 @@ def build(scenario: Scenario, source: str = "<scenario>") -> BuiltRun:
     """Compile the plant, make the controller and check the contour fits the travel."""
     changes = None if scenario.changes.empty else scenario.changes
     payload_body = changes is not None and bool(changes.payload_change)
-    plant = Plant(scenario.payload, payload_body=payload_body)
+    try:
+        plant = Plant(scenario.payload, payload_body=payload_body, friction=scenario.plant.friction)
+    except FrictionError as exc:
+        raise ScenarioError(source, f"plant.{exc.field}", exc.message) from None
     path = scenario.contour.path()
     _check_travel(plant, path, source)
     _check_samples(scenario, plant.timestep_s, source)
