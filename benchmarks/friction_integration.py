@@ -34,8 +34,8 @@ def run(name: str, integrator: str, substeps: int, seconds: float) -> tuple[np.n
         f"plant.friction.integrator={integrator}",
         f"plant.friction.substeps={substeps}",
         f"duration_s={seconds}",
-        "window_s=[0.0, 0.1]",
-        "estimates_window_s=[0.0, 0.1]",
+        f"window_s=[0.0, {seconds}]",
+        f"estimates_window_s=[0.0, {seconds}]",
     ]
     best = np.inf
     for _ in range(3):

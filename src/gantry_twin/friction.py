@@ -166,7 +166,7 @@ def apply_friction(spec: mujoco.MjSpec, friction: Friction, axes: tuple[str, ...
                 raise FrictionError(f"friction.{axis}.{problem[0]}", problem[1])
             joint.frictionloss = 0.0
             if given.sigma2_ns_m is not None:
-                joint.damping = given.sigma2_ns_m
+                joint.damping = [given.sigma2_ns_m, *joint.damping[1:]]
             motor = spec.add_actuator(name=FRICTION_ACTUATOR.format(axis=axis), target=axis)
             motor.trntype = mujoco.mjtTrn.mjTRN_JOINT
             motor.set_to_dcmotor(
