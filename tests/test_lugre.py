@@ -22,6 +22,9 @@ from gantry_twin import Payload, Plant, TimingLaw, circle, simulate
 from gantry_twin.changes import FrictionDrift, PlantChanges
 from gantry_twin.controllers import create
 from gantry_twin.friction import Friction, FrictionError, LuGreAxis
+from gantry_twin.run import execute
+from gantry_twin.scenario import build, load_scenario
+from gantry_twin.scenario.files import shipped_scenarios
 
 from .helpers import DAMPING_N_S_PER_M, FRICTION_N, GEAR_N_PER_V
 
@@ -248,3 +251,32 @@ def test_physical_ranges_are_checked_with_the_field_named() -> None:
         Plant(friction=Friction(model="lugre", y=LuGreAxis(sigma0_n_m=1e9)))
     with pytest.raises(FrictionError, match=r"friction.x.sigma1_ns_m: must be at most the critical damping"):
         Plant(friction=Friction(model="lugre", x=LuGreAxis(sigma1_ns_m=1e5)))
+
+
+REFERENCE_INTEGRATION = ("plant.friction.integrator=rk4", "plant.friction.substeps=100")  # 2 us physics
+
+
+def lugre_scenario_eps_c(path: object, extra: tuple[str, ...] = ()) -> np.ndarray:
+    """eps_c (m) of a shipped scenario run for 1 s with LuGre friction (monitor off: its windows need 10 s)."""
+    overrides = [
+        "plant.friction.model=lugre",
+        "duration_s=1.0",
+        "window_s=[0.0, 1.0]",
+        "estimates_window_s=[0.0, 1.0]",
+        "monitor.enable=false",
+        *extra,
+    ]
+    built = build(load_scenario(path, overrides))
+    trace = execute(built)
+    assert not any(w.number for w in built.plant.data.warning)
+    return np.asarray(trace.eps_c_m)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("path", shipped_scenarios(), ids=lambda p: p.stem)
+def test_shipped_scenarios_with_lugre_agree_with_a_2_us_physics_reference(path: object) -> None:
+    """The chosen integration (LUGRE_INTEGRATOR, LUGRE_SUBSTEPS) within 0.2 um of eps_c with 2 us RK4 physics
+    under the same 0.2 ms control."""
+    chosen = lugre_scenario_eps_c(path)
+    reference = lugre_scenario_eps_c(path, REFERENCE_INTEGRATION)
+    assert np.abs(chosen - reference).max() < 0.2e-6

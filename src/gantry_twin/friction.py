@@ -46,7 +46,7 @@ from gantry_twin.ranges import Count, Range, fmt, rule, settings
 FRICTION_ACTUATOR = "{axis}_friction"
 #: The integrator and physics steps per control sample of a LuGre plant (docs/friction.md).
 LUGRE_INTEGRATOR: Literal["euler", "implicitfast", "rk4"] = "euler"
-LUGRE_SUBSTEPS = 4
+LUGRE_SUBSTEPS = 8
 #: Physical range of the pre-sliding distance Fc / sigma0, m, and of Fs / Fc.
 PRESLIDING_M = (0.1e-6, 50.0e-6)
 STRIBECK_RATIO = (1.0, 2.0)
