@@ -23,8 +23,8 @@ from gantry_twin.changes import FrictionDrift, PlantChanges
 from gantry_twin.controllers import create
 from gantry_twin.friction import Friction, FrictionError, LuGreAxis
 from gantry_twin.run import execute
-from gantry_twin.scenario import build, load_scenario
-from gantry_twin.scenario.files import shipped_scenarios
+from gantry_twin.scenario import ScenarioError, build, load_scenario
+from gantry_twin.scenario.files import shipped, shipped_scenarios
 
 from .helpers import DAMPING_N_S_PER_M, FRICTION_N, GEAR_N_PER_V
 
@@ -280,3 +280,20 @@ def test_shipped_scenarios_with_lugre_agree_with_a_2_us_physics_reference(path: 
     chosen = lugre_scenario_eps_c(path)
     reference = lugre_scenario_eps_c(path, REFERENCE_INTEGRATION)
     assert np.abs(chosen - reference).max() < 0.2e-6
+
+
+def test_a_scenario_chooses_the_friction_and_its_errors_name_the_field() -> None:
+    built = build(load_scenario(shipped("no_load_circle"), ["plant.friction.model=lugre"]))
+    assert built.plant.friction.lugre and built.plant.substeps > 1
+    assert (built.plant.friction_index >= 0).all()
+    coulomb = build(load_scenario(shipped("no_load_circle")))
+    assert not coulomb.plant.friction.lugre and coulomb.plant.substeps == 1
+    with pytest.raises(ScenarioError) as too_stiff:
+        build(
+            load_scenario(shipped("no_load_circle"), ["plant.friction.model=lugre", "plant.friction.y.sigma0_n_m=1e9"])
+        )
+    assert too_stiff.value.field == "plant.friction.y.sigma0_n_m"
+    assert "pre-sliding distance" in too_stiff.value.message
+    with pytest.raises(ScenarioError) as too_fast:
+        load_scenario(shipped("no_load_circle"), ["plant.friction.x.vs_m_s=1.0"])
+    assert too_fast.value.field == "plant.friction.x.vs_m_s"
