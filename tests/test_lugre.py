@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from gantry_twin import Payload, Plant, TimingLaw, circle, simulate
-from gantry_twin.changes import FrictionDrift, PlantChanges
+from gantry_twin.changes import CoggingRipple, FrictionDrift, PlantChanges
 from gantry_twin.controllers import create
 from gantry_twin.friction import Friction, FrictionError, LuGreAxis
 from gantry_twin.run import execute
@@ -297,3 +297,16 @@ def test_a_scenario_chooses_the_friction_and_its_errors_name_the_field() -> None
     with pytest.raises(ScenarioError) as too_fast:
         load_scenario(shipped("no_load_circle"), ["plant.friction.x.vs_m_s=1.0"])
     assert too_fast.value.field == "plant.friction.x.vs_m_s"
+
+
+def test_both_backends_give_the_same_lugre_trace_with_drift_and_cogging() -> None:
+    changes = PlantChanges(
+        friction_drift=(FrictionDrift(axis="x", start_s=0.0, end_s=0.06, coulomb_to_v=0.15, viscous_to_v_s_m=0.6),),
+        cogging=(CoggingRipple(axis="y", amplitude_v=0.05, pitch_m=0.016),),
+    )
+    traces = [
+        simulate(lugre_plant(), circle(), TimingLaw(2.0), create("diarc"), 0.06, backend=b, changes=changes)
+        for b in ("compiled", "reference")
+    ]
+    np.testing.assert_array_equal(traces[0].q_m, traces[1].q_m)
+    np.testing.assert_array_equal(traces[0].u_v, traces[1].u_v)
