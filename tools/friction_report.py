@@ -47,7 +47,13 @@ def spike_figure(overrides: list[str], out: Path) -> str:
     fig, axes = plt.subplots(1, 3, figsize=(12, 3.4), sharey=True)
     for ax, label in zip(axes, LABELS, strict=True):
         for name, extra in (("rig", overrides), ("coulomb", [])):
-            built = build(load_scenario(shipped("no_load_circle"), [*extra, "duration_s=5", "window_s=[0, 5]", "estimates_window_s=[4, 5]"], NAMES[label]))
+            built = build(
+                load_scenario(
+                    shipped("no_load_circle"),
+                    [*extra, "duration_s=5", "window_s=[0, 5]", "estimates_window_s=[4, 5]"],
+                    NAMES[label],
+                )
+            )
             trace = execute(built)
             t, vx = trace.t_s, np.gradient(trace.q_m[:, 0], trace.t_s)
             flips = np.nonzero((np.sign(vx[1:]) != np.sign(vx[:-1])) & (t[1:] > 3.5) & (t[1:] < 4.8))[0]
