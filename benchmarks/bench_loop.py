@@ -9,7 +9,8 @@ and the example compiled plug-in of examples/gantry-example-pd (compiled
 backend; DIARC also on the reference backend); each loop's ratio to the C
 loop, and the plug-in's ratio to the built-in pd; numba's first-use compile
 time (fresh cache) and cache-load time; the peak memory of a 60 s DIARC run
-with full 5 kHz recording. Loops are measured interleaved, best of
+with full 5 kHz recording; the cost with the Coulomb and the LuGre plant side by
+side (``--friction-only``: that alone). Loops are measured interleaved, best of
 ``--repeats``, in wall time and in this thread's CPU time (less sensitive to
 other processes on the machine): compare ratios, not absolute times.
 """
@@ -29,6 +30,7 @@ import numpy as np
 
 from gantry_twin import Plant, TimingLaw, circle, simulate
 from gantry_twin.controllers import available, create, register
+from gantry_twin.friction import Friction
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SRC = os.path.join(ROOT, "src")
@@ -78,11 +80,11 @@ def _timed(fn) -> tuple[float, float]:  # noqa: ANN001
     return time.perf_counter() - w0, time.thread_time() - c0
 
 
-def bare_steps(n: int) -> tuple[float, float]:
-    """MuJoCo's C loop on the same model, from rest."""
-    plant = Plant()
+def bare_steps(n: int, friction: str = "coulomb") -> tuple[float, float]:
+    """MuJoCo's C loop on the same model, from rest: n control samples (each plant.substeps physics steps)."""
+    plant = Plant(friction=Friction(model=friction))
     plant.reset(np.zeros(2), np.zeros(2))
-    return _timed(lambda: mujoco.mj_step(plant.model, plant.data, nstep=n))
+    return _timed(lambda: mujoco.mj_step(plant.model, plant.data, nstep=n * plant.substeps))
 
 
 def _example_plugin() -> None:
@@ -95,9 +97,32 @@ def _example_plugin() -> None:
     register("example_pd", ExamplePD)
 
 
-def loop(name: str, seconds: float, backend: str = "compiled") -> tuple[float, float]:
-    plant, controller = Plant(), create(name)
+def loop(name: str, seconds: float, backend: str = "compiled", friction: str = "coulomb") -> tuple[float, float]:
+    plant, controller = Plant(friction=Friction(model=friction)), create(name)
     return _timed(lambda: simulate(plant, circle(), TimingLaw(2.0), controller, seconds, backend=backend))
+
+
+def friction_costs(seconds: float, repeats: int, n: int) -> None:
+    """The loop's cost per 0.2 ms sample with the Coulomb and the LuGre plant, side by side (issue 15)."""
+    keys = ["mj_step C loop", "pd", "diarc"]
+    results: dict[tuple[str, str], list[tuple[float, float]]] = {}
+    for name in keys[1:]:
+        loop(name, 0.01, friction="lugre")
+    for _ in range(repeats):
+        for model in ("coulomb", "lugre"):
+            results.setdefault((keys[0], model), []).append(bare_steps(n, model))
+            for name in keys[1:]:
+                results.setdefault((name, model), []).append(loop(name, seconds, friction=model))
+    best = {key: min(c for _, c in v) / n * 1e6 for key, v in results.items()}
+    lugre = Plant(friction=Friction(model="lugre"))
+    print(
+        f"\nfriction models, CPU us per 0.2 ms sample, best of {repeats} (lugre: {lugre.substeps} physics steps "
+        f"per sample, integrator {mujoco.mjtIntegrator(lugre.model.opt.integrator).name})"
+    )
+    print(f"{'loop':<24}{'coulomb':>10}{'lugre':>10}{'lugre/coulomb':>15}")
+    for name in keys:
+        c, g = best[(name, "coulomb")], best[(name, "lugre")]
+        print(f"{name:<24}{c:10.2f}{g:10.2f}{g / c:15.2f}")
 
 
 def main() -> None:
@@ -105,10 +130,14 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=4.0, help="simulated seconds per loop measurement")
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--skip-memory", action="store_true")
+    parser.add_argument("--friction-only", action="store_true", help="only the Coulomb / LuGre comparison")
     args = parser.parse_args()
     ts = 2e-4
     n = int(round(args.seconds / ts))
 
+    if args.friction_only:
+        friction_costs(args.seconds, args.repeats, n)
+        return
     builtin = tuple(name for name in CONTROLLERS if name != "example_pd")
     with tempfile.TemporaryDirectory() as cache:
         cold = _child(_FIRST_USE.format(names=builtin), cache)
@@ -155,6 +184,8 @@ def main() -> None:
         f"(target 1.4x); example plug-in / built-in pd: {ex_wall / pd_wall:.2f}x wall, {ex_cpu / pd_cpu:.2f}x CPU "
         f"(target 1.15x)"
     )
+
+    friction_costs(args.seconds, args.repeats, n)
 
     if not args.skip_memory:
         mem = _child(_MEMORY)

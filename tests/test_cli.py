@@ -137,6 +137,13 @@ MALFORMED = [
     ("name_not_text", "name: [1, 2]\n", "name", "valid string"),
     ("description_not_text", "description: {a: 1}\n", "description", "valid string"),
     ("monitor_enable_not_bool", "monitor: {enable: maybe}\n", "monitor.enable", "valid boolean"),
+    ("friction_model_unknown", "plant: {friction: {model: stribeck}}\n", "plant.friction.model", "'coulomb'"),
+    (
+        "lugre_too_stiff",
+        "plant: {friction: {model: lugre, x: {sigma0_n_m: 1.0e9}}}\n",
+        "plant.friction.x.sigma0_n_m",
+        "pre-sliding distance",
+    ),
     ("unknown_change", "changes: {bogus: 1}\n", "changes.bogus", "allowed: friction_drift, payload_change"),
     (
         "payload_change_before_start",

@@ -5,7 +5,9 @@ machine departs from its model while a run goes on:
 
 * :class:`FrictionDrift`: viscous B and/or Coulomb Af of one axis moving
   linearly from a start value at ``start_s`` to an end value at ``end_s``
-  (paper volt units, e.g. lubricant loss: B2 0.7 -> 0.91 V/(m/s)).
+  (paper volt units, e.g. lubricant loss: B2 0.7 -> 0.91 V/(m/s)). On a
+  LuGre axis (:mod:`gantry_twin.friction`) the drift moves sigma2 (the
+  joint damping) and the Coulomb level Fc, with Fs in proportion.
 * :class:`PayloadChange`: the payload mass on the X carriage becomes
   ``mass_kg`` at ``time_s`` (a pick-up or a drop).
 * :class:`CoggingRipple`: a position-periodic motor force on one axis,
@@ -31,6 +33,7 @@ from typing import Literal, NamedTuple
 import numpy as np
 
 from gantry_twin._jit import kernel, reference
+from gantry_twin.friction import identified_af_b, lugre_parameters
 from gantry_twin.plant import AXES, Axis, PayloadMass, Plant, moving_masses_kg
 from gantry_twin.ranges import Count, Range, Vector, fmt, rule, settings
 
@@ -78,7 +81,9 @@ class FrictionDrift:
     viscous_to_v_s_m: B at ``end_s``, V/(m/s) (None: B does not drift).
     viscous_from_v_s_m: B up to ``start_s`` (None: the plant's own B).
     coulomb_to_v / coulomb_from_v: the same for Af, volts.
-    In SI the model gets B * gear (N s/m) and Af * gear (N).
+    In SI the model gets B * gear (N s/m) and Af * gear (N). On a LuGre axis
+    these are sigma2 / gear and Fc / gear (Fs keeps its ratio to Fc); the
+    true theta is then the paper's identification of the drifted friction.
     """
 
     axis: Axis
@@ -208,8 +213,12 @@ class PlantChanges:
     # ---- schedules over the run's sample times t (N,) -------------------------------------
 
     def _friction_v(self, plant: Plant, t: np.ndarray, coulomb: bool) -> np.ndarray:
+        """The model's viscous (B) or Coulomb (Af; LuGre: Fc) level at each sample, volts, (N, 2)."""
         gear = plant.gear_n_per_v
         own = (plant.model.dof_frictionloss if coulomb else plant.model.dof_damping)[plant.dof_index] / gear
+        for axis, actuator in enumerate(plant.friction_index):
+            if coulomb and actuator >= 0:
+                own[axis] = plant.model.actuator_biasprm[actuator, 3] / gear[axis]
         out = np.tile(own, (t.size, 1))
         for drift in self.friction_drift:
             to = drift.coulomb_to_v if coulomb else drift.viscous_to_v_s_m
@@ -296,14 +305,14 @@ class PlantChanges:
         gear = plant.gear_n_per_v
         bare_kg = moving_masses_kg(plant.model, plant.dof_index) - plant.payload.mass_kg
         mass_v = (bare_kg[None, :] + self.payload_mass_kg(plant, t)[:, None]) / gear
-        return np.column_stack(
-            [
-                mass_v,
-                self._friction_v(plant, t, coulomb=False),
-                self._friction_v(plant, t, coulomb=True),
-                np.zeros((t.size, 2)),
-            ]
-        )
+        viscous, coulomb = self._friction_v(plant, t, coulomb=False), self._friction_v(plant, t, coulomb=True)
+        for axis, actuator in enumerate(plant.friction_index):
+            if actuator >= 0:
+                p = lugre_parameters(plant.model, int(actuator), int(plant.dof_index[axis]))
+                fc = coulomb[:, axis] * gear[axis]
+                af, b = identified_af_b(fc, fc * p.fs_n / p.fc_n, p.vs_m_s, viscous[:, axis] * gear[axis])
+                coulomb[:, axis], viscous[:, axis] = af / gear[axis], b / gear[axis]
+        return np.column_stack([mass_v, viscous, coulomb, np.zeros((t.size, 2))])
 
 
 # ---- what the loop applies each sample (both backends) -------------------------------------
@@ -320,16 +329,20 @@ def cogging_force(table, axis, q_m):
 class ChangeSchedule(NamedTuple):
     """Per-sample plant and sensor changes for the loop, over the run's N samples.
 
-    The first three are views of mjModel memory the loop writes into. Each
+    The first four are views of mjModel memory the loop writes into. Each
     schedule is (N, ...) when the run has that kind of change, else empty
-    (0, ...), which the loop reads as "unchanged". cogging (2, 3): see
-    :meth:`PlantChanges.cogging_table`. none: an empty (0,) array, the
-    sensor's "no glitch".
+    (0, ...), which the loop reads as "unchanged". friction_actuator (2,):
+    each axis' LuGre actuator (-1: Coulomb friction), stribeck_ratio (2,) its
+    Fs / Fc. cogging (2, 3): see :meth:`PlantChanges.cogging_table`. none: an
+    empty (0,) array, the sensor's "no glitch".
     """
 
     dof_damping: np.ndarray
     dof_frictionloss: np.ndarray
     body_mass: np.ndarray
+    actuator_biasprm: np.ndarray
+    friction_actuator: np.ndarray
+    stribeck_ratio: np.ndarray
     payload_body: int
     damping_n_s_m: np.ndarray
     frictionloss_n: np.ndarray
@@ -355,10 +368,17 @@ def change_schedule(plant: Plant, changes: PlantChanges | None, t: np.ndarray) -
             )
         body = plant.payload_body_id
     glitches = changes.encoder_glitch
+    actuators = np.ascontiguousarray(plant.friction_index, dtype=np.int64)
+    ratio = np.array(
+        [model.actuator_biasprm[a, 4] / model.actuator_biasprm[a, 3] if a >= 0 else 1.0 for a in actuators]
+    )
     return ChangeSchedule(
         model.dof_damping,
         model.dof_frictionloss,
         model.body_mass,
+        model.actuator_biasprm,
+        actuators,
+        ratio,
         body,
         np.ascontiguousarray(changes.damping_n_s_m(plant, t)) if changes.friction_drift else none2,
         np.ascontiguousarray(changes.frictionloss_n(plant, t)) if changes.friction_drift else none2,
@@ -377,6 +397,9 @@ def change_schedule(plant: Plant, changes: PlantChanges | None, t: np.ndarray) -
 def apply_plant_changes(dof_index, changes, k):
     """Write sample k's scheduled joint damping, Coulomb level and payload mass into the model.
 
+    The Coulomb level of a LuGre axis is its actuator's Fc (biasprm[3]), with
+    Fs (biasprm[4]) at the same ratio to it.
+
     Only body_mass changes; MuJoCo derives the mass matrix from it at every
     step. dof_invweight0 (set at compile time, used to scale constraint
     regularisation) keeps its unloaded value: with this model's stiff friction
@@ -386,7 +409,12 @@ def apply_plant_changes(dof_index, changes, k):
     if changes.damping_n_s_m.shape[0] > 0:
         for i in range(2):
             changes.dof_damping[dof_index[i]] = changes.damping_n_s_m[k, i]
-            changes.dof_frictionloss[dof_index[i]] = changes.frictionloss_n[k, i]
+            actuator = changes.friction_actuator[i]
+            if actuator >= 0:
+                changes.actuator_biasprm[actuator, 3] = changes.frictionloss_n[k, i]
+                changes.actuator_biasprm[actuator, 4] = changes.frictionloss_n[k, i] * changes.stribeck_ratio[i]
+            else:
+                changes.dof_frictionloss[dof_index[i]] = changes.frictionloss_n[k, i]
     if changes.payload_kg.shape[0] > 0:
         changes.body_mass[changes.payload_body] = changes.payload_kg[k]
 

@@ -18,6 +18,15 @@ from typing import Literal, get_args
 import mujoco
 import numpy as np
 
+from gantry_twin.friction import (
+    Friction,
+    apply_friction,
+    check_bristle_damping,
+    friction_actuators,
+    identified_af_b,
+    lugre_parameters,
+    steady_bristle_m,
+)
 from gantry_twin.ranges import Range, Vector, settings
 
 #: An axis by name; AXES: the names in the package's order (index 0 = X, 1 = Y).
@@ -62,15 +71,35 @@ class Payload:
     offset_m: PayloadOffset = (0.0, 0.0, 0.05)
 
 
+@settings("plant")
+class PlantSettings:
+    """How the machine departs from models/gantry.xml's defaults in a scenario.
+
+    file: an MJCF model in place of models/gantry.xml (e.g. ``gantry-twin
+    identify``'s plant.xml), relative to the scenario file; None: the shipped
+    model. friction: its friction model (:mod:`gantry_twin.friction`), applied
+    to that model.
+    """
+
+    file: str | None = None
+    friction: Friction = Friction()
+
+
 def build_spec(
-    payload: Payload | None = None, model_path: Path | None = None, payload_body: bool = False
+    payload: Payload | None = None,
+    model_path: Path | None = None,
+    payload_body: bool = False,
+    friction: Friction | None = None,
 ) -> mujoco.MjSpec:
-    """The gantry as an editable MjSpec, with a payload body if one is given.
+    """The gantry as an editable MjSpec, with a payload body if one is given and the friction model.
 
     payload_body: add the body even for a 0 kg payload (MuJoCo accepts a
     massless welded body), so that a run can change its mass (a pick-up).
+    friction: see :mod:`gantry_twin.friction` (None: the file's Coulomb
+    friction, unchanged). The spec's timestep stays the control sample.
     """
     spec = mujoco.MjSpec.from_file(str(model_path or default_model_path()))
+    apply_friction(spec, friction or Friction(), AXES)
     if payload is None and payload_body:
         payload = Payload()
     if payload is not None and (payload.mass_kg > 0.0 or payload_body):
@@ -99,11 +128,26 @@ class Plant:
     """The compiled gantry: model, data and the named indices the twin needs."""
 
     def __init__(
-        self, payload: Payload | None = None, model_path: Path | None = None, payload_body: bool = False
+        self,
+        payload: Payload | None = None,
+        model_path: Path | None = None,
+        payload_body: bool = False,
+        friction: Friction | None = None,
     ) -> None:
-        """payload_body: always build the payload body (even at 0 kg) so its mass can change during a run."""
+        """payload_body: always build the payload body (even at 0 kg) so its mass can change during a run.
+
+        friction: the friction model (:mod:`gantry_twin.friction`; None: the
+        file's Coulomb friction). Raises :class:`gantry_twin.friction.FrictionError`
+        for LuGre parameters outside their physical range.
+        """
         self.payload = payload or Payload()
-        self.spec = build_spec(self.payload, model_path, payload_body)
+        self.friction = friction or Friction()
+        self.spec = build_spec(self.payload, model_path, payload_body, self.friction)
+        #: The control sample period Ts, s (the file's timestep); substeps: physics steps per sample.
+        self.timestep_s = float(self.spec.option.timestep)
+        self.substeps = self.friction.integration()[1]
+        if self.substeps != 1:
+            self.spec.option.timestep = self.timestep_s / self.substeps
         self.model: mujoco.MjModel = self.spec.compile()
         self.data = mujoco.MjData(self.model)
         m = self.model
@@ -112,7 +156,9 @@ class Plant:
         self.dof_index = np.array([int(j.dofadr[0]) for j in joints])
         self.motor_index = np.array([m.actuator(f"{a}_motor").id for a in AXES])
         self.disturbance_index = np.array([m.actuator(f"{a}_disturbance").id for a in AXES])
-        self.timestep_s = float(m.opt.timestep)
+        #: Actuator id of each axis' LuGre friction actuator (X, Y), -1 for Coulomb friction.
+        self.friction_index = friction_actuators(m, AXES)
+        check_bristle_damping(m, self.friction_index, moving_masses_kg(m, self.dof_index), AXES)
         #: Body id of the payload, or None if the model has no payload body.
         self.payload_body_id: int | None = m.body("payload").id if self.payload.mass_kg > 0.0 or payload_body else None
 
@@ -127,10 +173,18 @@ class Plant:
         return self.model.actuator_ctrlrange[self.motor_index].copy()
 
     def reset(self, q_m: np.ndarray, dq_m_s: np.ndarray) -> None:
-        """Put the carriages at q (m) moving at dq (m/s), controls at zero."""
+        """Put the carriages at q (m) moving at dq (m/s), controls at zero.
+
+        LuGre's bristles start deflected as in steady sliding at dq
+        (:func:`gantry_twin.friction.steady_bristle_m`; undeflected at rest).
+        """
         mujoco.mj_resetData(self.model, self.data)
         self.data.qpos[self.qpos_index] = q_m
         self.data.qvel[self.dof_index] = dq_m_s
+        for axis, actuator in enumerate(self.friction_index):
+            if actuator >= 0:
+                p = lugre_parameters(self.model, int(actuator), int(self.dof_index[axis]))
+                self.data.act[self.model.actuator_actadr[actuator]] = steady_bristle_m(p, float(dq_m_s[axis]))
         mujoco.mj_forward(self.model, self.data)
 
     @property
@@ -145,7 +199,7 @@ class Plant:
 
     def true_parameters(self) -> np.ndarray:
         """theta of the current model, volt units; see :func:`true_parameters`."""
-        return true_parameters(self.model, self.dof_index, self.motor_index)
+        return true_parameters(self.model, self.dof_index, self.motor_index, self.friction_index)
 
 
 def moving_masses_kg(model: mujoco.MjModel, dof_index: np.ndarray) -> np.ndarray:
@@ -157,16 +211,25 @@ def moving_masses_kg(model: mujoco.MjModel, dof_index: np.ndarray) -> np.ndarray
     return full[dof_index, dof_index]
 
 
-def true_parameters(model: mujoco.MjModel, dof_index: np.ndarray, motor_index: np.ndarray) -> np.ndarray:
+def true_parameters(
+    model: mujoco.MjModel, dof_index: np.ndarray, motor_index: np.ndarray, friction_index: np.ndarray | None = None
+) -> np.ndarray:
     """The paper's theta = [M1, M2, B1, B2, Af1, Af2, dN1, dN2] in volt units.
 
     Computed from the compiled model: masses from ``mj_fullM``, viscous
     damping from ``dof_damping``, Coulomb level from ``dof_frictionloss``,
-    each divided by the motor gear (N/V). dN is zero: the plant has no
-    nominal disturbance.
+    each divided by the motor gear (N/V). An axis with LuGre friction
+    (friction_index: its actuator, -1 for none) has the B and Af of the
+    paper's identification applied to it (:func:`gantry_twin.friction.identified_af_b`).
+    dN is zero: the plant has no nominal disturbance.
     """
     gear = model.actuator_gear[motor_index, 0]
     mass = moving_masses_kg(model, dof_index) / gear
-    damping = model.dof_damping[dof_index] / gear
-    friction = model.dof_frictionloss[dof_index] / gear
-    return np.concatenate([mass, damping, friction, np.zeros(2)])
+    damping = model.dof_damping[dof_index].copy()
+    friction = model.dof_frictionloss[dof_index].copy()
+    for axis, actuator in enumerate(() if friction_index is None else friction_index):
+        if actuator >= 0:
+            p = lugre_parameters(model, int(actuator), int(dof_index[axis]))
+            af, b = identified_af_b(p.fc_n, p.fs_n, p.vs_m_s, p.sigma2_ns_m)
+            friction[axis], damping[axis] = float(af), float(b)
+    return np.concatenate([mass, damping / gear, friction / gear, np.zeros(2)])

@@ -1,8 +1,10 @@
 """The 0.2 ms loop: measure -> control -> disturb -> mj_step -> record.
 
-One physics step per controller sample (Ts = the model's timestep, 0.2 ms).
-The command is computed from that sample's measurement and held over the
-step (zero-order hold, as the DS1103's DAC does). The disturbance actuators
+The controller runs once per sample (Ts = the plant's ``timestep_s``, 0.2 ms);
+the plant advances ``plant.substeps`` physics steps per sample (one for the
+Coulomb friction, more for LuGre: docs/friction.md). The command is computed
+from that sample's measurement and held over the sample (zero-order hold, as
+the DS1103's DAC does). The disturbance actuators
 are driven from the scenario's timeline; the controller never sees them.
 
 The loop records into a :class:`Trace` preallocated for the whole run and
@@ -114,7 +116,8 @@ mj_step = _load_mj_step()
 
 
 class PlantIO(NamedTuple):
-    """What the loop touches in MuJoCo: raw pointers, views into mjData, indices, the DAC limits (2,) V."""
+    """What the loop touches in MuJoCo: raw pointers, views into mjData, indices, the DAC limits (2,) V,
+    physics steps per sample."""
 
     model_address: int
     data_address: int
@@ -126,6 +129,7 @@ class PlantIO(NamedTuple):
     motor_index: np.ndarray
     disturbance_index: np.ndarray
     u_max_v: np.ndarray
+    substeps: int
 
 
 class Recording(NamedTuple):
@@ -177,7 +181,7 @@ def _measure(plant, encoder, sample, changes, k):
 @kernel(inline=True)
 def _record_and_step(plant, recording, k, sample, changes):
     """Check the command; record the sample (row k of the recording); hold u (clipped) and the disturbance
-    (+ cogging); mj_step.
+    (+ cogging); mj_step ``plant.substeps`` times.
 
     Returns False if the command is not finite.
     """
@@ -197,7 +201,8 @@ def _record_and_step(plant, recording, k, sample, changes):
             ctrl[disturbances[i]] = disturbance_v[k, i] + cogging_force(changes.cogging, i, q_true[i])
         else:
             ctrl[disturbances[i]] = disturbance_v[k, i]
-    mj_step(plant.model_address, plant.data_address)
+    for _ in range(plant.substeps):
+        mj_step(plant.model_address, plant.data_address)
     return True
 
 
@@ -347,7 +352,7 @@ def simulate(
     schedule = change_schedule(plant, changes, np.arange(n) * ts if moving else np.zeros(0))
     references = ReferenceStream(path, timing)
     model = plant.model
-    saved = (model.dof_damping.copy(), model.dof_frictionloss.copy(), model.body_mass.copy())
+    saved = _changed_fields(model)
     true_theta = plant.true_parameters()
     loop: _Loop | None = None
     try:
@@ -387,19 +392,34 @@ def simulate(
         for observer in observers:
             observer.on_end(trace)
     finally:
-        model.dof_damping[:], model.dof_frictionloss[:], model.body_mass[:] = saved
+        _restore(model, saved)
     return trace
 
 
+def _changed_fields(model: mujoco.MjModel) -> tuple[np.ndarray, ...]:
+    """Copies of the model fields plant changes write (damping, friction loss, masses, LuGre's levels)."""
+    return (
+        model.dof_damping.copy(),
+        model.dof_frictionloss.copy(),
+        model.body_mass.copy(),
+        model.actuator_biasprm.copy(),
+    )
+
+
+def _restore(model: mujoco.MjModel, saved: tuple[np.ndarray, ...]) -> None:
+    """Write back the fields :func:`_changed_fields` copied."""
+    model.dof_damping[:], model.dof_frictionloss[:], model.body_mass[:], model.actuator_biasprm[:] = saved
+
+
 def _as_before(model: mujoco.MjModel, saved: tuple[np.ndarray, ...], function: Callable[..., T], *args: object) -> T:
-    """``function(*args)`` computed on the model as it was before the run (``saved``: its damping, friction
-    loss and masses; the loop writes the scheduled values into it)."""
-    during = (model.dof_damping.copy(), model.dof_frictionloss.copy(), model.body_mass.copy())
-    model.dof_damping[:], model.dof_frictionloss[:], model.body_mass[:] = saved
+    """``function(*args)`` computed on the model as it was before the run (``saved``: :func:`_changed_fields`;
+    the loop writes the scheduled values into it)."""
+    during = _changed_fields(model)
+    _restore(model, saved)
     try:
         return function(*args)
     finally:
-        model.dof_damping[:], model.dof_frictionloss[:], model.body_mass[:] = during
+        _restore(model, during)
 
 
 def _stopped_at(trace: Trace, k: int, what: str, detail: str = "") -> SimulationError:
@@ -444,6 +464,7 @@ class _Loop:
                 for i in (plant.qpos_index, plant.dof_index, plant.motor_index, plant.disturbance_index)
             ),
             u_max,
+            plant.substeps,
         )
         self.encoder, self.changes, self.compiled = sensor, changes, compiled
         if compiled is not None:
@@ -509,7 +530,7 @@ def _python_chunk(plant: Plant, controller: Controller, loop: _Loop) -> Callable
         loop.trace.record_state(j, controller.state_for_logging())
 
     def python_mj_step(model_address: int, data_address: int) -> None:
-        mujoco.mj_step(plant.model, plant.data)
+        mujoco.mj_step(plant.model, plant.data)  # called plant.substeps times per sample, as the compiled loop
 
     record_and_step = specialise(_record_and_step, "python", {"mj_step": python_mj_step}, compiled=False)
     bindings = {

@@ -9,6 +9,7 @@ its options (an exception from a plug-in's factory is reported against
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -16,6 +17,7 @@ import numpy as np
 
 from gantry_twin.changes import PlantChanges
 from gantry_twin.controllers import Controller, EstimatorSettings, create
+from gantry_twin.friction import FrictionError
 from gantry_twin.monitor import Baseline, ExcitationSettings, HealthSettings, MachineMonitor
 from gantry_twin.paths import Ellipse, TimingLaw
 from gantry_twin.plant import AXES, Plant
@@ -69,18 +71,31 @@ def build(scenario: Scenario, source: str = "<scenario>") -> BuiltRun:
 
 def _plant(scenario: Scenario, payload_body: bool, source: str) -> Plant:
     """The compiled plant: the shipped model, or ``plant.file`` (relative to the scenario file)."""
+    friction = scenario.plant.friction
     if scenario.plant.file is None:
-        return Plant(scenario.payload, payload_body=payload_body)
+        return _with_friction(lambda: Plant(scenario.payload, payload_body=payload_body, friction=friction), source)
     path = Path(scenario.plant.file)
     if not path.is_absolute() and Path(source).is_file():
         path = Path(source).parent / path
     if not path.is_file():
         raise ScenarioError(source, "plant.file", f"{quote(str(path))}: no such file; give an MJCF model of the gantry")
     try:
-        return Plant(scenario.payload, model_path=path, payload_body=payload_body)
+        return _with_friction(
+            lambda: Plant(scenario.payload, model_path=path, payload_body=payload_body, friction=friction), source
+        )
+    except ScenarioError:  # a friction setting this model refuses: already names its field
+        raise
     except (ValueError, KeyError, TypeError) as exc:  # mujoco's errors, a missing named element
         why = shorten(str(exc).splitlines()[0] if str(exc) else type(exc).__name__, 120)
         raise ScenarioError(source, "plant.file", f"{quote(str(path))} is not a gantry model ({why})") from None
+
+
+def _with_friction(make: Callable[[], Plant], source: str) -> Plant:
+    """``make()``, with a friction setting the compiled model refuses as a ScenarioError naming its field."""
+    try:
+        return make()
+    except FrictionError as exc:
+        raise ScenarioError(source, f"plant.{exc.field}", exc.message) from None
 
 
 def make_monitor(scenario: Scenario, controller: Controller, source: str = "<scenario>") -> MachineMonitor:

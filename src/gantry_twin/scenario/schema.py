@@ -1,7 +1,8 @@
 """The scenario schema: what a scenario file may say, field by field.
 
 The domain settings are fields of their own types (:class:`Payload`,
-:class:`SensingConfig`, :class:`PlantChanges`, and the built-in controllers'
+:class:`PlantSettings` (the friction model), :class:`SensingConfig`,
+:class:`PlantChanges`, and the built-in controllers'
 ``gains``, ``estimator``, ...): their ranges are declared once, on those
 types (:mod:`gantry_twin.ranges`). What exists only in a scenario (the
 contour and its timing, disturbance events, the monitor switch and windows,
@@ -31,7 +32,7 @@ from gantry_twin.monitor import (
     MinParameterV,
 )
 from gantry_twin.paths import Ellipse, TimingLaw
-from gantry_twin.plant import Payload
+from gantry_twin.plant import Payload, PlantSettings
 from gantry_twin.ranges import VOLTS_MAX_V, Frequency, Label, Range, Real, Seconds, Window, known_keys, quote
 from gantry_twin.sensing import SensingConfig
 from gantry_twin.simulate import Disturbance
@@ -237,13 +238,6 @@ class MonitorSpec(_Model):
     filter_hz: FilterHz | None = None
 
 
-class PlantSpec(_Model):
-    """The machine: ``file`` an MJCF model in place of models/gantry.xml (e.g. ``gantry-twin identify``'s
-    plant.xml), relative to the scenario file; None: the shipped model."""
-
-    file: str | None = None
-
-
 class OutputsSpec(_Model):
     """Where and what ``gantry-twin run`` writes: ``runs/<dir>/`` (default ``runs/<name>/``) unless ``--out``."""
 
@@ -262,8 +256,8 @@ class Scenario(_Model):
     name: Label | None = None
     description: str = ""
     contour: ContourSpec = CircleSpec()
-    plant: PlantSpec = PlantSpec()
     payload: Payload = Payload()
+    plant: PlantSettings = PlantSettings()
     disturbance: DisturbanceSpec = DisturbanceSpec()
     controller: ControllerSpec = ControllerSpec()
     sensing: SensingConfig = SensingConfig()
