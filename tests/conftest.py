@@ -3,8 +3,14 @@
 from __future__ import annotations
 
 import pytest
+from hypothesis import settings
 
 from .helpers import run
+
+# Tests never time (benchmarks/ do): hypothesis' per-example deadline would fail a property test whose first call
+# compiles or loads a numba kernel on a loaded machine (seen at 0.45-0.75 s against its 200 ms default).
+settings.register_profile("gantry-twin", deadline=None)
+settings.load_profile("gantry-twin")
 
 
 @pytest.fixture(scope="session")
