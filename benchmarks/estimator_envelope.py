@@ -1,6 +1,6 @@
 """DIARC's estimate errors over the machine's envelope (issue 16): write the sweep, read its results.
 
-    PYTHONPATH=src python benchmarks/estimator_envelope.py write [--monitor] [--issue7]
+    PYTHONPATH=src python benchmarks/estimator_envelope.py write [--monitor [--corners]] [--issue7]
     gantry-twin sweep estimator_envelope --workers 2
     PYTHONPATH=src python benchmarks/estimator_envelope.py map runs/sweeps/estimator_envelope/results.parquet \
         [--figure docs/images/estimator_envelope.png]
@@ -37,6 +37,9 @@ ROOT = Path(__file__).resolve().parents[1]
 SPEEDS_M_S = (0.02, 0.05, 0.1, 0.2, 0.4, 0.6)
 SIZES_M = (0.02, 0.05, 0.1, 0.2)
 PAYLOADS_KG = (0.0, 5.0)
+#: ``--corners``: the map's edges and middle only (a quicker monitor check).
+CORNER_SPEEDS_M_S = (0.02, 0.05, 0.2, 0.6)
+CORNER_SIZES_M = (0.02, 0.2)
 #: The scenario's largest rate (TimingSpec.rate_rad_s).
 RATE_MAX_RAD_S = 20.0
 #: "issue7": the recommended estimator before issue 16 (50 Hz filters, Sf of the differenced velocity, every row).
@@ -49,12 +52,12 @@ SET = {"duration_s": 30.0, "window_s": [10.0, 30.0], "estimates_window_s": [20.0
 MONITOR_SET = {"duration_s": 60.0, "window_s": [10.0, 60.0], "estimates_window_s": [50.0, 60.0], "monitor.enable": True}
 
 
-def contours() -> list[dict]:
+def contours(speeds: tuple[float, ...] = SPEEDS_M_S, sizes: tuple[float, ...] = SIZES_M) -> list[dict]:
     """Circle and ellipse at every speed and size whose rate is allowed, slowest first."""
     out = []
     for shape in ("circle", "ellipse"):
-        for size in SIZES_M:
-            for speed in SPEEDS_M_S:
+        for size in sizes:
+            for speed in speeds:
                 rate = round(speed / size, 6)
                 if rate > RATE_MAX_RAD_S:
                     continue
@@ -75,7 +78,7 @@ def contours() -> list[dict]:
     return out
 
 
-def write_sweep(monitor: bool, issue7: bool = False) -> Path:
+def write_sweep(monitor: bool, issue7: bool = False, corners: bool = False) -> Path:
     name = "estimator_envelope_monitor" if monitor else "estimator_envelope"
     estimators = ["recommended"] if monitor else [*ESTIMATORS, *([ISSUE7_ESTIMATOR] if issue7 else [])]
     spec = {
@@ -87,7 +90,7 @@ def write_sweep(monitor: bool, issue7: bool = False) -> Path:
         "scenario": "no_load_circle",
         "set": MONITOR_SET if monitor else SET,
         "axes": [
-            {"field": "contour", "values": contours()},
+            {"field": "contour", "values": contours(*((CORNER_SPEEDS_M_S, CORNER_SIZES_M) if corners else ()))},
             {"field": "payload.mass_kg", "values": list(PAYLOADS_KG)},
             {"field": "controller.options.estimator", "values": estimators},
         ],
@@ -186,12 +189,13 @@ def main(argv: list[str] | None = None) -> int:
     w = sub.add_parser("write", help="write the sweep file")
     w.add_argument("--monitor", action="store_true", help="the 60 s monitor sweep instead")
     w.add_argument("--issue7", action="store_true", help="also the recommended estimator before issue 16")
+    w.add_argument("--corners", action="store_true", help=f"only speeds {CORNER_SPEEDS_M_S}, sizes {CORNER_SIZES_M}")
     m = sub.add_parser("map", help="summarise a finished sweep and draw the map")
     m.add_argument("results", type=Path)
     m.add_argument("--figure", type=Path)
     args = parser.parse_args(argv)
     if args.command == "write":
-        print(write_sweep(args.monitor, args.issue7))
+        print(write_sweep(args.monitor, args.issue7, args.corners))
         return 0
     rows = load(args.results)
     summarise(rows)

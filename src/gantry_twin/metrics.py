@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -96,8 +97,13 @@ class RunMetrics:
     so a run held in pieces is judged as a whole trace would be, to the bit.
     """
 
-    def __init__(self, contour_window_s: tuple[float, float], estimate_window_s: tuple[float, float]) -> None:
+    def __init__(
+        self, contour_window_s: tuple[float, float], estimate_window_s: tuple[float, float], confidence: Any = None
+    ) -> None:
+        """confidence: an Observer with ``verdicts()`` (:class:`gantry_twin.confidence.EstimateConfidence`) fed
+        the same chunks, or None (no trustworthiness in the summary)."""
         self.contour_window_s, self.estimate_window_s = contour_window_s, estimate_window_s
+        self.confidence = confidence
         self._eps_c: list[np.ndarray] = []
         self._theta = WindowMean(estimate_window_s)
         self._true = WindowMean(estimate_window_s)
@@ -116,6 +122,8 @@ class RunMetrics:
             self._estimated = True
             self._theta.add(t, theta[rows])
             self._true.add(t, trace.true_parameters_t()[rows])
+            if self.confidence is not None:
+                self.confidence.on_chunk(trace, start, stop)
 
     def on_end(self, trace: Trace) -> None:
         pass

@@ -35,6 +35,7 @@ from gantry_twin.results import (
     temporary_file,
 )
 from gantry_twin.scenario import BuiltRun, dump_yaml
+from gantry_twin.scenario.building import estimate_confidence
 from gantry_twin.simulate import sample_count, simulate
 from gantry_twin.trace import Observer, SimulationError, Trace
 
@@ -138,7 +139,7 @@ class RunWriter:
     def __init__(self, out: Path, built: BuiltRun) -> None:
         self.out, self.built = Path(out), built
         scenario = built.scenario
-        self.metrics = RunMetrics(scenario.metric_window_s, scenario.estimate_window_s)
+        self.metrics = RunMetrics(scenario.metric_window_s, scenario.estimate_window_s, estimate_confidence(built))
         self.travel = TravelWatch(built.plant)  # events, end_stop_contacts, saturation (gantry_twin.events)
         self.trace: TraceWriter | None = None
         self._made = [p for p in (self.out, *self.out.parents) if not p.exists()]  # deepest first
@@ -263,7 +264,7 @@ def _summary(
 def summarise(built: BuiltRun, trace: Trace) -> dict[str, Any]:
     """summary.json's content for a finished run's whole trace, as :class:`RunWriter` writes it (nothing written)."""
     scenario = built.scenario
-    metrics = RunMetrics(scenario.metric_window_s, scenario.estimate_window_s)
+    metrics = RunMetrics(scenario.metric_window_s, scenario.estimate_window_s, estimate_confidence(built))
     travel = TravelWatch(built.plant)
     for observer in (metrics, travel):
         observer.on_chunk(trace, trace.first, trace.filled)

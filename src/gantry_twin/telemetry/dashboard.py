@@ -146,6 +146,7 @@ def dashboard_blueprint(
     if health:
         middle_views += [
             rrb.TimeSeriesView(origin="health/excitation_V", name="Excitation per axis, V"),
+            rrb.TimeSeriesView(origin="health/trustworthy", name="Trustworthy estimates (1 = yes)"),
             rrb.TextLogView(origin="health/alarms", name="Health alarms"),
         ]
     middle = rrb.Vertical(*middle_views)
