@@ -71,7 +71,11 @@ def test_payload_pickup_masses_tracked_within_4_s_and_alarmed():
 def test_paper_scenarios_raise_no_alarm_over_60_s(name):
     _, _, report = run(name, "duration_s=60", "monitor.enable=true")
     assert report.alarms == []
-    assert report.status is not None and (report.status[-1] == 2).all()  # all "ok" at the end, judged
+    final = report.final_status()
+    # All "ok" at the end, judged; except that the paper's 250 / 150 Hz filters leave encoder noise in x_f''
+    # that biases M (errors in variables, control-spec section 7): excited, but not always trusted (issue 16).
+    assert all(final[n] == "ok" for n in final if n not in ("M1", "M2"))
+    assert final["M1"] in ("ok", "untrustworthy") and final["M2"] in ("ok", "untrustworthy")
     assert report.excited[-1].all()
 
 

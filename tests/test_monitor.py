@@ -13,6 +13,7 @@ from gantry_twin.excitation import FilteredRegressors
 from gantry_twin.monitor import (
     ALARM,
     NOT_EXCITED,
+    UNTRUSTWORTHY,
     Baseline,
     ExcitationSettings,
     HealthSettings,
@@ -270,3 +271,37 @@ def test_monitor_filters_the_measurements_exactly_as_diarc_estimator():
     np.testing.assert_array_equal(regressors.z, estimator.z[:, :, :3])
     for axis in range(2):
         np.testing.assert_array_equal(g[-1, axis], estimator.regression[[axis, 2 + axis, 4 + axis, 6 + axis], axis])
+
+
+def test_untrustworthy_estimates_are_not_judged():
+    """Issue 16: with the paper's 250 Hz X filter the encoder's quantisation noise in x_f'' biases M1 (errors
+    in variables, control-spec section 7): M1 is excited on the circle but untrustworthy, so its jump raises
+    nothing and its status says why; B2, trusted, is still judged and alarms on its own jump."""
+
+    def theta(t):
+        out = np.tile(BASE, (t.size, 1))
+        out[:, 0] = np.where(t >= 4.0, 0.3, BASE[0])  # M1 x2.5
+        out[:, 3] = np.where(t >= 5.0, 1.5 * BASE[3], BASE[3])  # B2 +50 %
+        return out
+
+    report = monitor_trace(synthetic_trace(7.0, theta), health=HEALTH, baseline=GIVEN)
+    judged = report.t_s >= 2.5
+    assert report.excited[judged, 0].all() and not report.trusted[judged, 0].any()
+    assert report.bias[judged, 0].min() > ExcitationSettings().max_bias
+    assert np.all(report.status[judged, 0] == UNTRUSTWORTHY)
+    assert report.trusted[judged, 3].all()
+    assert [a.parameter for a in report.alarms] == ["B2"]
+
+
+def test_bias_bound_follows_the_encoder_noise():
+    """The same run with ideal positions (resolution 0): nothing left to bias M1, it is trusted and judged."""
+
+    def theta(t):
+        out = np.tile(BASE, (t.size, 1))
+        out[:, 0] = np.where(t >= 4.0, 0.3, BASE[0])
+        return out
+
+    ideal = ExcitationSettings(resolution_m=0.0)
+    report = monitor_trace(synthetic_trace(7.0, theta), ideal, health=HEALTH, baseline=GIVEN)
+    assert report.trusted[report.t_s >= 2.5, 0].all()
+    assert [a.parameter for a in report.alarms] == ["M1"]

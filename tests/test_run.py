@@ -19,8 +19,7 @@ from gantry_twin import run as run_module
 from gantry_twin.controllers import PD, register, unregister
 from gantry_twin.controllers.base import CompiledStep
 from gantry_twin.controllers.pd import PDParams, pd_command
-from gantry_twin.events import travel_summary
-from gantry_twin.results import summary, summary_json, trace_table
+from gantry_twin.results import summary_json, trace_table
 from gantry_twin.run import RunWriter, execute, run_and_write, trace_size
 from gantry_twin.scenario import build, load_scenario, shipped
 from gantry_twin.simulate import compiled_available
@@ -260,8 +259,7 @@ def test_a_run_held_in_pieces_writes_what_a_whole_run_writes(tmp_path, stride):
     whole_run = build(scenario)
     whole = execute(whole_run)
     expected = trace_table(whole, stride)
-    expected_summary = summary(scenario, whole, scenario.controller.name, whole_run.monitor.report())
-    expected_summary.update(travel_summary(whole_run.plant, whole))  # end stops and saturation, scanned whole
+    expected_summary = run_module.summarise(whole_run, whole)  # the whole trace, in one chunk
 
     built = build(scenario)
     outcome = run_and_write(tmp_path / "out", built, hold_s=0.3)

@@ -24,7 +24,29 @@ input by sqrt(delta^T N_i delta) volts rms over the window. Reported:
 Model (25) holds only while the axis slides: in stick, Coulomb friction is
 any force up to Af, not Af Sf(v). Samples with |x_f'| below
 ``sliding_speed_m_s`` therefore add nothing to I_i. At standstill every
-parameter, dN included, has zero information.
+parameter, dN included, has zero information. With an estimator that gates
+out samples near a velocity reversal (``reversal_gate``), those samples add
+nothing either: the estimator did not use them.
+
+**Regressor errors** (:func:`estimate_bias`): excitation is not enough when
+the regressor itself is wrong. Two errors are predicted from what is known:
+
+* encoder quantisation (resolution r) is white noise of variance r^2 / 12
+  on the position; through Hf it puts noise of rms ``sigma`` on x_f'' and
+  x_f' (:func:`quantisation_noise`, exact for the discrete filter). Least
+  squares with noise in a column shrinks that parameter (errors in
+  variables) by about (noise_v / parameter_v)^2, noise_v = scale sigma;
+* the friction column Sf_f differs from the plant's sign(v) by at most
+  d = Hf[1 - |Sf(v)|] (the smooth Sf; a differenced velocity of 0 while the
+  axis moves below the encoder's velocity step), so the force error is at
+  most e_k = Af |d_k| per sample, and least squares moves theta by
+  I^-1 sum g_k e_k dt, at most Af |I^-1| m elementwise, with the moment
+  m = sum |g_k| |d_k| dt over the samples used.
+
+An estimate is **trustworthy** when its parameter is excited
+(``parameter_v`` >= ``min_parameter_v``), its axis slid in at least
+``min_moving_fraction`` of the time, and that bias bound is at most
+``max_bias``.
 
 :class:`gantry_twin.monitor.MachineMonitor` runs this over a sliding window
 and judges the estimates only where it finds enough excitation.
@@ -57,6 +79,7 @@ class FilterSettings(Protocol):
     filter_hz: tuple[float, float]  # Hf per axis, Hz
     filter_zeta: float
     friction_slope_s_m: float  # the 9000 of Sf(v) = (2/pi) atan(9000 v)
+    reversal_gate: float  # samples with |Sf_f| below this give a zero regressor (0: none)
 
 
 @kernel
@@ -92,16 +115,21 @@ class FilteredRegressors:
     backward-difference velocity), as the estimator starts at its first sample.
     The velocity is always the backward difference of the positions given:
     a controller fed another velocity (ideal sensing without difference,
-    velocity noise) filtered a slightly different Sf(x').
+    velocity noise) filtered a slightly different Sf(x'). A sample whose
+    |Sf_f| is below the settings' ``reversal_gate`` has g = 0 on that axis,
+    as in the estimator. :attr:`deficit` (n, 2): Hf[1 - |Sf(x')|] at the
+    samples of the last :meth:`advance` (the friction column's error bound).
     """
 
     def __init__(self, settings: FilterSettings, sample_period_s: float) -> None:
         self.ts = sample_period_s
         self.slope = settings.friction_slope_s_m
+        self.gate = settings.reversal_gate
         self.discs = [
             discretise_filter(2.0 * np.pi * hz, settings.filter_zeta, sample_period_s) for hz in settings.filter_hz
         ]
-        self.z = np.zeros((2, 2, 3))  # axis, state [w_f, w_f'], signal (q, Sf, 1)
+        self.z = np.zeros((2, 2, 4))  # axis, state [w_f, w_f'], signal (q, Sf, 1, 1 - |Sf|: the deficit)
+        self.deficit = np.zeros((0, 2))
         self.previous_q = np.zeros(2)
         self.seen = 0
 
@@ -118,6 +146,7 @@ class FilteredRegressors:
             if self.seen + skip == 1:  # steady state for sample 1's inputs
                 self._start(q[skip], velocity[skip])
             skip += 1
+        self.deficit = np.zeros((n, 2))
         if skip < n:
             g[skip:], speed[skip:] = self._regressors(q[skip:], prev[skip:], velocity[skip:])
         self.seen += n
@@ -128,21 +157,83 @@ class FilteredRegressors:
     def _start(self, q: np.ndarray, v: np.ndarray) -> None:
         sf = friction_shape(v, self.slope)
         for axis, disc in enumerate(self.discs):
-            self.z[axis] = filter_steady_state(disc, q[axis], v[axis], (sf[axis], 1.0))
+            self.z[axis] = filter_steady_state(disc, q[axis], v[axis], (sf[axis], 1.0, 1.0 - abs(sf[axis])))
 
     def _regressors(self, q, prev, velocity) -> tuple[np.ndarray, np.ndarray]:
         """The one place the estimator's filter functions are used (control-spec section 7)."""
         n = q.shape[0]
         g = np.empty((n, 2, 4))
         sf = friction_shape(velocity, self.slope)
+        deficit = 1.0 - np.abs(sf)
         for axis, disc in enumerate(self.discs):
-            held = np.stack([sf[:, axis], np.ones(n)], axis=1)
+            held = np.stack([sf[:, axis], np.ones(n), deficit[:, axis]], axis=1)
             acc, vel, filtered = filter_axis(self.z[axis], disc, q[:, axis], prev[:, axis], held, self.ts)
             g[:, axis, 0] = acc
             g[:, axis, 1] = vel
             g[:, axis, 2] = filtered[:, 0]
             g[:, axis, 3] = -filtered[:, 1]
-        return g, np.abs(g[:, :, 1])
+            self.deficit[-n:, axis] = filtered[:, 2]
+        speed = np.abs(g[:, :, 1])
+        g[np.abs(g[:, :, 2]) < self.gate] = 0.0
+        return g, speed
+
+
+def quantisation_noise(settings: FilterSettings, resolution_m: float, sample_period_s: float) -> np.ndarray:
+    """rms noise (2 axes, 2) of [x_f'' m/s^2, x_f' m/s] from encoder quantisation: white, variance r^2 / 12.
+
+    The sum of squares of the discrete filter's impulse response from the
+    position samples (first-order hold) to each output, times r^2 / 12.
+    """
+    out = np.zeros((2, 2))
+    for axis, hz in enumerate(settings.filter_hz):
+        disc = discretise_filter(2.0 * np.pi * hz, settings.filter_zeta, sample_period_s)
+        n = int(40.0 / (disc.zeta * disc.wn_rad_s * sample_period_s)) + 2  # 40 time constants: e^-40 left
+        q = np.zeros(n)
+        q[1] = 1.0
+        previous = np.concatenate([[0.0], q[:-1]])
+        acceleration, velocity, _ = filter_axis(np.zeros((2, 1)), disc, q, previous, np.zeros((n, 0)), sample_period_s)
+        out[axis] = np.sqrt(resolution_m**2 / 12.0 * np.array([np.sum(acceleration**2), np.sum(velocity**2)]))
+    return out
+
+
+def estimate_bias(
+    parameter_v: np.ndarray, scale: np.ndarray, noise: np.ndarray, information: np.ndarray, moment: np.ndarray
+) -> np.ndarray:
+    """Bound of the relative bias (..., 8) of each estimate from its regressor errors (module docstring).
+
+    parameter_v (..., 8) V; scale (8,) nominal values; noise (2, 2): rms of
+    [x_f'', x_f'] per axis (:func:`quantisation_noise`); information
+    (..., 2, 4, 4): sum g g^T dt; moment (..., 2, 4): sum |g| d dt over the
+    same samples. Errors in variables (noise / parameter_v)^2 plus the
+    friction column's Af |I^-1| m / scale; infinite without information.
+    """
+    noise_v = np.zeros(8)
+    noise_v[0:2] = scale[0:2] * noise[:, 0]  # M1, M2: x_f''
+    noise_v[2:4] = scale[2:4] * noise[:, 1]  # B1, B2: x_f'
+    eps = 1e-12 * np.trace(information, axis1=-2, axis2=-1)[..., None, None] + 1e-300
+    inverse = np.abs(np.linalg.inv(information + eps * np.eye(4)))
+    shift = np.einsum("...ij,...j->...i", inverse, moment)[..., AXIS_OF, COLUMN_OF]  # (..., 8), per unit Af
+    with np.errstate(divide="ignore", invalid="ignore"):
+        bias = (noise_v / parameter_v) ** 2 + scale[4:6][AXIS_OF] * shift / scale
+    return np.where(parameter_v > 0.0, bias, np.inf)
+
+
+@kernel
+def accumulate_moment(g, deficit, weight, first_index, period, acc, blocks):  # pragma: no cover
+    """Add weight_k |g_k| deficit_k (g (n, 2, 4), deficit (n, 2)) into per-period sums acc (2, 4), as
+    :func:`accumulate_information` does; each closed period into blocks[m]. Returns the number closed."""
+    m = 0
+    for k in range(g.shape[0]):
+        for a in range(2):
+            w = weight[k, a] * abs(deficit[k, a])
+            if w != 0.0:
+                for i in range(4):
+                    acc[a, i] += w * abs(g[k, a, i])
+        if (first_index + k + 1) % period == 0:
+            blocks[m] = acc
+            acc[:] = 0.0
+            m += 1
+    return m
 
 
 def filter_steady_state(disc: FilterDiscretisation, q_m: float, v_m_s: float, held: Sequence[float]) -> np.ndarray:

@@ -141,9 +141,13 @@ class RunMetrics:
         estimate_window_s: tuple[float, float],
         run_window_s: tuple[float, float] | None = None,
         periods_s: tuple[float, float] | None = None,
+        confidence: Any = None,
     ) -> None:
+        """confidence: an Observer with ``verdicts()`` (:class:`gantry_twin.confidence.EstimateConfidence`) fed
+        the same chunks, or None (no trustworthiness in the summary)."""
         self.contour_window_s, self.estimate_window_s = contour_window_s, estimate_window_s
         self.run_window_s, self.periods_s = run_window_s, periods_s
+        self.confidence = confidence
         self._eps_c: list[np.ndarray] = []
         self._theta = WindowMean(estimate_window_s)
         self._true = WindowMean(estimate_window_s)
@@ -157,12 +161,13 @@ class RunMetrics:
         self._period_count: list[int] = []
 
     @classmethod
-    def for_scenario(cls, scenario: Any) -> RunMetrics:
+    def for_scenario(cls, scenario: Any, confidence: Any = None) -> RunMetrics:
         """The metrics summary.json holds for a :class:`gantry_twin.scenario.Scenario`: its windows, the whole
-        run from the start of its contour window, its periods from the end of the start ramp."""
+        run from the start of its contour window, its periods from the end of the start ramp; ``confidence``
+        as in the constructor."""
         window = scenario.metric_window_s
         periods = (scenario.timing_law().settled_s, scenario.period_s)
-        return cls(window, scenario.estimate_window_s, (window[0], float(scenario.duration_s)), periods)
+        return cls(window, scenario.estimate_window_s, (window[0], float(scenario.duration_s)), periods, confidence)
 
     def on_start(self, run: object, trace: Trace) -> None:
         pass
@@ -178,6 +183,8 @@ class RunMetrics:
             self._estimated = True
             self._theta.add(t, theta[rows])
             self._true.add(t, trace.true_parameters_t()[rows])
+            if self.confidence is not None:
+                self.confidence.on_chunk(trace, start, stop)
         if self.run_window_s is not None:
             self._whole_run(t, eps_c_m, trace.e_m[rows], trace.u_v[rows])
 

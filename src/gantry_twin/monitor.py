@@ -35,10 +35,14 @@ A parameter is judged only while it is excited (``parameter_v`` at or above
 ``min_parameter_v`` over the window, and its axis sliding in at least
 ``min_moving_fraction`` of the latest monitor period); otherwise its CUSUM is
 frozen and its status is ``not excited``: with no information the
-estimator's output says nothing about the machine.
+estimator's output says nothing about the machine. Nor is it judged while it
+is excited but untrustworthy: its regressor errors (encoder quantisation in
+x_f'', x_f'; the friction column's gap from sign(v)) can bias it by more than
+``max_bias`` (:func:`gantry_twin.excitation.estimate_bias`); status
+``untrustworthy``.
 
 Status per parameter: ``baseline`` (baseline not yet known or before
-``judge_from_s``), ``not excited``, ``ok`` (S = 0), ``drifting`` (the estimate
+``judge_from_s``), ``not excited``, ``untrustworthy``, ``ok`` (S = 0), ``drifting`` (the estimate
 is beyond the tolerance and evidence accumulates, 0 < S <= h), ``alarm``
 (raised; it clears when S returns to 0, i.e. the deviation has stayed inside
 the tolerance long enough to use up the accumulated evidence).
@@ -60,7 +64,15 @@ from gantry_twin.estimation import (
     FilterZeta,
     FrictionSlope,
 )
-from gantry_twin.excitation import AXIS_OF, FilteredRegressors, accumulate_information, normalised_excitation
+from gantry_twin.excitation import (
+    AXIS_OF,
+    FilteredRegressors,
+    accumulate_information,
+    accumulate_moment,
+    estimate_bias,
+    normalised_excitation,
+    quantisation_noise,
+)
 from gantry_twin.plant import THETA_NAMES, THETA_UNITS
 from gantry_twin.ranges import (
     VOLTS_MAX_V,
@@ -74,10 +86,11 @@ from gantry_twin.ranges import (
     rule,
     settings,
 )
+from gantry_twin.sensing import ENCODER_RESOLUTION_M
 
 #: Status codes of :attr:`MonitorReport.status` and their names.
-STATUS_NAMES: tuple[str, ...] = ("baseline", "not excited", "ok", "drifting", "alarm")
-BASELINE, NOT_EXCITED, OK, DRIFTING, ALARM = range(5)
+STATUS_NAMES: tuple[str, ...] = ("baseline", "not excited", "ok", "drifting", "alarm", "untrustworthy")
+BASELINE, NOT_EXCITED, OK, DRIFTING, ALARM, UNTRUSTWORTHY = range(6)
 #: The nominal disturbances dN1, dN2 (baseline ~0) are judged in volts, the rest relative.
 ABSOLUTE_PARAMETERS = (6, 7)
 #: The CUSUM statistics are capped at CUSUM_CAP * h, so that an alarm clears within about
@@ -104,12 +117,16 @@ class ExcitationSettings:
     the paper's circle and ellipse, needed to separate Af from dN).
     period_s: monitor period, s: outputs (and health decisions) every period.
     filter_hz, filter_zeta: Hf per axis; use the estimator's (paper: 250/150 Hz).
-    friction_slope_s_m: the 9000 of Sf(v) = (2/pi) atan(9000 v).
+    friction_slope_s_m: the 9000 of Sf(v) = (2/pi) atan(9000 v); reversal_gate: the
+    estimator's (samples it leaves out near a velocity reversal carry no information).
+    resolution_m: the encoder's (0: ideal), for the quantisation noise in x_f'', x_f'.
     sliding_speed_m_s: samples with |x_f'| below this carry no information.
     scale: nominal parameter values D (volt units; dN: a volt scale), for the
     normalisation N = D I D / W.
     min_parameter_v: a parameter is excited when its ``parameter_v`` reaches this.
     min_moving_fraction: ... and its axis slid in this fraction of the latest period.
+    max_bias: ... and the bound of the relative bias from its regressor errors is at most this
+    (otherwise it is excited but untrustworthy).
     """
 
     window_s: ExcitationWindowS = 2.0
@@ -117,10 +134,14 @@ class ExcitationSettings:
     filter_hz: FilterHz = PAPER_FILTER_HZ
     filter_zeta: FilterZeta = PAPER_FILTER_ZETA
     friction_slope_s_m: FrictionSlope = FRICTION_SLOPE_S_M
+    reversal_gate: Range(0.0, 1.0) = 0.0
+    resolution_m: Range(0.0, 1.0e-3, "m") = ENCODER_RESOLUTION_M
     sliding_speed_m_s: NonNegative = 1.0e-3
     scale: Vector(Positive, THETA_NAMES) = (0.12, 0.50, 0.50, 0.70, 0.10, 0.15, 0.10, 0.10)
     min_parameter_v: MinParameterV = 0.01
     min_moving_fraction: Range(0.0, 1.0) = 0.5
+    #: 2 %: a fifth of the health tolerance (10 %), so that a trusted estimate's bias cannot read as a drift.
+    max_bias: Range(0.0, 1.0) = 0.02
 
     def __post_init__(self) -> None:
         if self.window_s < self.period_s:
@@ -213,9 +234,10 @@ class MonitorReport:
     information (M, 2, 4, 4): int gamma_f gamma_f^T dt over the window, per axis, raw units.
     level_v (M, 2), parameter_v (M, 8): normalised excitation, volts (module docstring).
     moving (M, 2): fraction of the latest period each axis slid.
-    excited (M, 8) bool. Health (None without theta_hat): estimate (M, 8),
-    deviation (M, 8) in tolerance units, cusum (M, 8, 2) [S+, S-], status (M, 8)
-    codes into STATUS_NAMES; alarms in the order raised; baseline.
+    excited (M, 8) bool; bias (M, 8): the bound of each estimate's relative bias from regressor
+    errors (excitation.estimate_bias), trusted (M, 8) bool: excited and bias <= max_bias.
+    Health (None without theta_hat): estimate (M, 8), deviation (M, 8) in tolerance units,
+    cusum (M, 8, 2) [S+, S-], status (M, 8) codes into STATUS_NAMES; alarms in the order raised; baseline.
     """
 
     t_s: np.ndarray
@@ -224,6 +246,8 @@ class MonitorReport:
     parameter_v: np.ndarray
     moving: np.ndarray
     excited: np.ndarray
+    bias: np.ndarray | None = None
+    trusted: np.ndarray | None = None
     estimate: np.ndarray | None = None
     deviation: np.ndarray | None = None
     cusum: np.ndarray | None = None
@@ -289,21 +313,28 @@ class MachineMonitor:
         blocks = np.empty((most, 2, 4, 4))
         block_moving = np.empty((most, 2))
         m = accumulate_information(g, weight, start, self._period, self._acc, self._moving, blocks, block_moving)
+        moments = np.empty((most, 2, 4))  # the friction column's error bound (excitation.estimate_bias)
+        accumulate_moment(g, self._regressors.deficit, weight, start, self._period, self._moment_acc, moments)
         theta = trace.controller_state.get("theta_hat")
-        ends, infos = [], np.empty((m, 2, 4, 4))
+        ends, infos, window_moments = [], np.empty((m, 2, 4, 4)), np.empty((m, 2, 4))
         for i in range(m):
             self._closed += 1
             ends.append(self._closed * self._period - 1)  # global index of the period's last sample
-            self._ring[self._ring_at % self._n_window] = blocks[i]
+            slot = self._ring_at % self._n_window
+            self._ring[slot] = blocks[i]
+            self._moment_ring[slot] = moments[i]
             self._ring_at += 1
             infos[i] = self._window_information()
+            window_moments[i] = self._moment_ring[self._window_order()].sum(axis=0)
         level, param = normalised_excitation(infos, self._scale, self._window_s)
+        bias = estimate_bias(param, self._scale, self._noise, infos, window_moments)
         for i, end in enumerate(ends):
             self._close_period(
                 float(trace.t_s[end - trace.first]),
                 infos[i],
                 level[i],
                 param[i],
+                bias[i],
                 block_moving[i],
                 None if theta is None else theta[end - trace.first],
             )
@@ -324,6 +355,13 @@ class MachineMonitor:
         t = np.asarray(self._hist["t"][row:], dtype=float)
         return t, np.asarray(self._hist["level"][row:], dtype=float).reshape(-1, 2)
 
+    def trusted_since(self, row: int) -> tuple[np.ndarray, np.ndarray]:
+        """Monitor periods from ``row`` on: (end times s (M,), 1.0 where the estimate is trustworthy (M, 8))."""
+        if not self._ready:
+            return np.zeros(0), np.zeros((0, 8))
+        t = np.asarray(self._hist["t"][row:], dtype=float)
+        return t, np.asarray(self._hist["trusted"][row:], dtype=float).reshape(-1, 8)
+
     # -- results --
     def report(self) -> MonitorReport:
         h = self._hist
@@ -338,6 +376,8 @@ class MachineMonitor:
             parameter_v=stack("param", (8,)),
             moving=stack("moving", (2,)),
             excited=stack("excited", (8,)).astype(bool),
+            bias=stack("bias", (8,)),
+            trusted=stack("trusted", (8,)).astype(bool),
             alarms=list(self._alarms),
             baseline=self._baseline,
         )
@@ -362,6 +402,9 @@ class MachineMonitor:
         self._moving = np.zeros(2)
         self._ring = np.zeros((self._n_window, 2, 4, 4))
         self._ring_at = 0
+        self._noise = quantisation_noise(ex, ex.resolution_m, self._ts)
+        self._moment_acc = np.zeros((2, 4))
+        self._moment_ring = np.zeros((self._n_window, 2, 4))
         self._closed = 0
         self._next = 0
         self._baseline = self.given_baseline
@@ -373,15 +416,21 @@ class MachineMonitor:
         self._open_alarm: dict[int, int] = {}
         self._hist: dict[str, list] = {
             k: []
-            for k in ("t", "info", "level", "param", "moving", "excited", "estimate", "deviation", "cusum", "status")
+            for k in (
+                *("t", "info", "level", "param", "bias", "moving", "excited", "trusted"),
+                *("estimate", "deviation", "cusum", "status"),
+            )
         }
         self._ready = True
 
     def _window_information(self) -> np.ndarray:
         """Sum of the last n_window period sums, oldest first (a fixed order: chunking-independent)."""
+        return self._ring[self._window_order()].sum(axis=0)
+
+    def _window_order(self) -> np.ndarray:
+        """Ring slots of the window's periods, oldest first."""
         count = min(self._ring_at, self._n_window)
-        order = (self._ring_at - count + np.arange(count)) % self._n_window
-        return self._ring[order].sum(axis=0)
+        return (self._ring_at - count + np.arange(count)) % self._n_window
 
     def _close_period(
         self,
@@ -389,22 +438,26 @@ class MachineMonitor:
         info: np.ndarray,
         level: np.ndarray,
         param: np.ndarray,
+        bias: np.ndarray,
         moving: np.ndarray,
         theta: np.ndarray | None,
     ) -> None:
         ex = self.excitation
         excited = (param >= ex.min_parameter_v) & (moving[AXIS_OF] >= ex.min_moving_fraction)
+        trusted = excited & (bias <= ex.max_bias)
         h = self._hist
         h["t"].append(t)
         h["info"].append(info)
         h["level"].append(level)
         h["param"].append(param)
+        h["bias"].append(bias)
         h["moving"].append(moving.copy())
         h["excited"].append(excited)
+        h["trusted"].append(trusted)
         if theta is not None:
-            self._judge(t, np.asarray(theta, dtype=float), excited)
+            self._judge(t, np.asarray(theta, dtype=float), excited, trusted)
 
-    def _judge(self, t: float, theta: np.ndarray, excited: np.ndarray) -> None:
+    def _judge(self, t: float, theta: np.ndarray, excited: np.ndarray, trusted: np.ndarray) -> None:
         hs = self.health
         half = 0.5 * self._ts
         if self._baseline is None:
@@ -424,7 +477,7 @@ class MachineMonitor:
             deviation = self._deviation(theta, np.asarray(self._baseline.theta))
         if judging:
             dt = self._period_s
-            active = excited
+            active = trusted
             cap = CUSUM_CAP * hs.decision_interval_s
             step_up = np.clip(self._s[:, 0] + (deviation - 1.0) * dt, 0.0, cap)
             step_down = np.clip(self._s[:, 1] + (-deviation - 1.0) * dt, 0.0, cap)
@@ -445,6 +498,7 @@ class MachineMonitor:
                     self._alarms[index] = replace(old, cleared_s=t)
             s_max = self._s.max(axis=1)
             status = np.where(self._alarmed, ALARM, np.where(s_max > 0.0, DRIFTING, OK)).astype(np.int8)
+            status[excited & ~trusted & ~self._alarmed] = UNTRUSTWORTHY
             status[~excited & ~self._alarmed] = NOT_EXCITED
         self._hist["estimate"].append(theta.copy())
         self._hist["deviation"].append(deviation)

@@ -220,6 +220,9 @@ def run_summary(
                 name: {"estimate": float(est), "true": float(tru), "error_pct": errors[name]}
                 for name, est, tru in zip(THETA_NAMES, estimate, true, strict=True)
             }
+            if metrics.confidence is not None:  # trustworthy, why, excitation_v, bias_bound_pct (docs/cli.md)
+                for name, verdict in metrics.confidence.verdicts().items():
+                    out["estimates"][name].update(verdict)
     if health is not None:
         out["health"] = health_summary(health)
     return out

@@ -39,6 +39,7 @@ from gantry_twin.results import (
     temporary_file,
 )
 from gantry_twin.scenario import BuiltRun, dump_yaml
+from gantry_twin.scenario.building import estimate_confidence
 from gantry_twin.simulate import sample_count, simulate
 from gantry_twin.trace import Observer, SimulationError, Trace
 
@@ -157,7 +158,7 @@ class RunWriter:
         #: Why the figures were not drawn (a run without trace, or the plotting raised), None if they were.
         self.plots_skipped: str | None = None
         scenario = built.scenario
-        self.metrics = RunMetrics.for_scenario(scenario)
+        self.metrics = RunMetrics.for_scenario(scenario, estimate_confidence(built))
         self.travel = TravelWatch(built.plant)  # events, end_stop_contacts, saturation (gantry_twin.events)
         self.trace: TraceWriter | None = None
         self._made = [p for p in (self.out, *self.out.parents) if not p.exists()]  # deepest first
@@ -312,7 +313,7 @@ def _summary(
 def summarise(built: BuiltRun, trace: Trace) -> dict[str, Any]:
     """summary.json's content for a finished run's whole trace, as :class:`RunWriter` writes it (nothing written)."""
     scenario = built.scenario
-    metrics = RunMetrics.for_scenario(scenario)
+    metrics = RunMetrics.for_scenario(scenario, estimate_confidence(built))
     travel = TravelWatch(built.plant)
     for observer in (metrics, travel):
         observer.on_chunk(trace, trace.first, trace.filled)

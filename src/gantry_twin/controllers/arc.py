@@ -47,6 +47,7 @@ from gantry_twin.estimation import (
     FilterDiscretisation,
     FilterHz,
     FilterZeta,
+    FrictionSlope,
     LeastSquaresSettings,
     LeastSquaresWork,
     clip,
@@ -94,17 +95,30 @@ class EstimatorSettings:
     dc_max_v: Vector(Range(0.0, VOLTS_MAX_V, "V"), AXES) = (0.5, 1.5)
     #: At most 10 s: a few time constants 1 / (zeta wn) of the slowest allowed filter (5 Hz, zeta 0.1).
     settle_s: Range(0.0, 10.0, "s") = 0.02
+    #: The slope of Sf(v) in the estimator's friction regressor, s/m; None: the controller's (paper: 9000). Far
+    #: above 1 / (the velocity step by difference, 2.5 mm/s) Sf is sign(v): the plant's Coulomb friction.
+    friction_slope_s_m: FrictionSlope | None = None
+    #: An axis' sample is left out of the least squares while its filtered friction regressor |Sf_f| < this:
+    #: a velocity reversal (stick, a differenced velocity of 0) is still in the filter's memory. 0: never (paper).
+    reversal_gate: Range(0.0, 1.0) = 0.0
 
 
-#: The twin's recommended estimator: 50 Hz filters, which keep the encoder's
-#: 0.5 um quantisation noise out of x_f'' (control-spec section 7); forgetting
-#: kappa = 0.7 1/s (paper: 0.1), a memory of about 1.4 s, so that the estimates
-#: follow a changing machine (a payload pick-up, a friction drift) within the
-#: health monitor's targets; and a faster dc^ rate gamma_d = 3e4 (paper: 1e4),
-#: so that dc^ follows cogging ripple. The measurements behind each choice are
-#: in docs/health.md ("The recommended estimator").
+#: The twin's recommended estimator: 10 Hz filters, which keep the encoder's 0.5 um quantisation noise out of
+#: x_f'' (control-spec section 7) also on slow contours; the friction regressor sign(v) of the differenced
+#: velocity (Sf with slope 1e6 s/m), with samples near a velocity reversal left out (reversal_gate 0.99):
+#: the smooth Sf and the dither of a differenced velocity below its 2.5 mm/s step bias B and M on slow
+#: contours; forgetting kappa = 0.7 1/s (paper: 0.1), a memory of about 1.4 s, so that the estimates follow
+#: a changing machine (a payload pick-up, a friction drift) within the health monitor's targets; nu = 0.01 and
+#: rho_M = 1e4 (paper: 0.1, 500), so that B, whose regressor is the small velocity of a slow contour, still
+#: converges within that memory instead of being starved by the normalisation n; and a faster
+#: dc^ rate gamma_d = 3e4 (paper: 1e4), so that dc^ follows cogging ripple. The measurements behind each
+#: choice are in docs/health.md ("The recommended estimator") and docs/estimator-envelope.md.
 RECOMMENDED_ESTIMATOR = EstimatorSettings(
-    filter_hz=(50.0, 50.0), least_squares=LeastSquaresSettings(kappa=0.7), gamma_d=(3.0e4, 3.0e4)
+    filter_hz=(10.0, 10.0),
+    least_squares=LeastSquaresSettings(kappa=0.7, nu=0.01, rho_max=1.0e4),
+    gamma_d=(3.0e4, 3.0e4),
+    friction_slope_s_m=1.0e6,
+    reversal_gate=0.99,
 )
 #: The estimators a scenario file may name instead of spelling them out.
 NAMED_ESTIMATORS = {"paper": EstimatorSettings(), "recommended": RECOMMENDED_ESTIMATOR}
@@ -117,7 +131,8 @@ class EstimatorParams(NamedTuple):
 
     filter_phi (2, 2, 2), filter_hold (2, 2), filter_ramp (2, 2): the exact
     discretisation of Hf per axis; filter_wn_rad_s, filter_zeta (2,);
-    nu, kappa, rho_max: eq. (27)-(28); settle_s: see EstimatorSettings.
+    nu, kappa, rho_max: eq. (27)-(28); settle_s, friction_slope_s_m (resolved: never None),
+    reversal_gate: see EstimatorSettings.
     """
 
     filter_phi: np.ndarray
@@ -129,6 +144,8 @@ class EstimatorParams(NamedTuple):
     kappa: float
     rho_max: float
     settle_s: float
+    friction_slope_s_m: float
+    reversal_gate: float
 
 
 class EstimatorState(NamedTuple):
@@ -188,7 +205,7 @@ def estimator_start(params, est, q_m, dq_m_s, u_v):
     wn, zeta = params.estimator.filter_wn_rad_s, params.estimator.filter_zeta
     z_all, previous_q_m, clock = est.z, est.previous_q_m, est.clock
     for axis in range(2):
-        sf = friction_shape(dq_m_s[axis], params.friction_slope_s_m)
+        sf = friction_shape(dq_m_s[axis], params.estimator.friction_slope_s_m)
         lag = 2.0 * zeta[axis] / wn[axis]
         z = z_all[axis]
         z[0, 0], z[0, 1], z[0, 2], z[0, 3] = q_m[axis] - lag * dq_m_s[axis], sf, 1.0, u_v[axis]
@@ -202,7 +219,8 @@ def estimator_regression(params, est, q_m, dq_m_s, u_previous_v):
     """Advance the filters to this sample (eq. 25); fill est.regression (gamma_f) and est.u_f.
 
     The position rises linearly from the previous sample (first-order hold);
-    Sf(q'), the constant and the applied u are held (zero-order hold).
+    Sf(q'), the constant and the applied u are held (zero-order hold). An axis
+    whose |Sf_f| is below the reversal gate gives a zero row (no information).
     """
     f_phi, f_hold, f_ramp, f_wn, f_zeta = params.estimator[:5]
     z_all, previous_q_m, g, u_f = est.z, est.previous_q_m, est.regression, est.u_f
@@ -210,7 +228,7 @@ def estimator_regression(params, est, q_m, dq_m_s, u_previous_v):
     for axis in range(2):
         z = z_all[axis]
         phi, hold, ramp = f_phi[axis], f_hold[axis], f_ramp[axis]
-        sf = friction_shape(dq_m_s[axis], params.friction_slope_s_m)
+        sf = friction_shape(dq_m_s[axis], params.estimator.friction_slope_s_m)
         q_previous = previous_q_m[axis]
         filter_advance(z, 0, phi, hold, ramp, q_previous, (q_m[axis] - q_previous) / ts)
         filter_advance(z, 1, phi, hold, ramp, sf, 0.0)
@@ -222,6 +240,10 @@ def estimator_regression(params, est, q_m, dq_m_s, u_previous_v):
         g[6 + axis, axis] = -z[0, 2]
         u_f[axis] = z[0, 3]
         previous_q_m[axis] = q_m[axis]
+        if abs(z[0, 1]) < params.estimator.reversal_gate:  # a reversal in the filter's memory: no information
+            for j in range(8):
+                g[j, axis] = 0.0
+            u_f[axis] = 0.0
 
 
 @kernel(inline=True)
@@ -345,6 +367,8 @@ class IndirectEstimator:
             float(ls.kappa),
             float(ls.rho_max),
             float(settings.settle_s),
+            float(gains.friction_slope_s_m if settings.friction_slope_s_m is None else settings.friction_slope_s_m),
+            float(settings.reversal_gate),
         )
         gamma = np.diag(np.asarray(ls.gamma0_diag, dtype=float))
         clock = np.array([0.0, 0.0, float(np.max(ls.gamma0_diag))])
@@ -376,7 +400,9 @@ def _vec(x: np.ndarray) -> np.ndarray:
 def _placeholder_estimator() -> EstimatorParams:
     """Estimator settings for DRC and DARC, which have no estimator (never read)."""
     z2 = np.ones(2)
-    return EstimatorParams(np.zeros((2, 2, 2)), np.zeros((2, 2)), np.zeros((2, 2)), z2, z2, 0.0, 0.0, 0.0, 0.0)
+    return EstimatorParams(
+        np.zeros((2, 2, 2)), np.zeros((2, 2)), np.zeros((2, 2)), z2, z2, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0
+    )
 
 
 def _arc_params(

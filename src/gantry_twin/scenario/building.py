@@ -16,7 +16,9 @@ from pathlib import Path
 import numpy as np
 
 from gantry_twin.changes import PlantChanges
+from gantry_twin.confidence import EstimateConfidence
 from gantry_twin.controllers import Controller, EstimatorSettings, create
+from gantry_twin.estimation import FRICTION_SLOPE_S_M
 from gantry_twin.friction import FrictionError
 from gantry_twin.monitor import Baseline, ExcitationSettings, HealthSettings, MachineMonitor
 from gantry_twin.paths import Ellipse, TimingLaw
@@ -98,16 +100,38 @@ def _with_friction(make: Callable[[], Plant], source: str) -> Plant:
         raise ScenarioError(source, f"plant.{exc.field}", exc.message) from None
 
 
-def make_monitor(scenario: Scenario, controller: Controller, source: str = "<scenario>") -> MachineMonitor:
-    """The MachineMonitor of a scenario: filters default to the controller's estimator's (DIARC)."""
-    m = scenario.monitor
-    filter_hz = m.filter_hz
-    if filter_hz is None:
-        settings = getattr(controller, "estimator_settings", None) or EstimatorSettings()
-        filter_hz = settings.filter_hz
-    excitation = ExcitationSettings(
-        window_s=m.excitation_window_s, filter_hz=tuple(filter_hz), min_parameter_v=m.min_parameter_v
+def excitation_settings(scenario: Scenario, controller: Controller) -> ExcitationSettings:
+    """How the monitor and the estimates' confidence see the estimator's regression: the filters (the scenario's
+    ``monitor.filter_hz`` or the controller's estimator's), friction shape and reversal gate of the controller's
+    estimator (DIARC; the paper's otherwise), and the encoder's resolution."""
+    m, sensing = scenario.monitor, scenario.sensing
+    settings = getattr(controller, "estimator_settings", None) or EstimatorSettings()
+    gains = getattr(controller, "gains", None)
+    slope = settings.friction_slope_s_m
+    if slope is None:
+        slope = gains.friction_slope_s_m if gains is not None else FRICTION_SLOPE_S_M
+    return ExcitationSettings(
+        window_s=m.excitation_window_s,
+        filter_hz=tuple(settings.filter_hz if m.filter_hz is None else m.filter_hz),
+        filter_zeta=settings.filter_zeta,
+        friction_slope_s_m=slope,
+        reversal_gate=settings.reversal_gate,
+        resolution_m=sensing.resolution_m if sensing.quantize else 0.0,
+        min_parameter_v=m.min_parameter_v,
     )
+
+
+def estimate_confidence(built: BuiltRun) -> EstimateConfidence | None:
+    """The estimates' confidence over the estimates window, for a controller with an indirect estimator (DIARC)."""
+    if getattr(built.controller, "estimator_settings", None) is None:
+        return None
+    return EstimateConfidence(excitation_settings(built.scenario, built.controller), built.scenario.estimate_window_s)
+
+
+def make_monitor(scenario: Scenario, controller: Controller, source: str = "<scenario>") -> MachineMonitor:
+    """The MachineMonitor of a scenario: it sees the controller's estimator (:func:`excitation_settings`)."""
+    m = scenario.monitor
+    excitation = excitation_settings(scenario, controller)
     tolerance = tuple([m.tolerance_pct / 100.0] * 6 + [m.tolerance_dn_v] * 2)
     health = HealthSettings(tolerance, m.decision_interval_s, tuple(m.baseline_window_s), m.judge_from_s)
     baseline = None

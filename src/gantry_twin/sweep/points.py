@@ -174,6 +174,7 @@ def metrics_row(data: dict[str, Any], axial_um: Any, max_abs_u_v: Any) -> dict[s
             e["true"],
             e["error_pct"],
         )
+        row[f"trustworthy_{name}"] = e.get("trustworthy")  # DIARC only (gantry_twin.confidence)
     row["alarms"] = len(data["health"]["alarms"]) if "health" in data else None
     return row
 

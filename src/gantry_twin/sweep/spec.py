@@ -48,7 +48,7 @@ METRIC_GROUPS: dict[str, tuple[str, ...]] = {
     "estimates": tuple(
         f"{what}_{name}"
         for name in ("M1", "M2", "B1", "B2", "Af1", "Af2", "dN1", "dN2")
-        for what in ("estimate", "true", "error_pct")
+        for what in ("estimate", "true", "error_pct", "trustworthy")
     ),
     "health": ("alarms",),
 }

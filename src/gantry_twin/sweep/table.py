@@ -43,6 +43,12 @@ def _value_type(values: list[Any]) -> pa.DataType:
     return pa.string()
 
 
+def _metric_type(metric: str) -> pa.DataType:
+    if metric == "alarms":
+        return pa.int64()
+    return pa.bool_() if metric.startswith("trustworthy_") else pa.float64()
+
+
 def _cell(value: Any, kind: pa.DataType) -> Any:
     if kind == pa.string() and not isinstance(value, str):
         return json.dumps(value)
@@ -57,7 +63,7 @@ class ResultsTable:
         self.path = Path(path)
         self.metrics = plan.spec.kept_metrics()
         self.field_types = {f: _value_type([p.values[f] for p in plan.points]) for f in plan.fields}
-        metric_types = [(m, pa.int64() if m == "alarms" else pa.float64()) for m in self.metrics]
+        metric_types = [(m, _metric_type(m)) for m in self.metrics]
         self.schema = pa.schema([*_IDENTITY, *self.field_types.items(), *metric_types, *_TAIL]).with_metadata(
             {"gantry_twin_sweep": json.dumps({"version": plan.version, "spec": plan.spec.model_dump(mode="json")})}
         )

@@ -197,6 +197,7 @@ def dashboard_blueprint(
     if health:
         middle_views += [
             series("health/excitation_V", panel_name("Excitation per axis", "V")),
+            series("health/trustworthy", panel_name("Trustworthy estimates (1 = yes)", "-")),
             rrb.TextLogView(origin="health/alarms", name="Health alarms"),
         ]
     middle = rrb.Vertical(*middle_views)

@@ -26,6 +26,7 @@ the nanosecond; units in the entity names):
     contour_mm/xy/actual_x<K>              the actual contour with its error magnified K times
     gantry/...                             base, carriages and payload as boxes (metres, 50 Hz)
     health/excitation_V, health/alarms     with a health monitor (:meth:`RerunObserver.watch`)
+    health/trustworthy                     1 where the monitor trusts an estimate (excited, small bias), else 0
 
 Layout (:func:`~gantry_twin.telemetry.dashboard.dashboard_blueprint`): every
 plot titled with its unit in brackets; the estimate, dc^ and input plots get
@@ -437,6 +438,10 @@ class RerunObserver:
                 rec.log("health/excitation_V", rr.SeriesLines(names=["x", "y"], colors=[_X_RGB, _Y_RGB]), static=True)
             rec.send_columns("health/excitation_V", indexes=[_TimeIndex(t)], columns=[_scalar_column(level)])
             self._excitation_sent += t.size
+            _, trusted = monitor.trusted_since(self._excitation_sent - t.size)
+            if self._excitation_sent == t.size:
+                rec.log("health/trustworthy", rr.SeriesLines(names=list(THETA_NAMES)), static=True)
+            rec.send_columns("health/trustworthy", indexes=[_TimeIndex(t)], columns=[_scalar_column(trusted)])
         alarms = monitor.alarms
         for alarm in alarms[self._alarms_sent :]:
             rec.set_time(TIMELINE, duration=alarm.time_s)
