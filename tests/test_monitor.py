@@ -268,7 +268,7 @@ def test_monitor_filters_the_measurements_exactly_as_diarc_estimator():
     g, _ = regressors.advance(trace.q_meas_m[:100])
     g, _ = regressors.advance(trace.q_meas_m[100:])  # in two chunks, as the live observer feeds it
     estimator = controller.estimator.state
-    np.testing.assert_array_equal(regressors.z, estimator.z[:, :, :3])
+    np.testing.assert_array_equal(regressors.z[:, :, :3], estimator.z[:, :, :3])  # column 3: the deficit
     for axis in range(2):
         np.testing.assert_array_equal(g[-1, axis], estimator.regression[[axis, 2 + axis, 4 + axis, 6 + axis], axis])
 
