@@ -276,9 +276,12 @@ def lugre_scenario_eps_c(path: object, extra: tuple[str, ...] = ()) -> np.ndarra
 @pytest.mark.parametrize("path", shipped_scenarios(), ids=lambda p: p.stem)
 def test_shipped_scenarios_with_lugre_agree_with_a_2_us_physics_reference(path: object) -> None:
     """The chosen integration (LUGRE_INTEGRATOR, LUGRE_SUBSTEPS) within 0.2 um of eps_c with 2 us RK4 physics
-    under the same 0.2 ms control."""
-    chosen = lugre_scenario_eps_c(path)
-    reference = lugre_scenario_eps_c(path, REFERENCE_INTEGRATION)
+    under the same 0.2 ms control, the encoder's quantisation off: the integration error alone. With the 0.5 um
+    counts a difference of a fraction of a count flips a reading and the controller amplifies it: those
+    differences do not fall with the sub-step (docs/friction.md, "Integration")."""
+    ideal = ("sensing.quantize=false",)
+    chosen = lugre_scenario_eps_c(path, ideal)
+    reference = lugre_scenario_eps_c(path, (*REFERENCE_INTEGRATION, *ideal))
     assert np.abs(chosen - reference).max() < 0.2e-6
 
 

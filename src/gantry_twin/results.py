@@ -20,6 +20,7 @@ import contextlib
 import json
 import os
 import signal
+import sys
 import tempfile
 import threading
 from collections.abc import Callable, Iterator, Sequence
@@ -509,9 +510,46 @@ def stop_signals_interrupt() -> Iterator[None]:
             signal.signal(stop, signal.SIG_IGN)
         raise Interrupted(signum)
 
+    unraisable = sys.unraisablehook
+
+    def keep_swallowed(info: Any) -> None:
+        # A signal that lands in a C callback (numba's compile calls back into Python through ctypes) raises
+        # there, and the callback can only print and drop the exception: keep it for raise_swallowed instead.
+        if isinstance(info.exc_value, Interrupted):
+            _SWALLOWED.append(info.exc_value)
+        else:
+            unraisable(info)
+
     previous = {stop: signal.signal(stop, interrupt) for stop in STOP_SIGNALS}
+    sys.unraisablehook = keep_swallowed
     try:
         yield
     finally:
+        sys.unraisablehook = unraisable
+        _SWALLOWED.clear()
         for stop, handler in previous.items():
             signal.signal(stop, handler)
+
+
+#: Interrupted exceptions a C callback dropped (stop_signals_interrupt), raised again by raise_swallowed.
+_SWALLOWED: list[Interrupted] = []
+
+
+def raise_swallowed() -> None:
+    """Raise again an :class:`Interrupted` that a C callback dropped, now that Python is in charge."""
+    if _SWALLOWED:
+        raise _SWALLOWED.pop()
+
+
+class SwallowedInterrupt:
+    """An Observer that calls :func:`raise_swallowed` at every chunk: a stop signal that arrived while the loop
+    compiled stops the run at its first chunk, as one arriving a moment later would."""
+
+    def on_start(self, run: Any, trace: Any) -> None:
+        raise_swallowed()
+
+    def on_chunk(self, trace: Any, start: int, stop: int) -> None:
+        raise_swallowed()
+
+    def on_end(self, trace: Any) -> None:
+        raise_swallowed()

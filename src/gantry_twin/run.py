@@ -28,6 +28,7 @@ from gantry_twin.plant import THETA_NAMES
 from gantry_twin.results import (
     TRACE_COLUMNS,
     Failure,
+    SwallowedInterrupt,
     TraceWriter,
     atomic_write_text,
     discard,
@@ -178,8 +179,8 @@ class RunWriter:
             raise
 
     def observers(self) -> list[Observer]:
-        """The observers to run with: the summary's metrics and the trace writer."""
-        return [self.metrics, self.travel] + ([self.trace] if self.trace is not None else [])
+        """The observers to run with: a stop signal a compile swallowed, the summary's metrics, the trace writer."""
+        return [SwallowedInterrupt(), self.metrics, self.travel] + ([self.trace] if self.trace is not None else [])
 
     def run(self, observers: Sequence[Observer] = (), hold_s: float | None = HOLD_S) -> RunOutcome:
         """Simulate the scenario holding ``hold_s`` of it in memory, writing it as it goes, and :meth:`finish`.
