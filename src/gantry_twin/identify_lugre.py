@@ -15,8 +15,11 @@ Three stages, each on what the previous one found (friction model:
    the velocity reversals, replayed open loop through the LuGre plant of
    stages 1-2 (``mujoco.rollout``, each window started from the measured
    state with the bristle at its steady deflection; :func:`gantry_twin.fit_report.replay_windows`),
-   by least squares on the position residual over log10 sigma0 and
-   sigma1 / (2 sqrt(sigma0 M)) (the fraction of the bristle's critical damping).
+   by least squares on the position residual, each window's best-fit
+   offset + slope in time removed (:func:`detrend`: the initial velocity
+   from the encoder's steps is a few mm/s off and would dominate), over
+   log10 sigma0 and sigma1 / (2 sqrt(sigma0 M)) (the fraction of the
+   bristle's critical damping).
 
 The 95 % intervals of stage 2 come from the Jacobian of the binned fit (the
 bins are averages of many samples: nearly independent); stage 3's residuals
@@ -190,6 +193,16 @@ def reversal_starts(log: Log, settings: LuGreSettings) -> tuple[np.ndarray, int]
     return starts, before + after
 
 
+def detrend(length: int) -> np.ndarray:
+    """(length, length): the projection that removes a window's best-fit offset + slope in time.
+
+    Applied to the replay residual it leaves out what the window's initial state (the encoder's position and
+    the velocity estimated from it) gets wrong to first order, and keeps the curved pre-sliding response.
+    """
+    basis = np.stack([np.ones(length), np.arange(length, dtype=float)], axis=1)
+    return np.eye(length) - basis @ np.linalg.pinv(basis)
+
+
 def fit_bristle(plant: Plant, logs: Sequence[Log], settings: LuGreSettings) -> tuple[np.ndarray, np.ndarray, int]:
     """(sigma0 (2,), sigma1 (2,), windows): stage 3 of the module docstring on ``plant`` (its friction edited)."""
     from scipy.optimize import least_squares
@@ -217,7 +230,7 @@ def fit_bristle(plant: Plant, logs: Sequence[Log], settings: LuGreSettings) -> t
             if starts.size:
                 sim = replay_windows(plant, log, starts, length)
                 idx = starts[:, None] + 1 + np.arange(length)[None, :]
-                parts.append((log.q_m[idx] - sim).reshape(-1) * 1e6)
+                parts.append(np.einsum("ij,wjk->wik", detrend(length), log.q_m[idx] - sim).reshape(-1) * 1e6)
         return np.concatenate(parts)
 
     z0 = np.concatenate([0.5 * (lo_log + hi_log), [0.05, 0.05]])
