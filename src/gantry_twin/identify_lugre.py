@@ -21,8 +21,9 @@ Three stages, each on what the previous one found (friction model:
    log10 sigma0 and sigma1 / (2 sqrt(sigma0 M)) (the fraction of the
    bristle's critical damping).
 
-The 95 % intervals of stage 2 come from the Jacobian of the binned fit (the
-bins are averages of many samples: nearly independent); stage 3's residuals
+The 95 % intervals of stage 2 come from the Jacobian of the binned fit with a
+heteroscedasticity-consistent covariance (HC1: the bins are averages of many
+samples, nearly independent, but of unequal noise); stage 3's residuals
 are correlated within a window, so its intervals are not given (null, with
 the reason). The accuracy measured on twins: docs/logs.md.
 """
@@ -156,7 +157,9 @@ def fit_steady(v: np.ndarray, force_n: np.ndarray, guess: tuple[float, float]) -
     values = np.array([p.fc_n, p.fs_n, p.vs_m_s, p.sigma2_ns_m])
     dof = max(1, v.size - 4)
     try:
-        cov = np.linalg.inv(best.jac.T @ best.jac) * (2.0 * best.cost / dof)
+        bread = np.linalg.inv(best.jac.T @ best.jac)
+        meat = (best.jac * best.fun[:, None]).T @ (best.jac * best.fun[:, None])  # each bin its own variance
+        cov = bread @ meat @ bread * (v.size / dof)
     except np.linalg.LinAlgError:
         return values, np.full((4, 2), np.nan)
     half = 1.959963984540054 * np.sqrt(np.clip(np.diag(cov), 0.0, None))
