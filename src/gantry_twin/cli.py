@@ -28,8 +28,7 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 from gantry_twin import excite as excite_command
-from gantry_twin import export
-from gantry_twin import identify as identify_command
+from gantry_twin import export, identify_command
 from gantry_twin.compare import CompareError
 from gantry_twin.compare import add_arguments as add_compare_arguments
 from gantry_twin.compare import command as compare_command
@@ -185,7 +184,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_set(report, "override a field in every scenario of the matrix, e.g. duration_s=10")
     _add_progress(report)
 
-    identify = sub.add_parser("identify", help="identify M, B, Af from logs; a plant file and a fit report")
+    identify = sub.add_parser("identify", help="identify M, B, Af (and LuGre) from logs; a plant file and a fit report")
     identify_command.add_arguments(identify)
     excite = sub.add_parser("excite", help="write an identification trajectory and run it on the twin")
     excite_command.add_arguments(excite)

@@ -192,6 +192,35 @@ def random_plant(rng: np.random.Generator) -> Plant:
     return perturbed_plant(payload, tuple(rng.uniform(0.7, 1.3, 2)), tuple(rng.uniform(0.7, 1.3, 2)))
 
 
+#: Issue 17's plausible LuGre draws (within friction.LuGreAxis's ranges): Fs / Fc, vs (m/s, log-uniform), the
+#: pre-sliding distance Fc / sigma0 (m, log-uniform) and sigma1 / sqrt(sigma0 * 1 kg).
+LUGRE_DRAW = {
+    "fs_over_fc": (1.1, 1.6),
+    "vs_m_s": (2.0e-3, 20.0e-3),
+    "presliding_m": (2.0e-6, 20.0e-6),
+    "sigma1": (0.1, 1.0),
+}
+
+
+def random_lugre_plant(rng: np.random.Generator) -> Plant:
+    """A LuGre twin drawn for issue 17's acceptance: payload 0-10 kg, each axis' sigma2 and Fc within +-30 % of
+    the model's B kf and Af kf, and Fs / Fc, vs, the pre-sliding distance and sigma1 from :data:`LUGRE_DRAW`."""
+    from gantry_twin.friction import Friction, LuGreAxis
+
+    payload = float(rng.uniform(0.0, 10.0))
+    base = Plant()
+    axes = {}
+    for i, axis in enumerate(("x", "y")):
+        fc = float(base.model.dof_frictionloss[base.dof_index[i]] * rng.uniform(0.7, 1.3))
+        sigma2 = float(base.model.dof_damping[base.dof_index[i]] * rng.uniform(0.7, 1.3))
+        fs = fc * float(rng.uniform(*LUGRE_DRAW["fs_over_fc"]))
+        vs = float(np.exp(rng.uniform(*np.log(LUGRE_DRAW["vs_m_s"]))))
+        sigma0 = fc / float(np.exp(rng.uniform(*np.log(LUGRE_DRAW["presliding_m"]))))
+        sigma1 = float(rng.uniform(*LUGRE_DRAW["sigma1"]) * np.sqrt(sigma0))
+        axes[axis] = LuGreAxis(sigma0_n_m=sigma0, sigma1_ns_m=sigma1, fc_n=fc, fs_n=fs, vs_m_s=vs, sigma2_ns_m=sigma2)
+    return Plant(Payload(mass_kg=payload), friction=Friction(model="lugre", **axes))
+
+
 def run_on_twin(path: Multisine, plant: Plant, sensing=None):
     """Run the trajectory on the twin under PD control (module docstring); the trace."""
     from gantry_twin.controllers import create

@@ -54,18 +54,35 @@ class Replay:
 
 def replay(plant: Plant, log: Log, window_s: float = WINDOW_S) -> Replay:
     """Replay ``log``'s commands through ``plant`` in windows started from the measured state (module docstring)."""
-    from mujoco import rollout
-    from scipy.signal import savgol_coeffs
-
-    model = plant.model
-    if abs(model.opt.timestep - log.sample_period_s) > 1e-9 * log.sample_period_s:
-        model.opt.timestep = log.sample_period_s  # one physics step per logged sample (ZOH of u)
     n = log.samples
     length = max(1, min(int(round(window_s / log.sample_period_s)), n - 1))
     half = max(1, int(round(0.5 * VELOCITY_FIT_S / log.sample_period_s)))
     starts = np.arange(half, n - 1 - half, length)
     if starts.size == 0:
         raise ValueError(f"{log.path}: too short to replay ({n} samples)")
+    lengths = np.minimum(starts + length, n - 1) - starts
+    qpos = replay_windows(plant, log, starts, length)
+    simulated = np.full((n, 2), np.nan)
+    for i, k in enumerate(starts):
+        simulated[k + 1 : k + lengths[i] + 1] = qpos[i, : lengths[i]]
+    return Replay(log.path, log.t_s, log.q_m, simulated, length * log.sample_period_s)
+
+
+def replay_windows(plant: Plant, log: Log, starts: np.ndarray, length: int) -> np.ndarray:
+    """Simulated positions (windows, length, 2), m, after each logged sample of the windows starting at ``starts``.
+
+    Each window starts from the measured state at its start sample (module docstring; LuGre's bristle at its
+    steady deflection, :meth:`Plant.reset`) and applies the logged u, held over the plant's physics sub-steps;
+    commands past the log's end are zero. ``starts`` must leave VELOCITY_FIT_S / 2 of log on each side.
+    """
+    from mujoco import rollout
+    from scipy.signal import savgol_coeffs
+
+    model = plant.model
+    sub = plant.substeps
+    model.opt.timestep = log.sample_period_s / sub  # ``sub`` physics steps per logged sample (ZOH of u)
+    n = log.samples
+    half = max(1, int(round(0.5 * VELOCITY_FIT_S / log.sample_period_s)))
     slope = savgol_coeffs(2 * half + 1, 2, deriv=1, delta=log.sample_period_s, use="dot")
     data = mujoco.MjData(model)
     spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
@@ -78,13 +95,9 @@ def replay(plant: Plant, log: Log, window_s: float = WINDOW_S) -> Replay:
     for i, k in enumerate(starts):
         stop = min(k + length, n - 1)
         control[i, : stop - k][:, plant.motor_index] = log.u_v[k:stop]
+    control = np.repeat(control, sub, axis=1)
     state, _ = rollout.rollout(model, data, initial, control)
-    qpos = state[:, :, 1 + plant.qpos_index]  # (windows, length, 2): after each step
-    simulated = np.full((n, 2), np.nan)
-    for i, k in enumerate(starts):
-        stop = min(k + length, n - 1)
-        simulated[k + 1 : stop + 1] = qpos[i, : stop - k]
-    return Replay(log.path, log.t_s, log.q_m, simulated, length * log.sample_period_s)
+    return state[:, sub - 1 :: sub, :][:, :, 1 + plant.qpos_index]
 
 
 def write_figures(replays: list[Replay], out: Path) -> list[str]:

@@ -50,6 +50,8 @@ LUGRE_SUBSTEPS = 8
 #: Physical range of the pre-sliding distance Fc / sigma0, m, and of Fs / Fc.
 PRESLIDING_M = (0.1e-6, 50.0e-6)
 STRIBECK_RATIO = (1.0, 2.0)
+#: Range of the Stribeck velocity vs, m/s.
+VS_RANGE_M_S = (1.0e-4, 0.05)
 #: Fs / Fc when fs_n is not given.
 FS_OVER_FC_DEFAULT = 1.3
 
@@ -75,7 +77,7 @@ class LuGreAxis:
     sigma1_ns_m: Range(0.0, 1.0e6, "N s/m") = 300.0
     fc_n: Range(0.0, 1000.0, "N", lo_open=True) | None = None
     fs_n: Range(0.0, 2000.0, "N", lo_open=True) | None = None
-    vs_m_s: Range(1.0e-4, 0.05, "m/s") = 0.005
+    vs_m_s: Range(*VS_RANGE_M_S, "m/s") = 0.005
     sigma2_ns_m: Range(0.0, 1.0e4, "N s/m") | None = None
 
     def __post_init__(self) -> None:

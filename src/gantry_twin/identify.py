@@ -31,27 +31,22 @@ over the filter's memory, and the ordinary formula would claim intervals
 several times too narrow. They cover the noise of the data, not a model
 that does not fit (the fit report's residuals show that).
 
-``--friction lugre`` (the LuGre parameters, a nonlinear fit) needs the LuGre
-friction of issue 15 in the model; :data:`FRICTION_MODELS` is where it goes.
+The LuGre parameters (``--friction lugre``) build on this fit:
+:mod:`gantry_twin.identify_lugre`; the command: :mod:`gantry_twin.identify_command`.
 """
 
 from __future__ import annotations
 
-import argparse
-import json
-import sys
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from gantry_twin.estimation import discretise_filter, friction_shape
 from gantry_twin.excitation import filter_axis, filter_steady_state
-from gantry_twin.fit_report import WINDOW_S, Replay, replay, write_figures
-from gantry_twin.logs import Log, centred_velocity, read_log
-from gantry_twin.plant import AXES, THETA_NAMES, THETA_UNITS, Plant, build_spec, moving_masses_kg
-from gantry_twin.results import atomic_write_text
+from gantry_twin.logs import Log, centred_velocity
+from gantry_twin.plant import AXES, THETA_NAMES, THETA_UNITS, build_spec, moving_masses_kg
 
 #: Columns of one axis' regression, in THETA_NAMES' per-axis order.
 COLUMNS = ("M", "B", "Af", "dN")
@@ -203,120 +198,3 @@ def plant_xml(theta: np.ndarray, note: str = "", model_path: Path | None = None)
         joint.frictionloss = float(theta[4 + i] * gear[i])
     comment = (note or "identified plant").replace("--", "- -")
     return f"<!-- {comment} -->\n{spec.to_xml()}"
-
-
-# -- the command ----------------------------------------------------------------------------------
-
-IDENTIFIED_FILE = "identified.json"
-PLANT_FILE = "plant.xml"
-REPORT_FILE = "fit_report.md"
-#: The friction models ``--friction`` names: coulomb (this module). lugre: the LuGre parameters by a
-#: nonlinear fit over the LuGre dcmotor of issue 15, not yet in the model.
-FRICTION_MODELS = ("coulomb", "lugre")
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("logs", nargs="+", metavar="LOG", help="log files (parquet or CSV, docs/logs.md)")
-    parser.add_argument("--out", metavar="DIR", type=Path, required=True, help="output directory")
-    parser.add_argument(
-        "--friction", choices=FRICTION_MODELS, default="coulomb", help="friction model to identify (default coulomb)"
-    )
-    parser.add_argument(
-        "--filter-hz", type=float, default=IdentifySettings.filter_hz[0], help="Hf's natural frequency, Hz"
-    )
-    parser.add_argument("--window-s", type=float, default=WINDOW_S, help="replay window of the fit report, s")
-
-
-def command(args: argparse.Namespace) -> int:
-    """``gantry-twin identify``: exit 0, or 2 with one line on stderr for a bad log or option."""
-    try:
-        if args.friction != "coulomb":
-            raise ValueError(
-                f"--friction {args.friction}: needs the LuGre friction model in models/gantry.xml (issue 15); "
-                "only coulomb is available"
-            )
-        if not (5.0 <= args.filter_hz <= 500.0):
-            raise ValueError(f"--filter-hz: must be in [5, 500] Hz, got {args.filter_hz:g}")
-        if not (0.0 < args.window_s <= 3600.0):
-            raise ValueError(f"--window-s: must be in (0, 3600] s, got {args.window_s:g}")
-        if args.out.exists() and not args.out.is_dir():
-            raise ValueError(f"--out {args.out}: exists and is not a directory")
-        logs = [read_log(p) for p in args.logs]
-        settings = IdentifySettings(filter_hz=(args.filter_hz, args.filter_hz))
-        result = identify(logs, settings)
-        note = "gantry-twin identify from " + ", ".join(str(p) for p in args.logs)
-        xml = plant_xml(result.theta, note)
-    except ValueError as exc:  # LogError included
-        print(f"gantry-twin: error: {str(exc).splitlines()[0]}", file=sys.stderr)
-        return 2
-    out: Path = args.out
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        atomic_write_text(out / PLANT_FILE, xml)
-        plant = Plant(model_path=out / PLANT_FILE)
-        replays = [replay(plant, log, args.window_s) for log in logs]
-        figures = write_figures(replays, out)
-        data = identified_json(result, logs, replays, figures)
-        atomic_write_text(out / IDENTIFIED_FILE, json.dumps(data, indent=2) + "\n")
-        atomic_write_text(out / REPORT_FILE, fit_markdown(data))
-    except OSError as exc:
-        print(f"gantry-twin: error: --out {out}: cannot write there ({exc.strerror or exc})", file=sys.stderr)
-        return 2
-    print(format_identified(data, out))
-    return 0
-
-
-def identified_json(
-    result: Identified, logs: Sequence[Log], replays: Sequence[Replay], figures: Sequence[str]
-) -> dict[str, object]:
-    """identified.json's content (docs/logs.md)."""
-    return {
-        "parameters": result.parameters(),
-        "friction": "coulomb",
-        "plant_file": PLANT_FILE,
-        "scenario": {"plant": {"file": PLANT_FILE}},
-        "logs": [
-            {
-                "path": log.path,
-                "samples": log.samples,
-                "sample_period_s": log.sample_period_s,
-                "duration_s": log.duration_s,
-            }
-            for log in logs
-        ],
-        "samples_used": dict(zip(AXES, result.samples_used, strict=True)),
-        "regression_residual_rms_v": dict(zip(AXES, result.residual_rms_v, strict=True)),
-        "settings": asdict(result.settings),
-        "fit": [
-            {"path": r.path, "window_s": r.window_s, "rms_um": r.rms_um(), "max_um": r.max_um(), "figure": f}
-            for r, f in zip(replays, figures, strict=True)
-        ],
-    }
-
-
-def format_identified(data: dict, out: Path) -> str:
-    lines = ["parameter        value        ci95                      unit"]
-    for name, p in data["parameters"].items():
-        lo, hi = p["ci95"]
-        lines.append(f"  {name:<4} {p['value']:14.6g}  [{lo:.6g}, {hi:.6g}]  {p['unit']}")
-    for f in data["fit"]:
-        rms = ", ".join(f"{a} {v:.3g}" for a, v in f["rms_um"].items())
-        lines.append(f"replay of {Path(f['path']).name} in {f['window_s']:g} s windows: residual rms {rms} um")
-    files = [IDENTIFIED_FILE, PLANT_FILE, REPORT_FILE, *(f["figure"] for f in data["fit"])]
-    lines.append(f"results in {out}/ ({', '.join(files)})")
-    return "\n".join(lines)
-
-
-def fit_markdown(data: dict) -> str:
-    """fit_report.md: the parameters and the replay of each log."""
-    lines = ["# Identified plant", "", "| parameter | value | ci95 | unit |", "|---|---|---|---|"]
-    for name, p in data["parameters"].items():
-        lines.append(f"| {name} | {p['value']:.6g} | [{p['ci95'][0]:.6g}, {p['ci95'][1]:.6g}] | {p['unit']} |")
-    lines += ["", f"Plant file: `{PLANT_FILE}` (a scenario uses it with `plant: {{file: {PLANT_FILE}}}`).", ""]
-    lines += ["## Replay of the logged commands", "", "| log | window s | rms x um | rms y um | max x um | max y um |"]
-    lines.append("|---|---|---|---|---|---|")
-    for f in data["fit"]:
-        r, m = f["rms_um"], f["max_um"]
-        lines.append(f"| {f['path']} | {f['window_s']:g} | {r['x']:.3g} | {r['y']:.3g} | {m['x']:.3g} | {m['y']:.3g} |")
-    lines += [""] + [f"![{f['path']}]({f['figure']})" for f in data["fit"]]
-    return "\n".join(lines) + "\n"

@@ -20,6 +20,7 @@ import numpy as np
 
 from gantry_twin.friction import (
     Friction,
+    LuGreParameters,
     apply_friction,
     check_bristle_damping,
     friction_actuators,
@@ -196,6 +197,13 @@ class Plant:
     def dq_m_s(self) -> np.ndarray:
         """True carriage velocities (X, Y), m/s."""
         return self.data.qvel[self.dof_index]
+
+    def lugre_parameters(self) -> list[LuGreParameters | None]:
+        """Each axis' compiled LuGre parameters (X, Y), SI; None for an axis with Coulomb friction."""
+        return [
+            None if a < 0 else lugre_parameters(self.model, int(a), int(d))
+            for a, d in zip(self.friction_index, self.dof_index, strict=True)
+        ]
 
     def true_parameters(self) -> np.ndarray:
         """theta of the current model, volt units; see :func:`true_parameters`."""
