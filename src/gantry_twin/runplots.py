@@ -217,43 +217,55 @@ def fig_eps_c(plt: Any, runs: Sequence[RunSeries]) -> Any:
     return fig
 
 
-def fig_axial(plt: Any, runs: Sequence[RunSeries]) -> Any:
-    """e_x(t), e_y(t), um."""
+def _per_axis(plt: Any, runs: Sequence[RunSeries], series: str, ylabel: str, title: str, decorate: Any = None) -> Any:
+    """One panel per axis of ``RunSeries.<series>[axis]`` (t, values) for every run; ``decorate(ax, axis)`` adds
+    what a panel needs besides (limits); ``ylabel`` is formatted with ``axis``."""
     fig, axes = plt.subplots(2, 1, figsize=(9, 5), sharex=True)
     fig.subplots_adjust(left=0.09, right=0.98, bottom=0.1, top=0.89, hspace=0.08)
     for i, (ax, axis) in enumerate(zip(axes, AXES, strict=True)):
         for r in runs:
-            t, e = r.axial[i]
-            ax.plot(t, e, lw=0.7, label=_name(runs, r, ""))
-        ax.axhline(0.0, color="0.4", lw=0.5)
-        ax.set_ylabel(f"e_{axis} = {axis} - {axis}_d (um)")
+            t, values = getattr(r, series)[i]
+            ax.plot(t, values, lw=0.7, label=_name(runs, r, ""))
+        if decorate is not None:
+            decorate(ax, axis)
+        ax.set_ylabel(ylabel.format(axis=axis))
         if len(runs) > 1:
             _legend(ax, runs)
     axes[-1].set_xlabel("time t (s)")
-    axes[0].set_title(_title(runs, "axial tracking errors (largest |e| of each bin)"), fontsize=9)
+    axes[0].set_title(_title(runs, title), fontsize=9)
     return fig
+
+
+def fig_axial(plt: Any, runs: Sequence[RunSeries]) -> Any:
+    """e_x(t), e_y(t), um."""
+
+    def zero_line(ax: Any, axis: str) -> None:
+        ax.axhline(0.0, color="0.4", lw=0.5)
+
+    return _per_axis(
+        plt,
+        runs,
+        "axial",
+        "e_{axis} = {axis} - {axis}_d (um)",
+        "axial tracking errors (largest |e| of each bin)",
+        zero_line,
+    )
 
 
 def fig_commands(plt: Any, runs: Sequence[RunSeries]) -> Any:
     """u_x(t), u_y(t), V, with the motor's limits."""
-    fig, axes = plt.subplots(2, 1, figsize=(9, 5), sharex=True)
-    fig.subplots_adjust(left=0.09, right=0.98, bottom=0.1, top=0.89, hspace=0.08)
-    for i, (ax, axis) in enumerate(zip(axes, AXES, strict=True)):
-        for r in runs:
-            t, u = r.command[i]
-            ax.plot(t, u, lw=0.7, label=_name(runs, r, ""))
+
+    def limits(ax: Any, axis: str) -> None:
         limit = runs[0].summary.get("saturation", {}).get(axis, {}).get("limit_v")
         if limit:
             for v in limit:
                 ax.axhline(v, color="tab:red", lw=0.8, ls="--")
             label = f"limits {limit[0]:+g} / {limit[1]:+g} V"
             ax.text(0.005, 0.96, label, transform=ax.transAxes, va="top", fontsize=7, color="tab:red")
-        ax.set_ylabel(f"command u_{axis} (V)")
-        if len(runs) > 1:
-            _legend(ax, runs)
-    axes[-1].set_xlabel("time t (s)")
-    axes[0].set_title(_title(runs, "commands as applied (largest |u| of each bin)"), fontsize=9)
-    return fig
+
+    return _per_axis(
+        plt, runs, "command", "command u_{axis} (V)", "commands as applied (largest |u| of each bin)", limits
+    )
 
 
 def fig_estimates(plt: Any, runs: Sequence[RunSeries]) -> Any | None:
