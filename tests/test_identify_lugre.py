@@ -95,6 +95,9 @@ def test_acceptance_lugre_twin(seed, tmp_path):
         err = {name: abs(found[name] / getattr(true, name) - 1.0) for name in found}
         assert max(err["fc_n"], err["fs_n"], err["sigma2_ns_m"]) < 0.10, (axis, err)
         assert max(err["vs_m_s"], err["sigma0_n_m"]) < 0.30, (axis, err)
+        # The plateaus give the steady curve itself: Fs and vs far inside the targets (the many-seed spread and
+        # the multisine-only bias this guards against: docs/logs.md).
+        assert max(err["fs_n"], err["vs_m_s"]) < 0.02, (axis, err)
     scenario_file = tmp_path / "machine.yaml"
     scenario_file.write_text((out / "plant.yaml").read_text().replace("file: plant.xml", "file: id/plant.xml"))
     identified = build(load_scenario(scenario_file), str(scenario_file)).plant

@@ -157,7 +157,7 @@ def binned_friction(logs: Sequence[Log], base: Identified, settings: LuGreSettin
             use[mine] |= flags[reg.sample[mine], axis]
         force = (reg.y - m * reg.x[:, 0] - dn * reg.x[:, 3])[use]  # B x_f' + friction, filtered, volts
         v = reg.x[use, 1]
-        lo, hi = settings.sliding_speed_m_s, max(np.abs(v).max(), 2 * settings.sliding_speed_m_s)
+        lo, hi = settings.sliding_speed_m_s, max(np.abs(v).max(initial=0.0), 2 * settings.sliding_speed_m_s)
         edges = np.geomspace(lo, hi, max(2, int(math.ceil(np.log10(hi / lo) * settings.bins_per_decade)) + 1))
         rows = []
         for sign in (-1.0, 1.0):
@@ -167,7 +167,8 @@ def binned_friction(logs: Sequence[Log], base: Identified, settings: LuGreSettin
                 sel = which == b
                 if sel.sum() >= settings.min_bin_samples:
                     rows.append((float(v[sel].mean()), float(force[sel].mean()), int(sel.sum())))
-        out.append(tuple(np.array(c) for c in zip(*rows, strict=True)))
+        table = np.array(rows, dtype=float).reshape(-1, 3)  # no rows: empty columns (the caller says why)
+        out.append((table[:, 0], table[:, 1], table[:, 2].astype(int)))
     return out
 
 
