@@ -78,15 +78,15 @@ def _circle_rms_um(plant) -> float:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("seed", [1])
+@pytest.mark.parametrize("seed", [112])  # a hard twin: Y's vs 2.2 mm/s, pre-sliding 13 um (docs/logs.md)
 def test_acceptance_lugre_twin(seed, tmp_path):
-    """Issue 17 on a random LuGre twin (0.5 um encoder), the 20 s multisine and the constant-velocity plateaus:
-    Fc, sigma2, Fs within 10 %, vs and
+    """Issue 17 on a random LuGre twin (0.5 um encoder), the shortest excitation measured to suffice (a 10 s
+    multisine, then the constant-velocity plateaus: docs/logs.md): Fc, sigma2, Fs within 10 %, vs and
     sigma0 within 30 % (the many-seed study, docs/logs.md, says how often), and the identified plant
     (plant.yaml in a scenario) reproduces a held-out circle's rms contour error within 15 %."""
     plant = random_lugre_plant(np.random.default_rng(seed))
     truth = plant.lugre_parameters()
-    write_log(tmp_path / "log.parquet", *log_of(run_on_twin(with_plateaus(design(20.0)), plant)))
+    write_log(tmp_path / "log.parquet", *log_of(run_on_twin(with_plateaus(design(10.0)), plant)))
     out = tmp_path / "id"
     assert main(["identify", str(tmp_path / "log.parquet"), "--out", str(out), "--friction", "lugre"]) == 0
     data = json.loads((out / "identified.json").read_text())
@@ -95,8 +95,8 @@ def test_acceptance_lugre_twin(seed, tmp_path):
         err = {name: abs(found[name] / getattr(true, name) - 1.0) for name in found}
         assert max(err["fc_n"], err["fs_n"], err["sigma2_ns_m"]) < 0.10, (axis, err)
         assert max(err["vs_m_s"], err["sigma0_n_m"]) < 0.30, (axis, err)
-        # The plateaus give the steady curve itself: Fs and vs far inside the targets (the many-seed spread and
-        # the multisine-only bias this guards against: docs/logs.md).
+        # The plateaus give the steady curve itself: Fs and vs far inside the targets. Fitting the varying speeds
+        # too biases this twin's Y axis (Fs low, vs high: the bristle's lag; docs/logs.md).
         assert max(err["fs_n"], err["vs_m_s"]) < 0.02, (axis, err)
     scenario_file = tmp_path / "machine.yaml"
     scenario_file.write_text((out / "plant.yaml").read_text().replace("file: plant.xml", "file: id/plant.xml"))
