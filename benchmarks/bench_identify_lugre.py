@@ -1,6 +1,6 @@
 """The many-seed study behind issue 17's LuGre identification acceptance (docs/logs.md).
 
-    PYTHONPATH=src python benchmarks/bench_identify_lugre.py [--seeds 10] [--first 100]
+    PYTHONPATH=src python benchmarks/bench_identify_lugre.py [--seeds 10] [--first 100] [--multisine-s 20]
 
 For each seed a LuGre twin is drawn (``excite.random_lugre_plant``: payload 0-10 kg, Fc and sigma2 +-30 %,
 Fs / Fc, vs, the pre-sliding distance and sigma1 from ``excite.LUGRE_DRAW``; the 0.5 um encoder of the
