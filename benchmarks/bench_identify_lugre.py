@@ -1,10 +1,11 @@
 """The many-seed study behind issue 17's LuGre identification acceptance (docs/logs.md).
 
-    PYTHONPATH=src python benchmarks/bench_identify_lugre.py [--seeds 10] [--first 100]
+    PYTHONPATH=src python benchmarks/bench_identify_lugre.py [--seeds 10] [--first 100] [--multisine-s 20]
 
 For each seed a LuGre twin is drawn (``excite.random_lugre_plant``: payload 0-10 kg, Fc and sigma2 +-30 %,
 Fs / Fc, vs, the pre-sliding distance and sigma1 from ``excite.LUGRE_DRAW``; the 0.5 um encoder of the
-default sensing), the 20 s excitation (``excite.design``) runs on it under PD and the log is identified
+default sensing), the LuGre excitation (``excite.with_plateaus(excite.design(20))``: the 20 s multisine, then
+the constant-velocity plateaus) runs on it under PD and the log is identified
 (``identify`` then ``identify_lugre``). Printed per seed and axis: the relative error of each LuGre parameter
 (%), and the held-out check: the rms contour error of the paper's circle (DIARC, [T, 2T]) on the drawn twin
 and on the identified LuGre plant. At the end the worst error per parameter against the targets.
@@ -19,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gantry_twin.excite import design, random_lugre_plant, run_on_twin
+from gantry_twin.excite import design, random_lugre_plant, run_on_twin, with_plateaus
 from gantry_twin.identify import identify, plant_xml
 from gantry_twin.identify_lugre import identify_lugre
 from gantry_twin.logs import Log
@@ -62,10 +63,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=10)
     parser.add_argument("--first", type=int, default=100)
+    parser.add_argument("--multisine-s", type=float, default=20.0, help="the multisine's length before the plateaus")
     args = parser.parse_args()
     worst = dict.fromkeys(TARGETS, 0.0)
     worst_circle = 0.0
-    path = design(20.0)
+    path = with_plateaus(design(args.multisine_s))
     for seed in range(args.first, args.first + args.seeds):
         started = time.perf_counter()
         plant = random_lugre_plant(np.random.default_rng(seed))

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from gantry_twin.cli import main
-from gantry_twin.excite import design, log_of, random_lugre_plant, run_on_twin
-from gantry_twin.identify_lugre import fit_steady
-from gantry_twin.logs import write_log
+from gantry_twin.excite import design, log_of, random_lugre_plant, run_on_twin, with_plateaus
+from gantry_twin.identify_lugre import LuGreSettings, fit_steady, steady_samples
+from gantry_twin.logs import Log, write_log
 from gantry_twin.scenario import build, load_scenario
 
 
@@ -35,6 +35,37 @@ def test_steady_fit_recovers_a_stribeck_curve():
     assert np.all(missed / draws <= 0.15), missed
 
 
+def test_steady_samples_are_those_after_steady_s_at_one_speed():
+    """Positions at 2 mm/s, then 0.5 s at 20 mm/s, 0.5 s accelerating at 0.1 m/s^2, then 1 mm/s, on a 0.5 um grid:
+    steady exactly from steady_s after each constant speed begins (within the encoder's step over a segment), and
+    never while the speed ramps or at rest."""
+    ts, settings = 2e-4, LuGreSettings()
+    t = np.arange(int(round(2.5 / ts))) * ts
+    v = np.select([t < 0.5, t < 1.0, t < 1.5, t < 2.0], [2e-3, 20e-3, 20e-3 + 0.1 * (t - 1.0), 1e-3], 0.0)
+    q = np.round(np.cumsum(v) * ts / 0.5e-6) * 0.5e-6
+    q2 = np.stack([q, -q], axis=1)
+    steady = steady_samples(Log("synthetic", t, np.zeros_like(q2), q2, None, ts), settings)
+    assert np.array_equal(steady[:, 0], steady[:, 1])
+    expected = np.zeros(t.size, bool)
+    for start, end in ((0.0, 0.5), (0.5, 1.0), (1.5, 2.0)):
+        expected |= (t >= start + settings.steady_s + 2 * ts) & (t < end)
+    unsure = np.zeros(t.size, bool)  # a segment's speed is a step from within tolerance at the edges
+    for edge in (0.2, 0.5, 0.7, 1.0, 1.5, 1.7, 2.0):
+        unsure |= np.abs(t - edge) < settings.steady_segment_s + 2 * ts
+    assert np.array_equal(steady[~unsure, 0], expected[~unsure])
+    assert not steady[(t > 1.05) & (t < 1.5), 0].any() and not steady[t > 2.06, 0].any()
+
+
+def test_lugre_needs_constant_velocity_stretches(tmp_path, capsys):
+    """The multisine alone never holds a low speed: exit 2, naming the plateaus."""
+    plant = random_lugre_plant(np.random.default_rng(1))
+    write_log(tmp_path / "log.parquet", *log_of(run_on_twin(design(6.0), plant)))
+    out = tmp_path / "id"
+    assert main(["identify", str(tmp_path / "log.parquet"), "--out", str(out), "--friction", "lugre"]) == 2
+    err = capsys.readouterr().err
+    assert "--plateaus" in err and len(err.strip().splitlines()) == 1
+
+
 def _circle_rms_um(plant) -> float:
     from gantry_twin.controllers import create
     from gantry_twin.paths import TimingLaw, circle
@@ -47,14 +78,15 @@ def _circle_rms_um(plant) -> float:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("seed", [1])
+@pytest.mark.parametrize("seed", [112])  # a hard twin: Y's vs 2.2 mm/s, pre-sliding 13 um (docs/logs.md)
 def test_acceptance_lugre_twin(seed, tmp_path):
-    """Issue 17 on a random LuGre twin (0.5 um encoder), 20 s excitation: Fc, sigma2, Fs within 10 %, vs and
+    """Issue 17 on a random LuGre twin (0.5 um encoder), the shortest excitation measured to suffice (a 10 s
+    multisine, then the constant-velocity plateaus: docs/logs.md): Fc, sigma2, Fs within 10 %, vs and
     sigma0 within 30 % (the many-seed study, docs/logs.md, says how often), and the identified plant
     (plant.yaml in a scenario) reproduces a held-out circle's rms contour error within 15 %."""
     plant = random_lugre_plant(np.random.default_rng(seed))
     truth = plant.lugre_parameters()
-    write_log(tmp_path / "log.parquet", *log_of(run_on_twin(design(20.0), plant)))
+    write_log(tmp_path / "log.parquet", *log_of(run_on_twin(with_plateaus(design(10.0)), plant)))
     out = tmp_path / "id"
     assert main(["identify", str(tmp_path / "log.parquet"), "--out", str(out), "--friction", "lugre"]) == 0
     data = json.loads((out / "identified.json").read_text())
@@ -63,6 +95,9 @@ def test_acceptance_lugre_twin(seed, tmp_path):
         err = {name: abs(found[name] / getattr(true, name) - 1.0) for name in found}
         assert max(err["fc_n"], err["fs_n"], err["sigma2_ns_m"]) < 0.10, (axis, err)
         assert max(err["vs_m_s"], err["sigma0_n_m"]) < 0.30, (axis, err)
+        # The plateaus give the steady curve itself: Fs and vs far inside the targets. Fitting the varying speeds
+        # too biases this twin's Y axis (Fs low, vs high: the bristle's lag; docs/logs.md).
+        assert max(err["fs_n"], err["vs_m_s"]) < 0.02, (axis, err)
     scenario_file = tmp_path / "machine.yaml"
     scenario_file.write_text((out / "plant.yaml").read_text().replace("file: plant.xml", "file: id/plant.xml"))
     identified = build(load_scenario(scenario_file), str(scenario_file)).plant

@@ -15,6 +15,12 @@ travel less a margin, speed, and the nominal command (a budget below the
 10 V DAC range computed with the heaviest parameters the trajectory must
 cope with, so that the real machine has headroom for its feedback).
 
+For the LuGre fit (``--plateaus``, :func:`with_plateaus`) constant-velocity
+plateaus follow the multisine (:class:`Plateaus`: log-spaced speeds each
+held long enough for the bristle and the identifier's filter to settle, both
+ways): the steady friction-velocity (Stribeck) curve is measured there, as
+rigs measure it.
+
 The twin runs it in closed loop on the PD controller (its feed-forward at
 the nominal parameters, its feedback stiff enough to keep the carriages on
 the trajectory within micrometres): this is how a user runs it on a
@@ -50,6 +56,13 @@ FREQUENCY_RANGE_HZ = (0.2, 5.0)
 FREQUENCIES_PER_AXIS = 8
 #: The payload, kg, of the heaviest machine the command budget is computed for.
 BUDGET_PAYLOAD_KG = 10.0
+#: The LuGre section (:class:`Plateaus`): its lowest and highest speed, m/s, the number of speeds (log-spaced),
+#: how long each is held, s (the identifier's settling window and the averaging after it: identify_lugre), and
+#: the smoothstep between two speeds, s.
+PLATEAU_SPEEDS_M_S = (1.0e-3, 0.1)
+PLATEAU_COUNT = 9
+PLATEAU_HOLD_S = 0.4
+PLATEAU_RAMP_S = 0.1
 
 
 @dataclass(frozen=True)
@@ -121,6 +134,77 @@ def _smoothstep(tau: np.ndarray, scale_s: float) -> list[np.ndarray]:
     ]
 
 
+@dataclass(frozen=True)
+class Plateaus:
+    """Constant-velocity plateaus, both axes alike, from ``start_s``: from rest up through ``speeds_m_s`` one way
+    (each held ``hold_s``), back through rest and the same speeds the other way, ending at rest where it started.
+
+    The steady friction-velocity curve (Stribeck) is measured where the bristle and the filters have settled:
+    a path p(phi), phi the time in s, like :class:`Multisine` (zero before ``start_s``). Between two speeds the
+    velocity follows a quintic smoothstep over ``ramp_s``.
+    """
+
+    speeds_m_s: np.ndarray
+    hold_s: float
+    ramp_s: float
+    start_s: float = 0.0
+
+    @property
+    def levels_m_s(self) -> np.ndarray:
+        """The velocities held in turn: 0, s_1 .. s_n, 0, -s_1 .. -s_n, 0."""
+        up = np.asarray(self.speeds_m_s, dtype=float)
+        return np.concatenate([[0.0], up, [0.0], -up, [0.0]])
+
+    @property
+    def ramp_starts_s(self) -> np.ndarray:
+        """When each smoothstep between two consecutive levels starts, s (the middle rest is not held)."""
+        holds = np.where(self.levels_m_s[1:-1] != 0.0, self.hold_s, 0.0)
+        return self.start_s + np.concatenate([[0.0], np.cumsum(self.ramp_s + holds)])
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.ramp_starts_s[-1] + self.ramp_s)
+
+    @property
+    def period_rad(self) -> float:
+        return self.duration_s
+
+    def derivatives(self, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """p, p', p'', p''' (..., 2) at times phi (s): v = sum_j dv_j S((t - t_j) / ramp), p its integral."""
+        t = np.asarray(phi, dtype=float)[..., None]
+        dv = np.diff(self.levels_m_s)
+        tau = (t - self.ramp_starts_s) / self.ramp_s
+        step = _smoothstep(tau, self.ramp_s)
+        x = np.clip(tau, 0.0, 1.0)
+        integral = np.where(tau >= 1.0, tau - 0.5, 2.5 * x**4 - 3.0 * x**5 + x**6)  # int_0^tau S
+        out = [(dv * self.ramp_s * integral).sum(-1)] + [(dv * d).sum(-1) for d in step[:3]]
+        return tuple(np.repeat(o[..., None], 2, axis=-1) for o in out)
+
+
+@dataclass(frozen=True)
+class Sequenced:
+    """Paths, each zero outside its own time span, one after the other: p = the sum of theirs."""
+
+    parts: tuple
+
+    @property
+    def duration_s(self) -> float:
+        return max(part.period_rad for part in self.parts)
+
+    @property
+    def period_rad(self) -> float:
+        return self.duration_s
+
+    def derivatives(self, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        return tuple(sum(d) for d in zip(*(part.derivatives(phi) for part in self.parts), strict=True))
+
+
+def with_plateaus(path: Multisine) -> Sequenced:
+    """The LuGre excitation: ``path``, then the :class:`Plateaus` of PLATEAU_SPEEDS_M_S (docs/logs.md)."""
+    speeds = np.geomspace(*PLATEAU_SPEEDS_M_S, PLATEAU_COUNT)
+    return Sequenced((path, Plateaus(speeds, PLATEAU_HOLD_S, PLATEAU_RAMP_S, start_s=path.duration_s)))
+
+
 def budget_theta() -> np.ndarray:
     """The heaviest machine the trajectory is sized for: the twin's with a BUDGET_PAYLOAD_KG payload and
     B, Af +30 % (volt units, theta order)."""
@@ -156,7 +240,7 @@ def design(duration_s: float = 20.0, fade_s: float = 1.0, theta: np.ndarray | No
     return Multisine(freqs, amps * scale[:, None], phases, duration_s, fade_s)
 
 
-def trajectory_table(path: Multisine, sample_period_s: float) -> dict[str, np.ndarray]:
+def trajectory_table(path: Multisine | Sequenced, sample_period_s: float) -> dict[str, np.ndarray]:
     """The trajectory users run on their machine: t_s, x_d_m, y_d_m and its velocity and acceleration."""
     t = np.arange(int(round(path.duration_s / sample_period_s)) + 1) * sample_period_s
     p, dp, ddp, _ = path.derivatives(t)
@@ -221,7 +305,7 @@ def random_lugre_plant(rng: np.random.Generator) -> Plant:
     return Plant(Payload(mass_kg=payload), friction=Friction(model="lugre", **axes))
 
 
-def run_on_twin(path: Multisine, plant: Plant, sensing=None):
+def run_on_twin(path: Multisine | Sequenced, plant: Plant, sensing=None):
     """Run the trajectory on the twin under PD control (module docstring); the trace."""
     from gantry_twin.controllers import create
     from gantry_twin.simulate import simulate
@@ -247,6 +331,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--payload-kg", type=float, default=0.0, help="payload of the twin that runs it, kg (default 0)"
     )
     parser.add_argument("--plant", metavar="XML", type=Path, help="the twin's MJCF (e.g. an identified plant.xml)")
+    parser.add_argument(
+        "--plateaus",
+        action="store_true",
+        help="append constant-velocity plateaus (the steady friction curve: identify --friction lugre)",
+    )
     parser.add_argument("--no-run", action="store_true", help="write the trajectory only")
 
 
@@ -257,6 +346,7 @@ def command(args: argparse.Namespace) -> int:
     out: Path = args.out
     try:
         path = design(args.duration_s, args.fade_s)
+        path = with_plateaus(path) if args.plateaus else path
         payload = Payload(mass_kg=args.payload_kg)
         try:
             plant = Plant(payload, model_path=args.plant)

@@ -77,11 +77,13 @@ class IdentifySettings:
 
 @dataclass(frozen=True)
 class AxisRegression:
-    """One axis' filtered regression over the samples kept: rows X (n, 4), target y (n,), and the log's index."""
+    """One axis' filtered regression over the samples kept: rows X (n, 4), target y (n,), the log's index and
+    each row's sample in its log."""
 
     x: np.ndarray
     y: np.ndarray
     log_index: np.ndarray
+    sample: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -104,7 +106,7 @@ class Identified:
 
 def axis_regressions(logs: Sequence[Log], settings: IdentifySettings) -> list[AxisRegression]:
     """The filtered regression of each axis over all logs, the samples left out removed (module docstring)."""
-    rows: list[list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = [[], []]
+    rows: list[list[tuple[np.ndarray, ...]]] = [[], []]
     for index, log in enumerate(logs):
         ts = log.sample_period_s
         v = centred_velocity(log.q_m, settings.velocity_half_width, ts)  # (N, 2); v[k]: interval k-1 -> k
@@ -121,8 +123,9 @@ def axis_regressions(logs: Sequence[Log], settings: IdentifySettings) -> list[Ax
             recent = np.convolve(slow, np.ones(memory + 1))[: slow.size] > 0.0  # a slow sample within memory
             keep = ~recent
             keep[: 4 * memory] = False  # the filters' start
-            rows[axis].append((x[keep], filtered[keep, 2], np.full(int(keep.sum()), index)))
-    return [AxisRegression(*(np.concatenate([r[i] for r in rows[a]]) for i in range(3))) for a in range(2)]
+            kept = np.flatnonzero(keep)
+            rows[axis].append((x[keep], filtered[keep, 2], np.full(kept.size, index), kept + 1))
+    return [AxisRegression(*(np.concatenate([r[i] for r in rows[a]]) for i in range(4))) for a in range(2)]
 
 
 def hac_covariance(x: np.ndarray, residual: np.ndarray, groups: np.ndarray, lag: int) -> np.ndarray:

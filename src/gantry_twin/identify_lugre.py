@@ -6,11 +6,17 @@ Three stages, each on what the previous one found (friction model:
 1. M, B, Af, dN by the linear regression of :func:`gantry_twin.identify.identify`.
 2. Fc, Fs, vs, sigma2 from the steady friction-velocity relation: the
    friction force F = kf (u_f - M x_f'' + dN) of the filtered regression,
-   binned by the filtered velocity x_f' (log-spaced bins per direction,
-   samples within ``stick_memory_s`` after a slow sample left out: the
-   bristle is then near its steady deflection), fitted with
-   ``scipy.optimize.least_squares`` to sign(v) g(v) + sigma2 v
+   binned by the filtered velocity x_f' (log-spaced bins per direction),
+   fitted with ``scipy.optimize.least_squares`` to sign(v) g(v) + sigma2 v
    (:func:`gantry_twin.friction.steady_force_n`) within LuGreAxis's ranges.
+   Only samples at steady state count: below ``fast_speed_m_s`` those where
+   the axis has held one speed for ``steady_s`` (:func:`steady_samples`; the
+   constant-velocity plateaus of ``gantry-twin excite --plateaus``), so that
+   the bristle and the filter Hf have settled. Samples of a varying speed
+   (the multisine's) bias Fs low there: the bristle lags the Stribeck rise
+   when decelerating into a reversal, and Hf rounds the peak. Above
+   ``fast_speed_m_s`` the Stribeck term and the bristle's lag vanish, and
+   every sliding sample counts (what pins Fc and sigma2).
 3. sigma0 and sigma1 (the bristle: pre-sliding) from short windows around
    the velocity reversals, replayed open loop through the LuGre plant of
    stages 1-2 (``mujoco.rollout``, each window started from the measured
@@ -52,6 +58,9 @@ from gantry_twin.identify import Identified, axis_regressions, plant_xml
 from gantry_twin.logs import Log, centred_velocity
 from gantry_twin.plant import AXES, Plant, moving_masses_kg
 
+#: The least number of steady velocity bins per direction below LuGreSettings.fast_speed_m_s (stage 2 fits four
+#: parameters to the curve; docs/logs.md).
+MIN_STEADY_BINS = 4
 #: The LuGre parameters identified per axis, in identified.json's order, and their units.
 LUGRE_NAMES = ("fc_n", "fs_n", "vs_m_s", "sigma2_ns_m", "sigma0_n_m", "sigma1_ns_m")
 
@@ -61,6 +70,9 @@ class LuGreSettings:
     """How the LuGre stages select and fit (module docstring).
 
     sliding_speed_m_s, stick_memory_s: stage 2's samples (as :class:`IdentifySettings`'), filter_hz: its Hf.
+    steady_s, steady_segment_s, steady_rel, steady_abs_m_s: a sample is steady when the speeds over every
+    ``steady_segment_s`` stretch of the ``steady_s`` before it agree within steady_rel |v| + steady_abs_m_s
+    (:func:`steady_samples`); fast_speed_m_s: above it every sample counts as steady.
     bins_per_decade: velocity bins; min_bin_samples: a bin's least count.
     reversal_before_s, reversal_after_s: stage 3's window around each reversal, s.
     reversal_speed_m_s: a reversal counts when the axis moved faster than this on both sides of it.
@@ -70,6 +82,11 @@ class LuGreSettings:
     sliding_speed_m_s: float = 0.3e-3
     stick_memory_s: float = 0.03
     filter_hz: float = 50.0
+    steady_s: float = 0.2
+    steady_segment_s: float = 0.05
+    steady_rel: float = 0.05
+    steady_abs_m_s: float = 2.0e-5
+    fast_speed_m_s: float = 0.1
     bins_per_decade: int = 8
     min_bin_samples: int = 20
     reversal_before_s: float = 0.01
@@ -102,6 +119,26 @@ class LuGreFit:
         }
 
 
+def steady_samples(log: Log, settings: LuGreSettings) -> np.ndarray:
+    """(N, 2): True where the axis has slid (faster than ``sliding_speed_m_s``) at one speed for ``steady_s``: the
+    speed over each ``steady_segment_s`` stretch ending every half segment within it agrees with the latest within
+    steady_rel |v| + steady_abs_m_s."""
+    ts = log.sample_period_s
+    m = max(1, int(round(settings.steady_segment_s / ts)))
+    half = max(1, m // 2)
+    shifts = range(0, int(round(settings.steady_s / ts)) - m + 1, half)
+    q = log.q_m
+    v = np.full(q.shape, np.nan)
+    v[m:] = (q[m:] - q[:-m]) / (m * ts)  # over the segment ending at each sample
+    tolerance = settings.steady_rel * np.abs(v) + settings.steady_abs_m_s
+    steady = np.abs(v) >= settings.sliding_speed_m_s  # NaN (before the log's start) compares False
+    for shift in shifts[1:]:
+        earlier = np.full(q.shape, np.nan)
+        earlier[shift:] = v[:-shift]
+        steady &= np.abs(earlier - v) <= tolerance
+    return steady
+
+
 def binned_friction(logs: Sequence[Log], base: Identified, settings: LuGreSettings) -> list[tuple[np.ndarray, ...]]:
     """Per axis: (v m/s, F volts, count) per velocity bin (stage 2 of the module docstring)."""
     stage = replace(
@@ -110,12 +147,17 @@ def binned_friction(logs: Sequence[Log], base: Identified, settings: LuGreSettin
         sliding_speed_m_s=settings.sliding_speed_m_s,
         stick_memory_s=settings.stick_memory_s,
     )
+    steady = [steady_samples(log, settings) for log in logs]
     out = []
     for axis, reg in enumerate(axis_regressions(logs, stage)):
         m, dn = base.theta[axis], base.theta[6 + axis]
-        force = reg.y - m * reg.x[:, 0] - dn * reg.x[:, 3]  # B x_f' + friction, filtered, volts
-        v = reg.x[:, 1]
-        lo, hi = settings.sliding_speed_m_s, max(np.abs(v).max(), 2 * settings.sliding_speed_m_s)
+        use = np.abs(reg.x[:, 1]) >= settings.fast_speed_m_s
+        for index, flags in enumerate(steady):
+            mine = reg.log_index == index
+            use[mine] |= flags[reg.sample[mine], axis]
+        force = (reg.y - m * reg.x[:, 0] - dn * reg.x[:, 3])[use]  # B x_f' + friction, filtered, volts
+        v = reg.x[use, 1]
+        lo, hi = settings.sliding_speed_m_s, max(np.abs(v).max(initial=0.0), 2 * settings.sliding_speed_m_s)
         edges = np.geomspace(lo, hi, max(2, int(math.ceil(np.log10(hi / lo) * settings.bins_per_decade)) + 1))
         rows = []
         for sign in (-1.0, 1.0):
@@ -125,7 +167,8 @@ def binned_friction(logs: Sequence[Log], base: Identified, settings: LuGreSettin
                 sel = which == b
                 if sel.sum() >= settings.min_bin_samples:
                     rows.append((float(v[sel].mean()), float(force[sel].mean()), int(sel.sum())))
-        out.append(tuple(np.array(c) for c in zip(*rows, strict=True)))
+        table = np.array(rows, dtype=float).reshape(-1, 3)  # no rows: empty columns (the caller says why)
+        out.append((table[:, 0], table[:, 1], table[:, 2].astype(int)))
     return out
 
 
@@ -256,8 +299,13 @@ def identify_lugre(logs: Sequence[Log], base: Identified, settings: LuGreSetting
         path.write_text(plant_xml(base.theta))
         gear = Plant(model_path=path).gear_n_per_v
         for axis, (v, force_v, _) in enumerate(binned_friction(logs, base, settings)):
-            if v.size < 6:
-                raise ValueError(f"{AXES[axis]} axis: only {v.size} velocity bins; the logs must sweep the speeds")
+            slow = [int(np.sum((sign * v > 0) & (np.abs(v) < settings.fast_speed_m_s))) for sign in (-1, 1)]
+            if v.size < 6 or min(slow) < MIN_STEADY_BINS:
+                raise ValueError(
+                    f"{AXES[axis]} axis: {v.size} velocity bins, {min(slow)} of them steady below "
+                    f"{settings.fast_speed_m_s:g} m/s in one direction (at least {MIN_STEADY_BINS}): the logs "
+                    "must hold constant-velocity stretches at low speeds both ways (gantry-twin excite --plateaus)"
+                )
             guess = (base.theta[4 + axis] * gear[axis], base.theta[2 + axis] * gear[axis])
             values, ci = fit_steady(v, force_v * gear[axis], guess)
             steady.append(values)
