@@ -17,3 +17,10 @@ settings.load_profile("gantry-twin")
 def circle_set1_traces():
     """Circle, no load, default sensing, 7 s: DRC, DARC, DIARC (used by several tests)."""
     return {name: run(name)[0] for name in ("drc", "darc", "diarc")}
+
+
+def pytest_xdist_auto_num_workers(config):
+    """`-n auto`: one worker per core, at most 4 (each holds MuJoCo, numba's loops and a model: ~0.3 GB)."""
+    import os
+
+    return max(1, min(4, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1))

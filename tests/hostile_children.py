@@ -83,6 +83,7 @@ def _fork(job: dict) -> dict:
     return {
         "code": os.waitstatus_to_exitcode(status),
         "wall_s": wall_s,
+        "cpu_s": usage.ru_utime + usage.ru_stime,
         "maxrss_kib": usage.ru_maxrss,
         "start_rss_kib": start_rss_kib,
     }
@@ -106,7 +107,12 @@ def _fresh(job: dict) -> dict:
     finally:
         killer.cancel()
     child.returncode = os.waitstatus_to_exitcode(status)
-    return {"code": child.returncode, "wall_s": time.perf_counter() - began, "maxrss_kib": usage.ru_maxrss}
+    return {
+        "code": child.returncode,
+        "wall_s": time.perf_counter() - began,
+        "cpu_s": usage.ru_utime + usage.ru_stime,
+        "maxrss_kib": usage.ru_maxrss,
+    }
 
 
 def main() -> None:
@@ -115,7 +121,9 @@ def main() -> None:
         started = time.perf_counter()
         from gantry_twin import cli  # noqa: F401 -- the imports every child shares
 
-        print(json.dumps({"wall_s": time.perf_counter() - started, "rss_kib": _kib("VmHWM")}), flush=True)
+        own = resource.getrusage(resource.RUSAGE_SELF)
+        start_up = {"wall_s": time.perf_counter() - started, "cpu_s": own.ru_utime + own.ru_stime}
+        print(json.dumps({**start_up, "rss_kib": _kib("VmHWM")}), flush=True)
     for line in sys.stdin:
         job = json.loads(line)
         print(json.dumps(_fork(job) if mode == "fork" else _fresh(job)), flush=True)

@@ -252,10 +252,11 @@ def _bomb(levels: int = 9) -> list:
     "value", ["x" * 1_000_000, _bomb(), 7**4000, {"k" * 100_000: 1}, b"\x00" * 100_000, (1.5,) * 10_000]
 )
 def test_quote_is_short_and_quick(value):
-    started = time.perf_counter()
+    # CPU time, not wall time: the bound is on the work done, which a loaded machine does not change.
+    started = time.process_time()
     text = quote(value)
     assert len(text) <= QUOTE_MAX_CHARS
-    assert time.perf_counter() - started < 0.1
+    assert time.process_time() - started < 0.1
 
 
 @pytest.mark.parametrize(
@@ -273,8 +274,9 @@ def test_quote_is_short_and_quick(value):
     ],
 )
 def test_every_message_quotes_a_big_value_short(data):
-    started = time.perf_counter()
+    # CPU time (see test_quote_is_short_and_quick).
+    started = time.process_time()
     with pytest.raises(ScenarioError) as info:
         validate_data(data, "f.yaml")
     assert len(str(info.value)) < 300, str(info.value)[:500]
-    assert time.perf_counter() - started < 1.0
+    assert time.process_time() - started < 1.0
