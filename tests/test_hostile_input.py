@@ -241,7 +241,7 @@ def test_more_than_30_cases_each_documented():
 
 
 def assert_refused(o: Outcome, answer: str | None = None) -> None:
-    """Exit 2 within 5 CPU s and 300 MB, one short line on stderr and no traceback, nothing on stdout, nothing written."""
+    """Exit 2 within 5 CPU s and 300 MB, one short stderr line, no traceback, nothing on stdout, nothing written."""
     assert o.code == 2, o
     assert o.cpu_s < TIME_LIMIT_S, o.cpu_s
     assert o.wall_s < HANG_LIMIT_S, o.wall_s
