@@ -227,9 +227,41 @@ def write_fit(out: Path, history: list[dict], messages: list[str]) -> None:
     print("\n".join(lines))
 
 
+def map_figure(maps: Sequence[Path], path: Path) -> None:
+    """C3's rms against C1's rms, and against C1's max, of every point of the maps; the paper's cell and +-15 %."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 3, figsize=(14, 4.4))
+    pairs = ((0, 4, "C1 DARC rms"), (1, 4, "C1 DARC max"), (2, 4, "C2 DIARC rms"))
+    for m in maps:
+        numbers = np.array([json.loads(line)["numbers_um"] for line in m.read_text().splitlines() if line.strip()])
+        for ax, (i, j, _) in zip(axes, pairs, strict=True):
+            ax.scatter(numbers[:, i], numbers[:, j], s=9, alpha=0.7, label=f"{m.parent.name} ({len(numbers)})")
+    for ax, (i, j, name) in zip(axes, pairs, strict=True):
+        ax.add_patch(
+            plt.Rectangle(
+                (0.85 * PAPER[i], 0.85 * PAPER[j]), 0.3 * PAPER[i], 0.3 * PAPER[j], fill=False, ec="k", lw=1.0
+            )
+        )
+        ax.plot(PAPER[i], PAPER[j], "k*", ms=11, label="paper (+-15 % box)")
+        ax.set_xlabel(f"{name} [um]")
+        ax.set_ylabel("C3 DRC rms [um]")
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=7)
+    fig.suptitle("circle Set 1 on the friction map (tools/calibrate_friction.py map)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    print(f"wrote {path}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("mode", choices=("map", "fit"))
+    parser.add_argument("mode", choices=("map", "fit", "figure"))
+    parser.add_argument("maps", nargs="*", type=Path, help="figure: map.jsonl files (each one colour)")
     parser.add_argument("--out", type=Path, default=Path("runs/calibration"))
     parser.add_argument("--workers", "--jobs", type=int, default=2)
     parser.add_argument("--grid", action="append", default=[], metavar="NAME=V1,V2,...")
@@ -244,6 +276,9 @@ def main() -> None:
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     base = _parse_pairs(args.set, many=False)
+    if args.mode == "figure":
+        map_figure(args.maps, args.out / "friction_map.png")
+        return
 
     with open_client(workers=args.workers) as client:
         if args.mode == "map":
