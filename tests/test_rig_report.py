@@ -153,6 +153,18 @@ def test_report_with_rig_runs_both_matrices_and_adds_the_section(tmp_path, capsy
     assert json.loads((tmp_path / "r" / rig_report.RIG_JSON).read_text())["overrides"] == list(RIG)
 
 
+@pytest.mark.parametrize("label", rig_report.LABELS)
+def test_spike_runs_are_valid_with_the_shipped_windows(label):
+    """With the shipped scenario's own windows (no overrides) each spike run builds: it stops 50 ms after the first
+    X reversal past T + 50 ms (the circle at 2 rad/s reverses X every pi/2 s: at 5 pi/4 s after T = pi s)."""
+    for plant in ((), RIG):
+        built, t0 = rig_report.spike_run(label, plant)
+        vx = reference(built.path, built.timing, np.array([t0 - 1e-3, t0 + 1e-3])).dq_d[:, 0]
+        assert vx[0] * vx[1] < 0
+        assert t0 == pytest.approx(1.25 * math.pi, abs=1e-4)
+        assert built.scenario.duration_s == pytest.approx(t0 + rig_report.SPIKE_HALF_S, abs=1e-6)
+
+
 @pytest.mark.slow
 def test_rig_runs_against_independent_runs_and_the_reversal_spike(tmp_path, capsys):
     """Real runs: the rig column equals `run` with the rig's overrides (computed from its trace); the spike

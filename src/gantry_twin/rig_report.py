@@ -31,7 +31,7 @@ from gantry_twin.plant import THETA_NAMES
 from gantry_twin.report import CONTOURS, CONTROLLERS, PAPER_CONTOUR_UM, SET_SCENARIOS, Case, CaseResult
 from gantry_twin.results import atomic_write, atomic_write_text
 from gantry_twin.run import execute
-from gantry_twin.scenario import ScenarioError, build, load_scenario, shipped
+from gantry_twin.scenario import BuiltRun, ScenarioError, build, load_scenario, shipped
 
 LABELS = ("C1", "C2", "C3")
 #: The cells the calibration fitted (contour, set): circle Set 1 (tools/calibrate_friction.py); the rest validate.
@@ -169,23 +169,28 @@ def acceptance(rig: dict[Key, CaseResult]) -> list[tuple[bool | None, str]]:
 
 
 def spike_series(overrides: Sequence[str], rig: Sequence[str]) -> dict[tuple[str, str], tuple[np.ndarray, np.ndarray]]:
-    """(label, 'rig' | 'coulomb') -> (ms from the X reversal, eps_c um) on circle Set 1, +-SPIKE_HALF_S around the
-    first reversal of the desired X velocity after the metric window's start (each run stops just after it)."""
+    """(label, 'rig' | 'coulomb') -> (ms from the X reversal, eps_c um): the runs of :func:`spike_run`."""
     series = {}
     for label in LABELS:
-        controller, extra, _ = CONTROLLERS[label]
         for name, plant in (("rig", rig), ("coulomb", ())):
-            path = shipped(f"{SET_SCENARIOS[1]}_circle")
-            scenario = load_scenario(path, (*extra, *overrides, *plant), controller)
-            t0 = _first_x_reversal_s(scenario, path)
-            stop = t0 + SPIKE_HALF_S
-            end = f"duration_s={stop:.6f}"
-            window = f"estimates_window_s=[{stop - SPIKE_HALF_S:.6f}, {stop:.6f}]"
-            trace = execute(build(load_scenario(path, (*extra, *overrides, *plant, end, window), controller), path))
+            built, t0 = spike_run(label, (*overrides, *plant))
+            trace = execute(built)
             t = trace.t_s[: trace.filled]
             keep = (t >= t0 - SPIKE_HALF_S) & (t <= t0 + SPIKE_HALF_S)
             series[(label, name)] = ((t[keep] - t0) * 1e3, trace.eps_c_m[: trace.filled][keep] * 1e6)
     return series
+
+
+def spike_run(label: str, overrides: Sequence[str]) -> tuple[BuiltRun, float]:
+    """Circle Set 1 with ``label``'s controller, stopped SPIKE_HALF_S after the first reversal of the desired X
+    velocity at least SPIKE_HALF_S past the metric window's start (its windows moved inside the shorter run);
+    the built run and the reversal's time t0, s."""
+    controller, extra, _ = CONTROLLERS[label]
+    path = shipped(f"{SET_SCENARIOS[1]}_circle")
+    t0 = _first_x_reversal_s(load_scenario(path, (*extra, *overrides), controller), path)
+    stop = t0 + SPIKE_HALF_S
+    short = (f"duration_s={stop:.6f}", f"window_s=[0, {stop:.6f}]", f"estimates_window_s=[{t0:.6f}, {stop:.6f}]")
+    return build(load_scenario(path, (*extra, *overrides, *short), controller), path), t0
 
 
 def _first_x_reversal_s(scenario: Any, path: Path) -> float:
