@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 from gantry_twin import excite as excite_command
-from gantry_twin import export, identify_command
+from gantry_twin import export, identify_command, rig_report
 from gantry_twin.compare import CompareError
 from gantry_twin.compare import add_arguments as add_compare_arguments
 from gantry_twin.compare import command as compare_command
@@ -182,6 +182,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--jobs", metavar="N", type=int, default=None, help="parallel processes (default: os.cpu_count())"
     )
     _add_set(report, "override a field in every scenario of the matrix, e.g. duration_s=10")
+    rig_report.add_arguments(report)
     _add_progress(report)
 
     identify = sub.add_parser("identify", help="identify M, B, Af (and LuGre) from logs; a plant file and a fit report")
@@ -477,9 +478,13 @@ def _report(args: argparse.Namespace) -> int:
         raise BadInput(f"--jobs: must be a positive integer, got {args.jobs}")
     _checked_out(args.out)
     cases = paper_matrix(args.overrides)  # validates every scenario before anything runs
+    rig = rig_report.load_rig(args.rig) if args.rig is not None else None
+    rigged = rig_report.rig_cases(cases, rig) if rig else []
     try:
-        results = run_matrix(cases, jobs=args.jobs or os.cpu_count() or 1, progress=_progress_wanted(args))
-        path = write_report(results, args.out, args.overrides)
+        results = run_matrix([*cases, *rigged], jobs=args.jobs or os.cpu_count() or 1, progress=_progress_wanted(args))
+        results, rig_results = results[: len(cases)], results[len(cases) :]
+        appendix = rig_report.section(results, rig_results, rig, args.out, args.overrides) if rig else []
+        path = write_report(results, args.out, args.overrides, appendix)
     except Exception as exc:
         return _failed("report", exc)
     print(f"report written to {path}")

@@ -388,8 +388,13 @@ def figures(by_key: dict[tuple[int, str, str], CaseResult]) -> list[tuple[Any, s
     return made
 
 
-def write_report(results: Sequence[CaseResult], out: Path, overrides: Sequence[str] = ()) -> Path:
-    """Write report.md, results.json and the PNG figures into ``out``; returns report.md's path."""
+def write_report(
+    results: Sequence[CaseResult], out: Path, overrides: Sequence[str] = (), appendix: Sequence[str] = ()
+) -> Path:
+    """Write report.md, results.json and the PNG figures into ``out``; returns report.md's path.
+
+    ``appendix``: Markdown lines put after the figures (``report --rig``: :func:`gantry_twin.rig_report.section`).
+    """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     by_key = {(r.case.set_id, r.case.contour, r.case.label): r for r in results}
@@ -429,6 +434,7 @@ def write_report(results: Sequence[CaseResult], out: Path, overrides: Sequence[s
         lines += _estimate_table(by_key, set_id)
     lines += ["", "## Figures", ""]
     lines += [f"![{caption}]({name})\n\n{caption}\n" for name, caption in figures]
+    lines += appendix
     lines += ["## Runs", "", "| run | steps | rms (um) | max (um) | window (s) | wall time (s) |", "|---" * 6 + "|"]
     for r in results:
         lines.append(

@@ -1,0 +1,288 @@
+"""The paper's matrix with the rig's friction beside the Coulomb twin, cell by cell (issue 15, item 6).
+
+``gantry-twin report --rig FILE`` runs the report's matrix (:mod:`gantry_twin.report`)
+a second time with the rig plant, the scenario overrides of FILE (the
+``overrides`` list of the ``fit.json`` that ``tools/calibrate_friction.py``
+writes), and adds to report.md a section with paper / twin with rig friction
+/ twin with Coulomb friction for every cell of Tables 1-2, the rig's error per
+cell (circle Set 1 is the calibration's fit, the other cells validation), the
+issue's acceptance checks on the rig's numbers, and a figure of eps_c +-50 ms
+around an X reversal of circle Set 1 for C1-C3, rig and Coulomb
+(``rig_reversal_spike.png``), and writes the rig runs' numbers to
+``rig.json``. ``tools/friction_report.py`` adds the health monitor's alarms
+over long runs (:func:`monitor_alarms`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import json
+from collections.abc import Sequence
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from gantry_twin.metrics import error_pct
+from gantry_twin.paths import reference
+from gantry_twin.plant import THETA_NAMES
+from gantry_twin.report import CONTOURS, CONTROLLERS, PAPER_CONTOUR_UM, SET_SCENARIOS, Case, CaseResult
+from gantry_twin.results import atomic_write, atomic_write_text
+from gantry_twin.run import execute
+from gantry_twin.scenario import BuiltRun, ScenarioError, build, load_scenario, shipped
+
+LABELS = ("C1", "C2", "C3")
+#: The cells the calibration fitted (contour, set): circle Set 1 (tools/calibrate_friction.py); the rest validate.
+FIT_CELLS = {("circle", 1)}
+#: The issue's acceptance: at least VALIDATION_TARGET of the 26 validation numbers within VALIDATION_PCT of the paper.
+VALIDATION_PCT = 30.0
+VALIDATION_TARGET = 20
+VALIDATION_NUMBERS = 26
+#: C3's rms at least this many times C1's and C2's; DIARC's rms at most this many times DARC's.
+C3_OVER_C1_C2 = 2.5
+C2_OVER_C1 = 1.05
+#: DIARC's recommended estimates within these % of the true values (M, B, Af).
+ESTIMATE_PCT = {"M": 3.0, "B": 10.0, "Af": 10.0}
+#: The reversal-spike figure: +- this much around the first X reversal after the metric window's start, s.
+SPIKE_HALF_S = 0.05
+SPIKE_FILE = "rig_reversal_spike.png"
+#: The rig runs' numbers (rms, max um; estimates), beside the report's results.json.
+RIG_JSON = "rig.json"
+
+Key = tuple[int, str, str]
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--rig",
+        metavar="FILE",
+        type=Path,
+        default=None,
+        help="also run the matrix with the rig's friction: FILE's 'overrides' (a fit.json of "
+        "tools/calibrate_friction.py); adds paper / rig / Coulomb per cell and a reversal-spike figure",
+    )
+
+
+def load_rig(path: Path) -> list[str]:
+    """The scenario overrides that make the rig plant: FILE's ``overrides``, a list of ``field=value`` strings."""
+    try:
+        data = json.loads(Path(path).read_text())
+    except OSError as exc:
+        raise ScenarioError(str(path), "", f"cannot read the rig file ({exc.strerror or exc})") from None
+    except json.JSONDecodeError as exc:
+        raise ScenarioError(str(path), "", f"not JSON ({exc.msg}, line {exc.lineno})") from None
+    overrides = data.get("overrides") if isinstance(data, dict) else None
+    if not isinstance(overrides, list) or not overrides or not all(isinstance(o, str) for o in overrides):
+        raise ScenarioError(str(path), "overrides", "must be a non-empty list of 'field=value' strings")
+    return overrides
+
+
+def rig_cases(cases: Sequence[Case], rig: Sequence[str]) -> list[Case]:
+    """The same cases with the rig's overrides after their own (each validated, as :func:`paper_matrix` does)."""
+    out = []
+    for case in cases:
+        rigged = replace(case, overrides=(*case.overrides, *rig))
+        build(load_scenario(rigged.scenario_path, rigged.overrides, rigged.controller), rigged.scenario_path)
+        out.append(rigged)
+    return out
+
+
+def by_key(results: Sequence[CaseResult]) -> dict[Key, CaseResult]:
+    return {(r.case.set_id, r.case.contour, r.case.label): r for r in results}
+
+
+def cell_errors_pct(rig: CaseResult, paper: tuple[float, float]) -> tuple[float, float]:
+    """The rig's error against the paper, rms and max, %."""
+    return (rig.rms_um / paper[0] - 1.0) * 100.0, (rig.max_um / paper[1] - 1.0) * 100.0
+
+
+def matrix_table(rig: dict[Key, CaseResult], coulomb: dict[Key, CaseResult]) -> list[str]:
+    """Paper / rig / Coulomb (rms / max, um) and the rig's error per cell that both runs have."""
+    lines = [
+        "| contour | set | ctrl | paper rms / max | rig rms / max | Coulomb rms / max | rig error rms / max % | |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for contour in CONTOURS:
+        for set_id in (1, 2, 3):
+            for label in LABELS:
+                paper = PAPER_CONTOUR_UM.get((contour, set_id, label))
+                r, c = rig.get((set_id, contour, label)), coulomb.get((set_id, contour, label))
+                if paper is None or r is None or c is None:
+                    continue
+                err = cell_errors_pct(r, paper)
+                cells = [
+                    f"{paper[0]:.2f} / {paper[1]:.2f}",
+                    f"{r.rms_um:.2f} / {r.max_um:.2f}",
+                    f"{c.rms_um:.2f} / {c.max_um:.2f}",
+                    f"{err[0]:+.0f} / {err[1]:+.0f}",
+                ]
+                role = "fit" if (contour, set_id) in FIT_CELLS else "validation"
+                lines.append(f"| {contour} | {set_id} | {label} | " + " | ".join(cells) + f" | {role} |")
+    return lines
+
+
+def acceptance(rig: dict[Key, CaseResult]) -> list[tuple[bool | None, str]]:
+    """The issue's acceptance on the rig's numbers: (pass, or None for an observation; text)."""
+    out: list[tuple[bool | None, str]] = []
+    misses, total = [], 0
+    for (set_id, contour, label), r in sorted(rig.items()):
+        paper = PAPER_CONTOUR_UM.get((contour, set_id, label))
+        if paper is None or (contour, set_id) in FIT_CELLS:
+            continue
+        for kind, e in zip(("rms", "max"), cell_errors_pct(r, paper), strict=True):
+            total += 1
+            if abs(e) > VALIDATION_PCT:
+                misses.append(f"{contour} {set_id} {label} {kind} {e:+.0f} %")
+    if total:
+        within = total - len(misses)
+        text = f"validation numbers within +-{VALIDATION_PCT:g} % of the paper: {within} of {total}"
+        text += f" (target {VALIDATION_TARGET} of {VALIDATION_NUMBERS})" if total == VALIDATION_NUMBERS else ""
+        verdict = within >= VALIDATION_TARGET if total == VALIDATION_NUMBERS else None  # judged on the whole matrix
+        out.append((verdict, text + (f"; misses: {', '.join(misses)}" if misses else "")))
+    for contour in CONTOURS:
+        for set_id in (1, 2):
+            runs = [rig.get((set_id, contour, x)) for x in LABELS]
+            if any(r is None for r in runs):
+                continue
+            c1, c2, c3 = (r.rms_um for r in runs)
+            ratio = c3 / max(c1, c2)
+            out.append((ratio >= C3_OVER_C1_C2, f"{contour} Set {set_id}: C3 rms >= 2.5x C1's and C2's (x{ratio:.2f})"))
+            out.append(
+                (c2 <= C2_OVER_C1 * c1, f"{contour} Set {set_id}: DIARC rms <= 1.05 DARC's ({c2:.2f} vs {c1:.2f} um)")
+            )
+    for set_id in (1, 2):
+        for contour in CONTOURS:
+            for label in ("C2r", "C1"):
+                r = rig.get((set_id, contour, label))
+                if r is None or r.estimates is None:
+                    continue
+                errs = [error_pct(r.estimates[i], r.true_theta[i]) for i in range(6)]
+                text = ", ".join(f"{THETA_NAMES[i]} {e:+.1f} %" for i, e in enumerate(errs))
+                if label == "C2r":
+                    ok = all(abs(e) <= ESTIMATE_PCT[THETA_NAMES[i].rstrip("12")] for i, e in enumerate(errs))
+                    out.append((ok, f"DIARC recommended, {contour} Set {set_id}: {text}"))
+                else:
+                    out.append((None, f"DARC, {contour} Set {set_id} (expected to wander): {text}"))
+    return out
+
+
+def spike_series(overrides: Sequence[str], rig: Sequence[str]) -> dict[tuple[str, str], tuple[np.ndarray, np.ndarray]]:
+    """(label, 'rig' | 'coulomb') -> (ms from the X reversal, eps_c um): the runs of :func:`spike_run`."""
+    series = {}
+    for label in LABELS:
+        for name, plant in (("rig", rig), ("coulomb", ())):
+            built, t0 = spike_run(label, (*overrides, *plant))
+            trace = execute(built)
+            t = trace.t_s[: trace.filled]
+            keep = (t >= t0 - SPIKE_HALF_S) & (t <= t0 + SPIKE_HALF_S)
+            series[(label, name)] = ((t[keep] - t0) * 1e3, trace.eps_c_m[: trace.filled][keep] * 1e6)
+    return series
+
+
+def spike_run(label: str, overrides: Sequence[str]) -> tuple[BuiltRun, float]:
+    """Circle Set 1 with ``label``'s controller, stopped SPIKE_HALF_S after the first reversal of the desired X
+    velocity at least SPIKE_HALF_S past the metric window's start (its windows moved inside the shorter run);
+    the built run and the reversal's time t0, s."""
+    controller, extra, _ = CONTROLLERS[label]
+    path = shipped(f"{SET_SCENARIOS[1]}_circle")
+    t0 = _first_x_reversal_s(load_scenario(path, (*extra, *overrides), controller), path)
+    stop = t0 + SPIKE_HALF_S
+    short = (f"duration_s={stop:.6f}", f"window_s=[0, {stop:.6f}]", f"estimates_window_s=[{t0:.6f}, {stop:.6f}]")
+    return build(load_scenario(path, (*extra, *overrides, *short), controller), path), t0
+
+
+def _first_x_reversal_s(scenario: Any, path: Path) -> float:
+    """The first sign change of the desired X velocity at least SPIKE_HALF_S after the metric window's start, s."""
+    start = scenario.metric_window_s[0] + SPIKE_HALF_S
+    built = build(scenario, path)
+    t = np.arange(0.0, start + 2.0 * np.pi, 1e-4)
+    vx = reference(built.path, built.timing, t).dq_d[:, 0]
+    flips = np.nonzero((np.sign(vx[1:]) != np.sign(vx[:-1])) & (t[1:] >= start))[0]
+    if flips.size == 0:
+        raise RuntimeError(f"{path}: the desired X velocity does not reverse after {start:g} s")
+    return float(t[flips[0] + 1])
+
+
+def spike_figure(series: dict[tuple[str, str], tuple[np.ndarray, np.ndarray]]) -> Any:
+    """eps_c around the X reversal, one panel per controller, rig and Coulomb overlaid (matplotlib, Agg)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(LABELS), figsize=(12, 3.4), sharey=True)
+    for ax, label in zip(axes, LABELS, strict=True):
+        for name in ("rig", "coulomb"):
+            t_ms, eps_um = series[(label, name)]
+            ax.plot(t_ms, eps_um, lw=0.9, label=f"twin, {name} friction")
+        ax.set_title(f"{label} ({CONTROLLERS[label][2]})")
+        ax.set_xlabel("time from the X reversal [ms]")
+        ax.grid(True, alpha=0.3)
+    axes[0].set_ylabel("eps_c [um]")
+    axes[0].legend(fontsize=8)
+    fig.suptitle("circle Set 1: contour error around an X reversal")
+    fig.tight_layout()
+    return fig
+
+
+def section(
+    coulomb: Sequence[CaseResult],
+    rig: Sequence[CaseResult],
+    rig_overrides: Sequence[str],
+    out: Path,
+    overrides: Sequence[str] = (),
+) -> list[str]:
+    """The report's rig section (Markdown lines); writes the reversal-spike figure into ``out``."""
+    import matplotlib.pyplot as plt
+
+    rig_by, coulomb_by = by_key(rig), by_key(coulomb)
+    lines = [
+        "## The rig's friction beside the Coulomb twin (issue 15)",
+        "",
+        "Rig plant: " + " ".join(f"`{o}`" for o in rig_overrides) + ". Coulomb: the model's own friction. "
+        "rms / max of eps_c in um over the same windows as Tables 1-2; circle Set 1 is the calibration's fit, "
+        "the other cells validation.",
+        "",
+        *matrix_table(rig_by, coulomb_by),
+        "",
+        "### Acceptance on the rig's numbers",
+        "",
+    ]
+    marks = {True: "PASS: ", False: "FAIL: ", None: ""}
+    lines += [f"- {marks[ok]}{text}" for ok, text in acceptance(rig_by)]
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    cells = [
+        {"key": r.case.key, "rig_rms_um": r.rms_um, "rig_max_um": r.max_um, "rig_estimates": r.estimates} for r in rig
+    ]
+    atomic_write_text(out / RIG_JSON, json.dumps({"overrides": list(rig_overrides), "runs": cells}, indent=2) + "\n")
+    fig = spike_figure(spike_series(overrides, rig_overrides))
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=110)
+    plt.close(fig)
+    data = buffer.getvalue()
+    atomic_write(out / SPIKE_FILE, lambda fh: fh.write(data))
+    caption = "eps_c +-50 ms around an X reversal of circle Set 1, C1-C3, rig vs Coulomb friction"
+    lines += ["", f"![{caption}]({SPIKE_FILE})", "", caption, ""]
+    return lines
+
+
+def monitor_alarms(rig: Sequence[str], seconds: float) -> list[str]:
+    """The health monitor (DIARC as shipped) on the four no-load / 5 kg paper scenarios with the rig."""
+    lines = []
+    for set_id in (1, 2):
+        for contour in CONTOURS:
+            name = f"{SET_SCENARIOS[set_id]}_{contour}"
+            extra = [
+                *rig,
+                "monitor.enable=true",
+                f"duration_s={seconds}",
+                f"estimates_window_s=[{seconds - 3}, {seconds}]",
+            ]
+            built = build(load_scenario(shipped(name), extra, "diarc"))
+            execute(built)
+            alarms = built.monitor.alarms
+            lines.append(f"- {name}: {len(alarms)} alarm(s)" + "".join(f"; {a}" for a in alarms[:3]))
+    return lines
