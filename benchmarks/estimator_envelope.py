@@ -78,9 +78,14 @@ def contours(speeds: tuple[float, ...] = SPEEDS_M_S, sizes: tuple[float, ...] = 
     return out
 
 
-def write_sweep(monitor: bool, issue7: bool = False, corners: bool = False) -> Path:
+def write_sweep(
+    monitor: bool, issue7: bool = False, corners: bool = False, recommended_only: bool = False, keep_runs: bool = False
+) -> Path:
     name = "estimator_envelope_monitor" if monitor else "estimator_envelope"
-    estimators = ["recommended"] if monitor else [*ESTIMATORS, *([ISSUE7_ESTIMATOR] if issue7 else [])]
+    if monitor or recommended_only:
+        estimators = ["recommended", *([ISSUE7_ESTIMATOR] if issue7 and not monitor else [])]
+    else:
+        estimators = [*ESTIMATORS, *([ISSUE7_ESTIMATOR] if issue7 else [])]
     spec = {
         "description": (
             "Issue 16: DIARC estimates over peak speed 0.02-0.6 m/s and size 0.02-0.2 m, circle and ellipse, "
@@ -95,9 +100,13 @@ def write_sweep(monitor: bool, issue7: bool = False, corners: bool = False) -> P
             {"field": "controller.options.estimator", "values": estimators},
         ],
         "plots": ["error_pct_M1", "error_pct_B1", "error_pct_Af1"],
+        **({"keep_runs": True} if keep_runs else {}),
     }
     path = ROOT / "sweeps" / f"{name}.yaml"
-    header = f"# Written by benchmarks/estimator_envelope.py write{' --monitor' if monitor else ''}: edit there.\n"
+    flags = {"--monitor": monitor, "--issue7": issue7, "--corners": corners, "--recommended-only": recommended_only}
+    flags["--keep-runs"] = keep_runs
+    given = "".join(f" {flag}" for flag, on in flags.items() if on)
+    header = f"# Written by benchmarks/estimator_envelope.py write{given}: edit there.\n"
     path.write_text(header + yaml.safe_dump(spec, sort_keys=False, default_flow_style=None, width=200))
     return path
 
@@ -190,12 +199,16 @@ def main(argv: list[str] | None = None) -> int:
     w.add_argument("--monitor", action="store_true", help="the 60 s monitor sweep instead")
     w.add_argument("--issue7", action="store_true", help="also the recommended estimator before issue 16")
     w.add_argument("--corners", action="store_true", help=f"only speeds {CORNER_SPEEDS_M_S}, sizes {CORNER_SIZES_M}")
+    w.add_argument("--recommended-only", action="store_true", help="the recommended estimator alone (half the map)")
+    w.add_argument(
+        "--keep-runs", action="store_true", help="keep each point's run (trace.parquet) for `confidence` re-evaluation"
+    )
     m = sub.add_parser("map", help="summarise a finished sweep and draw the map")
     m.add_argument("results", type=Path)
     m.add_argument("--figure", type=Path)
     args = parser.parse_args(argv)
     if args.command == "write":
-        print(write_sweep(args.monitor, args.issue7, args.corners))
+        print(write_sweep(args.monitor, args.issue7, args.corners, args.recommended_only, args.keep_runs))
         return 0
     rows = load(args.results)
     summarise(rows)

@@ -36,12 +36,17 @@ the regressor itself is wrong. Two errors are predicted from what is known:
   x_f' (:func:`quantisation_noise`, exact for the discrete filter). Least
   squares with noise in a column shrinks that parameter (errors in
   variables) by about (noise_v / parameter_v)^2, noise_v = scale sigma;
-* the friction column Sf_f differs from the plant's sign(v) by at most
-  d = Hf[1 - |Sf(v)|] (the smooth Sf; a differenced velocity of 0 while the
-  axis moves below the encoder's velocity step), so the force error is at
-  most e_k = Af |d_k| per sample, and least squares moves theta by
-  I^-1 sum g_k e_k dt, at most Af |I^-1| m elementwise, with the moment
-  m = sum |g_k| |d_k| dt over the samples used.
+* the friction column Sf_f differs from the plant's sign(v) by
+  e = Hf[s (1 - |Sf(v)|)] (the smooth Sf; a differenced velocity of 0 while
+  the axis moves below the encoder's velocity step), s = sign(v): the sign
+  of the last nonzero differenced velocity, for a zero difference too (the
+  axis still slides that way; a zero run across a reversal is the one place
+  this can be wrong, and the reversal gate keeps such rows out). The force
+  error is Af e_k per sample, and least squares moves theta by
+  Af I^-1 m, with the signed moment m = sum g_k e_k dt over the samples
+  used: a signed sum, so that errors of opposite sign cancel as they do in
+  the fit (issue 7's bound Af |I^-1| sum |g| |e| dt did not let them, and
+  was ten times the actual shift where B and Af are correlated).
 
 An estimate is **trustworthy** when its parameter is excited
 (``parameter_v`` >= ``min_parameter_v``), its axis slid in at least
@@ -84,19 +89,20 @@ class FilterSettings(Protocol):
 
 @kernel
 def accumulate_information(g, weight, first_index, period, acc, moving, blocks, block_moving):  # pragma: no cover
-    """Add weight_k g_k g_k^T (g (n, 2, 4)) into per-period sums, sample by sample.
+    """Add weight_k g_k g_k^T (g (n, 2, p)) into per-period sums, sample by sample.
 
-    acc (2, 4, 4), moving (2,) hold the open period; every closed period is
+    acc (2, p, p), moving (2,) hold the open period; every closed period is
     written to blocks[m], block_moving[m]. Returns the number of closed periods.
     """
     m = 0
+    p = g.shape[2]
     for k in range(g.shape[0]):
         for a in range(2):
             w = weight[k, a]
             if w != 0.0:
                 moving[a] += 1.0
-                for i in range(4):
-                    for j in range(4):
+                for i in range(p):
+                    for j in range(p):
                         acc[a, i, j] += w * g[k, a, i] * g[k, a, j]
         if (first_index + k + 1) % period == 0:
             blocks[m] = acc
@@ -117,8 +123,12 @@ class FilteredRegressors:
     a controller fed another velocity (ideal sensing without difference,
     velocity noise) filtered a slightly different Sf(x'). A sample whose
     |Sf_f| is below the settings' ``reversal_gate`` has g = 0 on that axis,
-    as in the estimator. :attr:`deficit` (n, 2): Hf[1 - |Sf(x')|] at the
-    samples of the last :meth:`advance` (the friction column's error bound).
+    as in the estimator. Given the commands, :attr:`u_f` (n, 2) is the
+    estimator's target u_f (the previous sample's command, held, through Hf).
+    :attr:`friction_error` (n, 2): Hf[s (1 - |Sf(x')|)], the friction column's
+    error against the plant's sign(v) (s: the sign of the last nonzero
+    differenced velocity, held through zero differences), at the samples of
+    the last :meth:`advance`.
     """
 
     def __init__(self, settings: FilterSettings, sample_period_s: float) -> None:
@@ -128,54 +138,78 @@ class FilteredRegressors:
         self.discs = [
             discretise_filter(2.0 * np.pi * hz, settings.filter_zeta, sample_period_s) for hz in settings.filter_hz
         ]
-        self.z = np.zeros((2, 2, 4))  # axis, state [w_f, w_f'], signal (q, Sf, 1, 1 - |Sf|: the deficit)
-        self.deficit = np.zeros((0, 2))
+        # axis, state [w_f, w_f'], signal: q, Sf, 1, u (DIARC's estimator's columns), s (1 - |Sf|)
+        self.z = np.zeros((2, 2, 5))
+        self.friction_error = np.zeros((0, 2))
+        self.u_f = np.zeros((0, 2))
         self.previous_q = np.zeros(2)
+        self.previous_u = np.zeros(2)
+        self.sign = np.zeros(2)  # of the last nonzero differenced velocity, per axis
         self.seen = 0
 
-    def advance(self, q_meas_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Feed the next samples (n, 2); return (g (n, 2, 4), |x_f'| (n, 2)), zero before sample 2."""
+    def advance(self, q_meas_m: np.ndarray, u_v: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Feed the next samples (n, 2) (and their commands u_v (n, 2), V); return (g (n, 2, 4), |x_f'| (n, 2)),
+        zero before sample 2."""
         q = np.asarray(q_meas_m, dtype=float)
         n = q.shape[0]
+        u = np.zeros((n, 2)) if u_v is None else np.asarray(u_v, dtype=float)
         g = np.zeros((n, 2, 4))
         speed = np.zeros((n, 2))
         prev = np.vstack([self.previous_q[None, :], q[:-1]])
+        held_u = np.vstack([self.previous_u[None, :], u[:-1]])  # the estimator filters the previous command
         velocity = (q - prev) / self.ts
         skip = 0
         while self.seen + skip < 2 and skip < n:
             if self.seen + skip == 1:  # steady state for sample 1's inputs
-                self._start(q[skip], velocity[skip])
+                self._start(q[skip], velocity[skip], held_u[skip])
             skip += 1
-        self.deficit = np.zeros((n, 2))
+        self.friction_error = np.zeros((n, 2))
+        self.u_f = np.zeros((n, 2))
         if skip < n:
-            g[skip:], speed[skip:] = self._regressors(q[skip:], prev[skip:], velocity[skip:])
+            g[skip:], speed[skip:] = self._regressors(q[skip:], prev[skip:], velocity[skip:], held_u[skip:])
         self.seen += n
         if n:
             self.previous_q = q[-1].copy()
+            self.previous_u = u[-1].copy()
         return g, speed
 
-    def _start(self, q: np.ndarray, v: np.ndarray) -> None:
+    def _start(self, q: np.ndarray, v: np.ndarray, u: np.ndarray) -> None:
         sf = friction_shape(v, self.slope)
+        self.sign = np.where(v != 0.0, np.sign(v), self.sign)
         for axis, disc in enumerate(self.discs):
-            self.z[axis] = filter_steady_state(disc, q[axis], v[axis], (sf[axis], 1.0, 1.0 - abs(sf[axis])))
+            error = self.sign[axis] * (1.0 - abs(sf[axis]))
+            self.z[axis] = filter_steady_state(disc, q[axis], v[axis], (sf[axis], 1.0, u[axis], error))
 
-    def _regressors(self, q, prev, velocity) -> tuple[np.ndarray, np.ndarray]:
+    def _regressors(self, q, prev, velocity, held_u) -> tuple[np.ndarray, np.ndarray]:
         """The one place the estimator's filter functions are used (control-spec section 7)."""
         n = q.shape[0]
         g = np.empty((n, 2, 4))
         sf = friction_shape(velocity, self.slope)
-        deficit = 1.0 - np.abs(sf)
+        error = self._held_sign(velocity) * (1.0 - np.abs(sf))
         for axis, disc in enumerate(self.discs):
-            held = np.stack([sf[:, axis], np.ones(n), deficit[:, axis]], axis=1)
+            held = np.stack([sf[:, axis], np.ones(n), held_u[:, axis], error[:, axis]], axis=1)
             acc, vel, filtered = filter_axis(self.z[axis], disc, q[:, axis], prev[:, axis], held, self.ts)
             g[:, axis, 0] = acc
             g[:, axis, 1] = vel
             g[:, axis, 2] = filtered[:, 0]
             g[:, axis, 3] = -filtered[:, 1]
-            self.deficit[-n:, axis] = filtered[:, 2]
+            self.u_f[-n:, axis] = filtered[:, 2]
+            self.friction_error[-n:, axis] = filtered[:, 3]
         speed = np.abs(g[:, :, 1])
-        g[np.abs(g[:, :, 2]) < self.gate] = 0.0
+        gated = np.abs(g[:, :, 2]) < self.gate
+        g[gated] = 0.0
+        self.u_f[-n:][gated] = 0.0  # as the estimator's: a gated row is no equation
         return g, speed
+
+    def _held_sign(self, velocity: np.ndarray) -> np.ndarray:
+        """sign(v) per sample (n, 2), a zero difference taking the last nonzero one's (the plant still slides)."""
+        sign = np.sign(velocity)
+        rows = np.arange(len(sign))[:, None]
+        last = np.maximum.accumulate(np.where(sign != 0.0, rows, -1), axis=0)
+        held = np.where(last >= 0, sign[np.maximum(last, 0), np.arange(2)], self.sign)
+        if len(sign):
+            self.sign = held[-1].copy()
+        return held
 
 
 def quantisation_noise(settings: FilterSettings, resolution_m: float, sample_period_s: float) -> np.ndarray:
@@ -199,36 +233,38 @@ def quantisation_noise(settings: FilterSettings, resolution_m: float, sample_per
 def estimate_bias(
     parameter_v: np.ndarray, scale: np.ndarray, noise: np.ndarray, information: np.ndarray, moment: np.ndarray
 ) -> np.ndarray:
-    """Bound of the relative bias (..., 8) of each estimate from its regressor errors (module docstring).
+    """The relative bias (..., 8) of each estimate from its regressor errors (module docstring).
 
     parameter_v (..., 8) V; scale (8,) nominal values; noise (2, 2): rms of
     [x_f'', x_f'] per axis (:func:`quantisation_noise`); information
-    (..., 2, 4, 4): sum g g^T dt; moment (..., 2, 4): sum |g| d dt over the
-    same samples. Errors in variables (noise / parameter_v)^2 plus the
-    friction column's Af |I^-1| m / scale; infinite without information.
+    (..., 2, 4, 4): sum g g^T dt; moment (..., 2, 4): sum g e dt over the
+    same samples, e the friction column's signed error. Errors in variables
+    (noise / parameter_v)^2 plus the friction column's Af |I^-1 m| / scale;
+    infinite without information.
     """
     noise_v = np.zeros(8)
     noise_v[0:2] = scale[0:2] * noise[:, 0]  # M1, M2: x_f''
     noise_v[2:4] = scale[2:4] * noise[:, 1]  # B1, B2: x_f'
     eps = 1e-12 * np.trace(information, axis1=-2, axis2=-1)[..., None, None] + 1e-300
-    inverse = np.abs(np.linalg.inv(information + eps * np.eye(4)))
-    shift = np.einsum("...ij,...j->...i", inverse, moment)[..., AXIS_OF, COLUMN_OF]  # (..., 8), per unit Af
+    inverse = np.linalg.inv(information + eps * np.eye(4))
+    shift = np.abs(np.einsum("...ij,...j->...i", inverse, moment))[..., AXIS_OF, COLUMN_OF]  # (..., 8), per unit Af
     with np.errstate(divide="ignore", invalid="ignore"):
         bias = (noise_v / parameter_v) ** 2 + scale[4:6][AXIS_OF] * shift / scale
     return np.where(parameter_v > 0.0, bias, np.inf)
 
 
 @kernel
-def accumulate_moment(g, deficit, weight, first_index, period, acc, blocks):  # pragma: no cover
-    """Add weight_k |g_k| deficit_k (g (n, 2, 4), deficit (n, 2)) into per-period sums acc (2, 4), as
-    :func:`accumulate_information` does; each closed period into blocks[m]. Returns the number closed."""
+def accumulate_moment(g, error, weight, first_index, period, acc, blocks):  # pragma: no cover
+    """Add weight_k g_k error_k (g (n, 2, 4), error (n, 2): the friction column's, signed) into per-period
+    sums acc (2, 4), as :func:`accumulate_information` does; each closed period into blocks[m]. Returns the
+    number closed."""
     m = 0
     for k in range(g.shape[0]):
         for a in range(2):
-            w = weight[k, a] * abs(deficit[k, a])
+            w = weight[k, a] * error[k, a]
             if w != 0.0:
                 for i in range(4):
-                    acc[a, i] += w * abs(g[k, a, i])
+                    acc[a, i] += w * g[k, a, i]
         if (first_index + k + 1) % period == 0:
             blocks[m] = acc
             acc[:] = 0.0
