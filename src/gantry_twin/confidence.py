@@ -130,6 +130,8 @@ def judge(stats: dict[str, Any], estimate: np.ndarray, settings: ExcitationSetti
     scale = np.asarray(stats["scale"], dtype=float)
     seconds = max(float(stats["seconds"]), 1e-300)
     _, parameter_v = normalised_excitation(regression, scale, seconds)
+    empty = np.trace(regression, axis1=-2, axis2=-1) <= 0.0  # an axis without a sample used: nothing excited
+    parameter_v = np.where(empty[AXIS_OF], 0.0, parameter_v)
     bias = estimate_bias(
         parameter_v,
         scale,
@@ -150,8 +152,8 @@ def judge(stats: dict[str, Any], estimate: np.ndarray, settings: ExcitationSetti
         total = bias[j] + gap[j]
         if moving[axis] < settings.min_moving_fraction:
             why = f"axis {AXES[axis]} slid in {100 * moving[axis]:.0f} % of the window"
-        elif parameter_v[j] < residual_v[axis]:
-            why = f"not excited: {parameter_v[j]:.3g} V < the fit's residual {residual_v[axis]:.3g} V (eq. 29)"
+        elif parameter_v[j] <= residual_v[axis]:
+            why = f"not excited: {parameter_v[j]:.3g} V <= the fit's residual {residual_v[axis]:.3g} V (eq. 29)"
         elif total > settings.max_error:
             why = (
                 f"regressor errors and the gap to the least-squares fit ({100 * gap[j]:.3g} %) may bias it by up to "
