@@ -3,7 +3,7 @@
     PYTHONPATH=src python benchmarks/estimator_envelope.py write [--monitor [--corners]] [--issue7] \
         [--estimator paper|recommended] [--keep-runs]
     gantry-twin sweep estimator_envelope --workers 2
-    PYTHONPATH=src python benchmarks/estimator_envelope.py map runs/sweeps/estimator_envelope/results.parquet \
+    PYTHONPATH=src python benchmarks/estimator_envelope.py map runs/sweeps/estimator_envelope/results.parquet... \
         [--figure docs/images/estimator_envelope.png] [--rejudge]
 
 ``write`` (re)writes sweeps/estimator_envelope.yaml: the grid of peak
@@ -234,7 +234,9 @@ def main(argv: list[str] | None = None) -> int:
         "--keep-runs", action="store_true", help="keep each point's run (trace.parquet) for `confidence` re-evaluation"
     )
     m = sub.add_parser("map", help="summarise a finished sweep and draw the map")
-    m.add_argument("results", type=Path)
+    m.add_argument(
+        "results", type=Path, nargs="+", help="results.parquet of one or more sweeps (e.g. one per estimator)"
+    )
     m.add_argument("--figure", type=Path)
     m.add_argument(
         "--rejudge",
@@ -245,7 +247,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.command == "write":
         print(write_sweep(args.monitor, args.issue7, args.corners, args.estimator, args.keep_runs))
         return 0
-    rows = load(args.results, args.results.parent / "runs" if args.rejudge else None)
+    rows = [row for path in args.results for row in load(path, path.parent / "runs" if args.rejudge else None)]
     summarise(rows)
     if args.figure:
         draw(rows, args.figure)
