@@ -9,7 +9,7 @@ what earlier data gave it). An estimate is trustworthy when
 
 * its axis slid in at least ``min_moving_fraction`` of the estimates window;
 * its regressor errors (encoder quantisation in x_f'', x_f'; the friction
-  column's signed error against sign(v)) bias it by at most ``max_error``
+  column's error against sign(v), signed where its sign is known) bias it by at most ``max_error``
   together with its **fit gap**: the distance between the estimate and the
   least-squares fit of the estimator's own regression (eq. 25) over the same
   data, relative to the nominal value. The recursive estimator forgets
@@ -56,7 +56,7 @@ class EstimateConfidence:
         self.window_s = window_s
         self._regressors: FilteredRegressors | None = None
         self._info = np.zeros((2, 5, 5))  # sum [g, u_f] [g, u_f]^T dt over the sliding samples used
-        self._moment = np.zeros((2, 4))  # sum g e dt, e the friction column's signed error
+        self._moment = np.zeros((2, 2, 4))  # the friction column's error: sum g e dt, sum |g| d dt
         self._used = np.zeros(2)  # samples in the information
         self._sliding = np.zeros(2)  # samples in the estimates window where the axis slid
         self._window_samples = 0
@@ -66,7 +66,7 @@ class EstimateConfidence:
         self._no_blocks, self._no_moving, self._no_moments = (
             np.empty((1, 2, 5, 5)),
             np.empty((1, 2)),
-            np.empty((1, 2, 4)),
+            np.empty((1, 2, 2, 4)),
         )
 
     def on_start(self, run: object, trace: Trace) -> None:
@@ -91,8 +91,8 @@ class EstimateConfidence:
         accumulate_information(
             augmented, weight, start, never, self._info, self._used, self._no_blocks, self._no_moving
         )
-        error = self._regressors.friction_error
-        accumulate_moment(g, error, weight, start, never, self._moment, self._no_moments)
+        error, size = self._regressors.friction_error, self._regressors.reversal_error
+        accumulate_moment(g, error, size, weight, start, never, self._moment, self._no_moments)
         self._sliding += (sliding & inside[:, None]).sum(axis=0)
         self._window_samples += int(inside.sum())
         self._samples += int(seen.sum())

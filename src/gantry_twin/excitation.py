@@ -40,13 +40,16 @@ the regressor itself is wrong. Two errors are predicted from what is known:
   e = Hf[s (1 - |Sf(v)|)] (the smooth Sf; a differenced velocity of 0 while
   the axis moves below the encoder's velocity step), s = sign(v): the sign
   of the last nonzero differenced velocity, for a zero difference too (the
-  axis still slides that way; a zero run across a reversal is the one place
-  this can be wrong, and the reversal gate keeps such rows out). The force
-  error is Af e_k per sample, and least squares moves theta by
-  Af I^-1 m, with the signed moment m = sum g_k e_k dt over the samples
-  used: a signed sum, so that errors of opposite sign cancel as they do in
-  the fit (issue 7's bound Af |I^-1| sum |g| |e| dt did not let them, and
-  was ten times the actual shift where B and Af are correlated).
+  axis still slides that way). The force error is Af e_k per sample, and
+  least squares moves theta by Af I^-1 m_e, the signed moment
+  m_e = sum g_k e_k dt: a signed sum, so that errors of opposite sign
+  cancel as they do in the fit (issue 7's bound Af |I^-1| sum |g| |d| dt
+  did not let them, and was ten times the actual shift where B and Af are
+  correlated). The sign is known only where no reversal is in the filter's
+  memory (|Hf[s]| >= SIGN_KNOWN: no stick, no run of zero differences across
+  the reversal); rows where it is not (an estimator without a reversal gate)
+  keep issue 7's bound, Af |I^-1| m_d, m_d = sum |g_k| d_k dt,
+  d = Hf[1 - |Sf(v)|].
 
 An estimate is **trustworthy** when its parameter is excited
 (``parameter_v`` >= ``min_parameter_v``), its axis slid in at least
@@ -73,6 +76,10 @@ from gantry_twin.estimation import (
     friction_shape,
 )
 
+#: The friction column's error has a known sign only where no velocity reversal is in the filter's memory:
+#: |Hf[s]| at least this, s the held sign of motion (the recommended estimator's reversal gate). Elsewhere
+#: (stick, a run of zero differences across the reversal) only its size is known.
+SIGN_KNOWN = 0.99
 #: Parameter j belongs to axis AXIS_OF[j] and is column COLUMN_OF[j] of that axis' 4x4 block.
 AXIS_OF = np.array([0, 1, 0, 1, 0, 1, 0, 1])
 COLUMN_OF = np.array([0, 0, 1, 1, 2, 2, 3, 3])
@@ -125,10 +132,12 @@ class FilteredRegressors:
     |Sf_f| is below the settings' ``reversal_gate`` has g = 0 on that axis,
     as in the estimator. Given the commands, :attr:`u_f` (n, 2) is the
     estimator's target u_f (the previous sample's command, held, through Hf).
-    :attr:`friction_error` (n, 2): Hf[s (1 - |Sf(x')|)], the friction column's
-    error against the plant's sign(v) (s: the sign of the last nonzero
-    differenced velocity, held through zero differences), at the samples of
-    the last :meth:`advance`.
+    The friction column's error against the plant's sign(v), at the samples
+    of the last :meth:`advance`: :attr:`friction_error` (n, 2) =
+    Hf[s (1 - |Sf(x')|)] (s: the sign of the last nonzero differenced
+    velocity, held through zero differences) where its sign is known
+    (|Hf[s]| >= SIGN_KNOWN), else 0; :attr:`reversal_error` (n, 2) =
+    Hf[1 - |Sf(x')|], its size, where it is not, else 0.
     """
 
     def __init__(self, settings: FilterSettings, sample_period_s: float) -> None:
@@ -138,9 +147,10 @@ class FilteredRegressors:
         self.discs = [
             discretise_filter(2.0 * np.pi * hz, settings.filter_zeta, sample_period_s) for hz in settings.filter_hz
         ]
-        # axis, state [w_f, w_f'], signal: q, Sf, 1, u (DIARC's estimator's columns), s (1 - |Sf|)
-        self.z = np.zeros((2, 2, 5))
+        # axis, state [w_f, w_f'], signal: q, Sf, 1, u (DIARC's estimator's columns), s (1 - |Sf|), 1 - |Sf|, s
+        self.z = np.zeros((2, 2, 7))
         self.friction_error = np.zeros((0, 2))
+        self.reversal_error = np.zeros((0, 2))
         self.u_f = np.zeros((0, 2))
         self.previous_q = np.zeros(2)
         self.previous_u = np.zeros(2)
@@ -164,6 +174,7 @@ class FilteredRegressors:
                 self._start(q[skip], velocity[skip], held_u[skip])
             skip += 1
         self.friction_error = np.zeros((n, 2))
+        self.reversal_error = np.zeros((n, 2))
         self.u_f = np.zeros((n, 2))
         if skip < n:
             g[skip:], speed[skip:] = self._regressors(q[skip:], prev[skip:], velocity[skip:], held_u[skip:])
@@ -177,17 +188,23 @@ class FilteredRegressors:
         sf = friction_shape(v, self.slope)
         self.sign = np.where(v != 0.0, np.sign(v), self.sign)
         for axis, disc in enumerate(self.discs):
-            error = self.sign[axis] * (1.0 - abs(sf[axis]))
-            self.z[axis] = filter_steady_state(disc, q[axis], v[axis], (sf[axis], 1.0, u[axis], error))
+            deficit = 1.0 - abs(sf[axis])
+            held = (sf[axis], 1.0, u[axis], self.sign[axis] * deficit, deficit, self.sign[axis])
+            self.z[axis] = filter_steady_state(disc, q[axis], v[axis], held)
 
     def _regressors(self, q, prev, velocity, held_u) -> tuple[np.ndarray, np.ndarray]:
         """The one place the estimator's filter functions are used (control-spec section 7)."""
         n = q.shape[0]
         g = np.empty((n, 2, 4))
         sf = friction_shape(velocity, self.slope)
-        error = self._held_sign(velocity) * (1.0 - np.abs(sf))
+        deficit = 1.0 - np.abs(sf)
+        sign = self._held_sign(velocity)
+        error = sign * deficit
+        known = np.empty((n, 2), dtype=bool)
         for axis, disc in enumerate(self.discs):
-            held = np.stack([sf[:, axis], np.ones(n), held_u[:, axis], error[:, axis]], axis=1)
+            held = np.stack(
+                [sf[:, axis], np.ones(n), held_u[:, axis], error[:, axis], deficit[:, axis], sign[:, axis]], 1
+            )
             acc, vel, filtered = filter_axis(self.z[axis], disc, q[:, axis], prev[:, axis], held, self.ts)
             g[:, axis, 0] = acc
             g[:, axis, 1] = vel
@@ -195,6 +212,10 @@ class FilteredRegressors:
             g[:, axis, 3] = -filtered[:, 1]
             self.u_f[-n:, axis] = filtered[:, 2]
             self.friction_error[-n:, axis] = filtered[:, 3]
+            self.reversal_error[-n:, axis] = filtered[:, 4]
+            known[:, axis] = np.abs(filtered[:, 5]) >= SIGN_KNOWN
+        self.friction_error[-n:][~known] = 0.0
+        self.reversal_error[-n:][known] = 0.0
         speed = np.abs(g[:, :, 1])
         gated = np.abs(g[:, :, 2]) < self.gate
         g[gated] = 0.0
@@ -237,34 +258,36 @@ def estimate_bias(
 
     parameter_v (..., 8) V; scale (8,) nominal values; noise (2, 2): rms of
     [x_f'', x_f'] per axis (:func:`quantisation_noise`); information
-    (..., 2, 4, 4): sum g g^T dt; moment (..., 2, 4): sum g e dt over the
-    same samples, e the friction column's signed error. Errors in variables
-    (noise / parameter_v)^2 plus the friction column's Af |I^-1 m| / scale;
-    infinite without information.
+    (..., 2, 4, 4): sum g g^T dt; moment (..., 2, 2, 4): [sum g e dt, sum |g| d dt]
+    over the same samples (:func:`accumulate_moment`). Errors in variables
+    (noise / parameter_v)^2 plus the friction column's
+    Af (|I^-1 m_e| + |I^-1| m_d) / scale; infinite without information.
     """
     noise_v = np.zeros(8)
     noise_v[0:2] = scale[0:2] * noise[:, 0]  # M1, M2: x_f''
     noise_v[2:4] = scale[2:4] * noise[:, 1]  # B1, B2: x_f'
     eps = 1e-12 * np.trace(information, axis1=-2, axis2=-1)[..., None, None] + 1e-300
     inverse = np.linalg.inv(information + eps * np.eye(4))
-    shift = np.abs(np.einsum("...ij,...j->...i", inverse, moment))[..., AXIS_OF, COLUMN_OF]  # (..., 8), per unit Af
+    signed = np.abs(np.einsum("...ij,...j->...i", inverse, moment[..., 0, :, :]))
+    shift = (signed + np.einsum("...ij,...j->...i", np.abs(inverse), moment[..., 1, :, :]))[..., AXIS_OF, COLUMN_OF]
     with np.errstate(divide="ignore", invalid="ignore"):
         bias = (noise_v / parameter_v) ** 2 + scale[4:6][AXIS_OF] * shift / scale
     return np.where(parameter_v > 0.0, bias, np.inf)
 
 
 @kernel
-def accumulate_moment(g, error, weight, first_index, period, acc, blocks):  # pragma: no cover
-    """Add weight_k g_k error_k (g (n, 2, 4), error (n, 2): the friction column's, signed) into per-period
-    sums acc (2, 4), as :func:`accumulate_information` does; each closed period into blocks[m]. Returns the
-    number closed."""
+def accumulate_moment(g, error, size, weight, first_index, period, acc, blocks):  # pragma: no cover
+    """Add weight_k g_k error_k into acc[0] and weight_k |g_k| size_k into acc[1] (g (n, 2, 4); error, size
+    (n, 2): the friction column's signed error and, where its sign is unknown, its size; acc (2, 2, 4)), as
+    :func:`accumulate_information` does; each closed period into blocks[m]. Returns the number closed."""
     m = 0
     for k in range(g.shape[0]):
         for a in range(2):
             w = weight[k, a] * error[k, a]
-            if w != 0.0:
-                for i in range(4):
-                    acc[a, i] += w * g[k, a, i]
+            u = weight[k, a] * abs(size[k, a])
+            for i in range(4):
+                acc[0, a, i] += w * g[k, a, i]
+                acc[1, a, i] += u * abs(g[k, a, i])
         if (first_index + k + 1) % period == 0:
             blocks[m] = acc
             acc[:] = 0.0

@@ -318,11 +318,11 @@ class MachineMonitor:
         blocks = np.empty((most, 2, 4, 4))
         block_moving = np.empty((most, 2))
         m = accumulate_information(g, weight, start, self._period, self._acc, self._moving, blocks, block_moving)
-        moments = np.empty((most, 2, 4))  # the friction column's error bound (excitation.estimate_bias)
-        error = self._regressors.friction_error
-        accumulate_moment(g, error, weight, start, self._period, self._moment_acc, moments)
+        moments = np.empty((most, 2, 2, 4))  # the friction column's error (excitation.estimate_bias)
+        error, size = self._regressors.friction_error, self._regressors.reversal_error
+        accumulate_moment(g, error, size, weight, start, self._period, self._moment_acc, moments)
         theta = trace.controller_state.get("theta_hat")
-        ends, infos, window_moments = [], np.empty((m, 2, 4, 4)), np.empty((m, 2, 4))
+        ends, infos, window_moments = [], np.empty((m, 2, 4, 4)), np.empty((m, 2, 2, 4))
         for i in range(m):
             self._closed += 1
             ends.append(self._closed * self._period - 1)  # global index of the period's last sample
@@ -409,8 +409,8 @@ class MachineMonitor:
         self._ring = np.zeros((self._n_window, 2, 4, 4))
         self._ring_at = 0
         self._noise = quantisation_noise(ex, ex.resolution_m, self._ts)
-        self._moment_acc = np.zeros((2, 4))
-        self._moment_ring = np.zeros((self._n_window, 2, 4))
+        self._moment_acc = np.zeros((2, 2, 4))
+        self._moment_ring = np.zeros((self._n_window, 2, 2, 4))
         self._closed = 0
         self._next = 0
         self._baseline = self.given_baseline
