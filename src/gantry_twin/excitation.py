@@ -33,9 +33,13 @@ the regressor itself is wrong. Two errors are predicted from what is known:
 
 * encoder quantisation (resolution r) is white noise of variance r^2 / 12
   on the position; through Hf it puts noise of rms ``sigma`` on x_f'' and
-  x_f' (:func:`quantisation_noise`, exact for the discrete filter). Least
-  squares with noise in a column shrinks that parameter (errors in
-  variables) by about (noise_v / parameter_v)^2, noise_v = scale sigma;
+  x_f' (:func:`quantisation_noise`, exact for the discrete filter). Noise
+  in the x_f'', x_f' columns adds W diag(sigma^2) to the information, so
+  least squares moves theta by -I^-1 W diag(sigma_a^2, sigma_v^2, 0, 0) theta
+  (errors in variables; W the seconds used, theta the nominal values): M
+  (B) shrinks by about (scale sigma / parameter_v)^2, and the parameters
+  correlated with it move too (Af2 by up to 2 % with the paper's 150 Hz Y
+  filter);
 * the friction column Sf_f differs from the plant's sign(v) by
   e = Hf[s (1 - |Sf(v)|)] (the smooth Sf; a differenced velocity of 0 while
   the axis moves below the encoder's velocity step), s = sign(v): the sign
@@ -260,18 +264,20 @@ def estimate_bias(
     [x_f'', x_f'] per axis (:func:`quantisation_noise`); information
     (..., 2, 4, 4): sum g g^T dt; moment (..., 2, 2, 4): [sum g e dt, sum |g| d dt]
     over the same samples (:func:`accumulate_moment`). Errors in variables
-    (noise / parameter_v)^2 plus the friction column's
+    |I^-1 W diag(sigma^2) theta| / scale (W: the constant column's information,
+    sum 1_f^2 dt, the seconds used; theta = scale) plus the friction column's
     Af (|I^-1 m_e| + |I^-1| m_d) / scale; infinite without information.
     """
-    noise_v = np.zeros(8)
-    noise_v[0:2] = scale[0:2] * noise[:, 0]  # M1, M2: x_f''
-    noise_v[2:4] = scale[2:4] * noise[:, 1]  # B1, B2: x_f'
+    nominal = np.stack([scale[0::2], scale[1::2]])  # (axis, column)
+    noise_energy = np.zeros((*information.shape[:-2], 4))
+    noise_energy[..., :2] = noise**2 * information[..., 3, 3, None]  # x_f'', x_f' columns
     eps = 1e-12 * np.trace(information, axis1=-2, axis2=-1)[..., None, None] + 1e-300
     inverse = np.linalg.inv(information + eps * np.eye(4))
+    variables = np.abs(np.einsum("...ij,...j->...i", inverse, noise_energy * nominal))
     signed = np.abs(np.einsum("...ij,...j->...i", inverse, moment[..., 0, :, :]))
-    shift = (signed + np.einsum("...ij,...j->...i", np.abs(inverse), moment[..., 1, :, :]))[..., AXIS_OF, COLUMN_OF]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        bias = (noise_v / parameter_v) ** 2 + scale[4:6][AXIS_OF] * shift / scale
+    unsigned = np.einsum("...ij,...j->...i", np.abs(inverse), moment[..., 1, :, :])
+    friction = nominal[:, 2, None]  # Af per axis
+    bias = ((variables + friction * (signed + unsigned)) / nominal)[..., AXIS_OF, COLUMN_OF]
     return np.where(parameter_v > 0.0, bias, np.inf)
 
 
