@@ -138,6 +138,7 @@ def judge(stats: dict[str, Any], estimate: np.ndarray, settings: ExcitationSetti
         np.asarray(stats["quantisation_noise"], dtype=float),
         regression,
         np.asarray(stats["friction_moment"], dtype=float),
+        correlated=True,
     )
     eps = 1e-12 * np.trace(regression, axis1=-2, axis2=-1)[:, None, None] + 1e-300
     fit = np.linalg.solve(regression + eps * np.eye(4), target[:, :, None])[:, :, 0]  # (2 axes, 4 columns)

@@ -256,16 +256,24 @@ def quantisation_noise(settings: FilterSettings, resolution_m: float, sample_per
 
 
 def estimate_bias(
-    parameter_v: np.ndarray, scale: np.ndarray, noise: np.ndarray, information: np.ndarray, moment: np.ndarray
+    parameter_v: np.ndarray,
+    scale: np.ndarray,
+    noise: np.ndarray,
+    information: np.ndarray,
+    moment: np.ndarray,
+    correlated: bool = False,
 ) -> np.ndarray:
     """The relative bias (..., 8) of each estimate from its regressor errors (module docstring).
 
     parameter_v (..., 8) V; scale (8,) nominal values; noise (2, 2): rms of
     [x_f'', x_f'] per axis (:func:`quantisation_noise`); information
     (..., 2, 4, 4): sum g g^T dt; moment (..., 2, 2, 4): [sum g e dt, sum |g| d dt]
-    over the same samples (:func:`accumulate_moment`). Errors in variables
-    |I^-1 W diag(sigma^2) theta| / scale (W: the constant column's information,
-    sum 1_f^2 dt, the seconds used; theta = scale) plus the friction column's
+    over the same samples (:func:`accumulate_moment`). Errors in variables:
+    with ``correlated``, |I^-1 W diag(sigma^2) theta| / scale (W: the
+    constant column's information, sum 1_f^2 dt, the seconds used;
+    theta = scale), otherwise only each column's own share,
+    (scale sigma / parameter_v)^2 (the monitor's, whose tests and 0.01 V floor
+    were set with it); plus the friction column's
     Af (|I^-1 m_e| + |I^-1| m_d) / scale; infinite without information.
     """
     nominal = np.stack([scale[0::2], scale[1::2]])  # (axis, column)
@@ -274,6 +282,11 @@ def estimate_bias(
     eps = 1e-12 * np.trace(information, axis1=-2, axis2=-1)[..., None, None] + 1e-300
     inverse = np.linalg.inv(information + eps * np.eye(4))
     variables = np.abs(np.einsum("...ij,...j->...i", inverse, noise_energy * nominal))
+    if not correlated:
+        own = np.zeros((2, 4))
+        own[:, :2] = nominal[:, :2] * noise  # noise_v of M, B per axis
+        with np.errstate(divide="ignore", invalid="ignore"):
+            variables = nominal * (own[AXIS_OF, COLUMN_OF] / parameter_v)[..., [[0, 2, 4, 6], [1, 3, 5, 7]]] ** 2
     signed = np.abs(np.einsum("...ij,...j->...i", inverse, moment[..., 0, :, :]))
     unsigned = np.einsum("...ij,...j->...i", np.abs(inverse), moment[..., 1, :, :])
     friction = nominal[:, 2, None]  # Af per axis
