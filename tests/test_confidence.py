@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from gantry_twin.confidence import judge
-from gantry_twin.excitation import FilteredRegressors
+from gantry_twin.excitation import FilteredRegressors, estimate_bias, normalised_excitation
 from gantry_twin.monitor import ExcitationSettings
 from gantry_twin.plant import THETA_NAMES
 from gantry_twin.run import execute, summarise
@@ -89,3 +89,29 @@ def test_the_friction_error_has_the_sign_of_the_motion():
     error = regressors.friction_error[-1]
     assert error[0] == pytest.approx(0.6, abs=0.05)
     assert error[1] == pytest.approx(-0.6, abs=0.05)
+
+
+def test_errors_in_variables_move_the_correlated_parameters():
+    """Noise in the x_f'' column biases least squares by -I^-1 W diag(sigma^2) theta: the M column shrinks and
+    a column correlated with it (here the friction column) moves too; estimate_bias(correlated=True) predicts
+    both, as measured by least squares on noisy synthetic data."""
+    rng = np.random.default_rng(1)
+    n, dt = 400_000, 1.0e-4
+    t = np.arange(n) * dt
+    acceleration = np.sin(3.0 * t) + 0.5 * np.sign(np.cos(3.0 * t))  # correlated with the friction column
+    columns = np.stack([acceleration, np.cos(3.0 * t), np.sign(np.cos(3.0 * t)), -np.ones(n)], axis=1)
+    theta = np.array([0.12, 0.5, 0.1, 0.1])
+    target = columns @ theta
+    sigma = 0.3
+    noisy = columns.copy()
+    noisy[:, 0] += sigma * rng.standard_normal(n)
+    information = noisy.T @ noisy * dt
+    fitted = np.linalg.solve(information, noisy.T @ target * dt)
+    measured = np.abs(fitted - theta) / theta
+    assert measured[0] > 0.05 and measured[2] > 0.05  # the case: both move by several %
+    scale = np.array([theta[0], theta[0], theta[1], theta[1], theta[2], theta[2], theta[3], theta[3]])
+    info = np.stack([information, information])
+    _, parameter_v = normalised_excitation(info, scale, n * dt)
+    noise = np.array([[sigma, 0.0], [sigma, 0.0]])
+    predicted = estimate_bias(parameter_v, scale, noise, info, np.zeros((2, 2, 4)), correlated=True)
+    np.testing.assert_allclose(predicted[[0, 2, 4]], measured[:3], rtol=0.1, atol=0.005)
