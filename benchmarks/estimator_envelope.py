@@ -128,6 +128,8 @@ def rejudge(row: dict, runs: Path) -> None:
     summary = json.loads((runs / row["key"] / "summary.json").read_text())
     if "confidence" not in summary:
         return
+    if np.shape(summary["confidence"]["friction_moment"]) != (2, 2, 4):
+        raise SystemExit(f"{runs / row['key']}: judged from an older criterion's sums; run the sweep again")
     estimate = np.array([summary["estimates"][name]["estimate"] for name in THETA_NAMES])
     for name, verdict in judge(summary["confidence"], estimate, ExcitationSettings()).items():
         row[f"trustworthy_{name}"] = verdict["trustworthy"]
