@@ -1,9 +1,10 @@
 """DIARC's estimate errors over the machine's envelope (issue 16): write the sweep, read its results.
 
-    PYTHONPATH=src python benchmarks/estimator_envelope.py write [--monitor [--corners]] [--issue7]
+    PYTHONPATH=src python benchmarks/estimator_envelope.py write [--monitor [--corners]] [--issue7] \
+        [--estimator paper|recommended] [--keep-runs]
     gantry-twin sweep estimator_envelope --workers 2
-    PYTHONPATH=src python benchmarks/estimator_envelope.py map runs/sweeps/estimator_envelope/results.parquet \
-        [--figure docs/images/estimator_envelope.png]
+    PYTHONPATH=src python benchmarks/estimator_envelope.py map runs/sweeps/estimator_envelope/results.parquet... \
+        [--figure docs/images/estimator_envelope.png] [--rejudge]
 
 ``write`` (re)writes sweeps/estimator_envelope.yaml: the grid of peak
 speeds SPEEDS_M_S and sizes SIZES_M (circle radius; ellipse semi-axes r and
@@ -15,6 +16,12 @@ was before issue 16 (ISSUE7_ESTIMATOR). With
 recommended estimator alone, 60 s, with the health monitor on (its alarms
 column is the false-alarm check). To rerun the map on another plant, add
 the plant's fields to ``SET`` (e.g. a friction model) and write again.
+
+``--estimator NAME`` maps that estimator alone (half the points);
+``--keep-runs`` keeps each point's run, whose summary.json holds what its
+trustworthy verdicts were judged from, so that ``map --rejudge`` judges
+them again with this checkout's criterion (gantry_twin.confidence.judge)
+without running anything.
 
 ``map`` prints, per estimator, the largest |error| of M, B, Af over the
 map, the share of points marked trustworthy and the largest error among
@@ -78,14 +85,19 @@ def contours(speeds: tuple[float, ...] = SPEEDS_M_S, sizes: tuple[float, ...] = 
     return out
 
 
-def write_sweep(monitor: bool, issue7: bool = False, corners: bool = False) -> Path:
+def write_sweep(
+    monitor: bool, issue7: bool = False, corners: bool = False, estimator: str | None = None, keep_runs: bool = False
+) -> Path:
     name = "estimator_envelope_monitor" if monitor else "estimator_envelope"
-    estimators = ["recommended"] if monitor else [*ESTIMATORS, *([ISSUE7_ESTIMATOR] if issue7 else [])]
+    if monitor:
+        estimators = ["recommended"]
+    else:
+        estimators = [*([estimator] if estimator else ESTIMATORS), *([ISSUE7_ESTIMATOR] if issue7 else [])]
     spec = {
         "description": (
             "Issue 16: DIARC estimates over peak speed 0.02-0.6 m/s and size 0.02-0.2 m, circle and ellipse, "
             + ("0 and 5 kg, recommended estimator, 60 s with the health monitor" if monitor else "0 and 5 kg, ")
-            + ("" if monitor else "paper and recommended estimators, 30 s")
+            + ("" if monitor else f"{estimator or 'paper and recommended'} estimator{'' if estimator else 's'}, 30 s")
         ),
         "scenario": "no_load_circle",
         "set": MONITOR_SET if monitor else SET,
@@ -95,18 +107,41 @@ def write_sweep(monitor: bool, issue7: bool = False, corners: bool = False) -> P
             {"field": "controller.options.estimator", "values": estimators},
         ],
         "plots": ["error_pct_M1", "error_pct_B1", "error_pct_Af1"],
+        **({"keep_runs": True} if keep_runs else {}),
     }
     path = ROOT / "sweeps" / f"{name}.yaml"
-    header = f"# Written by benchmarks/estimator_envelope.py write{' --monitor' if monitor else ''}: edit there.\n"
+    flags = {"--monitor": monitor, "--issue7": issue7, "--corners": corners, f"--estimator {estimator}": estimator}
+    flags["--keep-runs"] = keep_runs
+    given = "".join(f" {flag}" for flag, on in flags.items() if on)
+    header = f"# Written by benchmarks/estimator_envelope.py write{given}: edit there.\n"
     path.write_text(header + yaml.safe_dump(spec, sort_keys=False, default_flow_style=None, width=200))
     return path
 
 
-def load(results: Path) -> list[dict]:
+def rejudge(row: dict, runs: Path) -> None:
+    """Judge the row's estimates again with this checkout's criterion, from the kept run's summary.json
+    (its ``confidence`` statistics: no simulation)."""
+    from gantry_twin.confidence import judge
+    from gantry_twin.monitor import ExcitationSettings
+    from gantry_twin.plant import THETA_NAMES
+
+    summary = json.loads((runs / row["key"] / "summary.json").read_text())
+    if "confidence" not in summary:
+        return
+    if np.shape(summary["confidence"]["friction_moment"]) != (2, 2, 4):
+        raise SystemExit(f"{runs / row['key']}: judged from an older criterion's sums; run the sweep again")
+    estimate = np.array([summary["estimates"][name]["estimate"] for name in THETA_NAMES])
+    for name, verdict in judge(summary["confidence"], estimate, ExcitationSettings()).items():
+        row[f"trustworthy_{name}"] = verdict["trustworthy"]
+
+
+def load(results: Path, runs: Path | None = None) -> list[dict]:
     import pyarrow.parquet as pq
 
     rows = [r for r in pq.read_table(results).to_pylist() if r["status"] == "ok"]
     for r in rows:
+        if runs is not None:
+            rejudge(r, runs)
         c = json.loads(r["contour"])
         r["shape"] = c["type"]
         r["size_m"] = c.get("radius_m", c.get("semi_x_m"))
@@ -140,6 +175,12 @@ def summarise(rows: list[dict]) -> None:
             f"worst trusted |error| {worst_t['worst_trusted_pct']:.2f} % "
             f"({worst_t['shape']} {worst_t['size_m']} m {worst_t['speed_m_s']} m/s)"
         )
+        per = ", ".join(
+            f"{p} {sum(r['trusted'][i] for r in mine)}/{sum(abs(r[f'error_pct_{p}']) <= 5.0 for r in mine)}"
+            for i, p in enumerate(PARAMETERS)
+        )
+        within = sum(abs(r[f"error_pct_{p}"]) <= 5.0 for r in mine for p in PARAMETERS)
+        print(f"{'':12s} estimates within 5 %: {within}/{6 * len(mine)}; trusted / within 5 % per parameter: {per}")
         alarms = [r.get("alarms") for r in mine if r.get("alarms") is not None]
         if alarms:
             print(
@@ -190,14 +231,25 @@ def main(argv: list[str] | None = None) -> int:
     w.add_argument("--monitor", action="store_true", help="the 60 s monitor sweep instead")
     w.add_argument("--issue7", action="store_true", help="also the recommended estimator before issue 16")
     w.add_argument("--corners", action="store_true", help=f"only speeds {CORNER_SPEEDS_M_S}, sizes {CORNER_SIZES_M}")
+    w.add_argument("--estimator", choices=ESTIMATORS, help="this estimator alone (half the map)")
+    w.add_argument(
+        "--keep-runs", action="store_true", help="keep each point's run (trace.parquet) for `confidence` re-evaluation"
+    )
     m = sub.add_parser("map", help="summarise a finished sweep and draw the map")
-    m.add_argument("results", type=Path)
+    m.add_argument(
+        "results", type=Path, nargs="+", help="results.parquet of one or more sweeps (e.g. one per estimator)"
+    )
     m.add_argument("--figure", type=Path)
+    m.add_argument(
+        "--rejudge",
+        action="store_true",
+        help="judge the estimates again with this checkout's criterion from the kept runs (a sweep with --keep-runs)",
+    )
     args = parser.parse_args(argv)
     if args.command == "write":
-        print(write_sweep(args.monitor, args.issue7, args.corners))
+        print(write_sweep(args.monitor, args.issue7, args.corners, args.estimator, args.keep_runs))
         return 0
-    rows = load(args.results)
+    rows = [row for path in args.results for row in load(path, path.parent / "runs" if args.rejudge else None)]
     summarise(rows)
     if args.figure:
         draw(rows, args.figure)

@@ -35,6 +35,7 @@ SUMMARY_KEYS = {
     "contour_error_per_period_um",
     "estimates_window_s",
     "estimates",
+    "confidence",
     "events",
     "end_stop_contacts",
     "saturation",

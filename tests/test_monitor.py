@@ -265,10 +265,12 @@ def test_monitor_filters_the_measurements_exactly_as_diarc_estimator():
     controller = create("diarc")  # paper filters, 250 / 150 Hz, the ExcitationSettings default
     trace = simulate(Plant(), circle(), TimingLaw(2.0), controller, 0.3)
     regressors = FilteredRegressors(ExcitationSettings(), trace.sample_period_s)
-    g, _ = regressors.advance(trace.q_meas_m[:100])
-    g, _ = regressors.advance(trace.q_meas_m[100:])  # in two chunks, as the live observer feeds it
+    g, _ = regressors.advance(trace.q_meas_m[:100], trace.u_v[:100])
+    g, _ = regressors.advance(trace.q_meas_m[100:], trace.u_v[100:])  # in two chunks, as the live observer feeds it
     estimator = controller.estimator.state
-    np.testing.assert_array_equal(regressors.z[:, :, :3], estimator.z[:, :, :3])  # column 3: the deficit
+    # columns q, Sf, 1, u (the estimator's target u_f); column 4: the friction column's error
+    np.testing.assert_array_equal(regressors.z[:, :, :4], estimator.z[:, :, :4])
+    np.testing.assert_array_equal(regressors.u_f[-1], estimator.u_f)
     for axis in range(2):
         np.testing.assert_array_equal(g[-1, axis], estimator.regression[[axis, 2 + axis, 4 + axis, 6 + axis], axis])
 

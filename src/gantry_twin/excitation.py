@@ -33,15 +33,27 @@ the regressor itself is wrong. Two errors are predicted from what is known:
 
 * encoder quantisation (resolution r) is white noise of variance r^2 / 12
   on the position; through Hf it puts noise of rms ``sigma`` on x_f'' and
-  x_f' (:func:`quantisation_noise`, exact for the discrete filter). Least
-  squares with noise in a column shrinks that parameter (errors in
-  variables) by about (noise_v / parameter_v)^2, noise_v = scale sigma;
-* the friction column Sf_f differs from the plant's sign(v) by at most
-  d = Hf[1 - |Sf(v)|] (the smooth Sf; a differenced velocity of 0 while the
-  axis moves below the encoder's velocity step), so the force error is at
-  most e_k = Af |d_k| per sample, and least squares moves theta by
-  I^-1 sum g_k e_k dt, at most Af |I^-1| m elementwise, with the moment
-  m = sum |g_k| |d_k| dt over the samples used.
+  x_f' (:func:`quantisation_noise`, exact for the discrete filter). Noise
+  in the x_f'', x_f' columns adds W diag(sigma^2) to the information, so
+  least squares moves theta by -I^-1 W diag(sigma_a^2, sigma_v^2, 0, 0) theta
+  (errors in variables; W the seconds used, theta the nominal values): M
+  (B) shrinks by about (scale sigma / parameter_v)^2, and the parameters
+  correlated with it move too (Af2 by up to 2 % with the paper's 150 Hz Y
+  filter);
+* the friction column Sf_f differs from the plant's sign(v) by
+  e = Hf[s (1 - |Sf(v)|)] (the smooth Sf; a differenced velocity of 0 while
+  the axis moves below the encoder's velocity step), s = sign(v): the sign
+  of the last nonzero differenced velocity, for a zero difference too (the
+  axis still slides that way). The force error is Af e_k per sample, and
+  least squares moves theta by Af I^-1 m_e, the signed moment
+  m_e = sum g_k e_k dt: a signed sum, so that errors of opposite sign
+  cancel as they do in the fit (issue 7's bound Af |I^-1| sum |g| |d| dt
+  did not let them, and was ten times the actual shift where B and Af are
+  correlated). The sign is known only where no reversal is in the filter's
+  memory (|Hf[s]| >= SIGN_KNOWN: no stick, no run of zero differences across
+  the reversal); rows where it is not (an estimator without a reversal gate)
+  keep issue 7's bound, Af |I^-1| m_d, m_d = sum |g_k| d_k dt,
+  d = Hf[1 - |Sf(v)|].
 
 An estimate is **trustworthy** when its parameter is excited
 (``parameter_v`` >= ``min_parameter_v``), its axis slid in at least
@@ -68,6 +80,10 @@ from gantry_twin.estimation import (
     friction_shape,
 )
 
+#: The friction column's error has a known sign only where no velocity reversal is in the filter's memory:
+#: |Hf[s]| at least this, s the held sign of motion (the recommended estimator's reversal gate). Elsewhere
+#: (stick, a run of zero differences across the reversal) only its size is known.
+SIGN_KNOWN = 0.99
 #: Parameter j belongs to axis AXIS_OF[j] and is column COLUMN_OF[j] of that axis' 4x4 block.
 AXIS_OF = np.array([0, 1, 0, 1, 0, 1, 0, 1])
 COLUMN_OF = np.array([0, 0, 1, 1, 2, 2, 3, 3])
@@ -84,19 +100,20 @@ class FilterSettings(Protocol):
 
 @kernel
 def accumulate_information(g, weight, first_index, period, acc, moving, blocks, block_moving):  # pragma: no cover
-    """Add weight_k g_k g_k^T (g (n, 2, 4)) into per-period sums, sample by sample.
+    """Add weight_k g_k g_k^T (g (n, 2, p)) into per-period sums, sample by sample.
 
-    acc (2, 4, 4), moving (2,) hold the open period; every closed period is
+    acc (2, p, p), moving (2,) hold the open period; every closed period is
     written to blocks[m], block_moving[m]. Returns the number of closed periods.
     """
     m = 0
+    p = g.shape[2]
     for k in range(g.shape[0]):
         for a in range(2):
             w = weight[k, a]
             if w != 0.0:
                 moving[a] += 1.0
-                for i in range(4):
-                    for j in range(4):
+                for i in range(p):
+                    for j in range(p):
                         acc[a, i, j] += w * g[k, a, i] * g[k, a, j]
         if (first_index + k + 1) % period == 0:
             blocks[m] = acc
@@ -117,8 +134,14 @@ class FilteredRegressors:
     a controller fed another velocity (ideal sensing without difference,
     velocity noise) filtered a slightly different Sf(x'). A sample whose
     |Sf_f| is below the settings' ``reversal_gate`` has g = 0 on that axis,
-    as in the estimator. :attr:`deficit` (n, 2): Hf[1 - |Sf(x')|] at the
-    samples of the last :meth:`advance` (the friction column's error bound).
+    as in the estimator. Given the commands, :attr:`u_f` (n, 2) is the
+    estimator's target u_f (the previous sample's command, held, through Hf).
+    The friction column's error against the plant's sign(v), at the samples
+    of the last :meth:`advance`: :attr:`friction_error` (n, 2) =
+    Hf[s (1 - |Sf(x')|)] (s: the sign of the last nonzero differenced
+    velocity, held through zero differences) where its sign is known
+    (|Hf[s]| >= SIGN_KNOWN), else 0; :attr:`reversal_error` (n, 2) =
+    Hf[1 - |Sf(x')|], its size, where it is not, else 0.
     """
 
     def __init__(self, settings: FilterSettings, sample_period_s: float) -> None:
@@ -128,54 +151,90 @@ class FilteredRegressors:
         self.discs = [
             discretise_filter(2.0 * np.pi * hz, settings.filter_zeta, sample_period_s) for hz in settings.filter_hz
         ]
-        self.z = np.zeros((2, 2, 4))  # axis, state [w_f, w_f'], signal (q, Sf, 1, 1 - |Sf|: the deficit)
-        self.deficit = np.zeros((0, 2))
+        # axis, state [w_f, w_f'], signal: q, Sf, 1, u (DIARC's estimator's columns), s (1 - |Sf|), 1 - |Sf|, s
+        self.z = np.zeros((2, 2, 7))
+        self.friction_error = np.zeros((0, 2))
+        self.reversal_error = np.zeros((0, 2))
+        self.u_f = np.zeros((0, 2))
         self.previous_q = np.zeros(2)
+        self.previous_u = np.zeros(2)
+        self.sign = np.zeros(2)  # of the last nonzero differenced velocity, per axis
         self.seen = 0
 
-    def advance(self, q_meas_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Feed the next samples (n, 2); return (g (n, 2, 4), |x_f'| (n, 2)), zero before sample 2."""
+    def advance(self, q_meas_m: np.ndarray, u_v: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Feed the next samples (n, 2) (and their commands u_v (n, 2), V); return (g (n, 2, 4), |x_f'| (n, 2)),
+        zero before sample 2."""
         q = np.asarray(q_meas_m, dtype=float)
         n = q.shape[0]
+        u = np.zeros((n, 2)) if u_v is None else np.asarray(u_v, dtype=float)
         g = np.zeros((n, 2, 4))
         speed = np.zeros((n, 2))
         prev = np.vstack([self.previous_q[None, :], q[:-1]])
+        held_u = np.vstack([self.previous_u[None, :], u[:-1]])  # the estimator filters the previous command
         velocity = (q - prev) / self.ts
         skip = 0
         while self.seen + skip < 2 and skip < n:
             if self.seen + skip == 1:  # steady state for sample 1's inputs
-                self._start(q[skip], velocity[skip])
+                self._start(q[skip], velocity[skip], held_u[skip])
             skip += 1
-        self.deficit = np.zeros((n, 2))
+        self.friction_error = np.zeros((n, 2))
+        self.reversal_error = np.zeros((n, 2))
+        self.u_f = np.zeros((n, 2))
         if skip < n:
-            g[skip:], speed[skip:] = self._regressors(q[skip:], prev[skip:], velocity[skip:])
+            g[skip:], speed[skip:] = self._regressors(q[skip:], prev[skip:], velocity[skip:], held_u[skip:])
         self.seen += n
         if n:
             self.previous_q = q[-1].copy()
+            self.previous_u = u[-1].copy()
         return g, speed
 
-    def _start(self, q: np.ndarray, v: np.ndarray) -> None:
+    def _start(self, q: np.ndarray, v: np.ndarray, u: np.ndarray) -> None:
         sf = friction_shape(v, self.slope)
+        self.sign = np.where(v != 0.0, np.sign(v), self.sign)
         for axis, disc in enumerate(self.discs):
-            self.z[axis] = filter_steady_state(disc, q[axis], v[axis], (sf[axis], 1.0, 1.0 - abs(sf[axis])))
+            deficit = 1.0 - abs(sf[axis])
+            held = (sf[axis], 1.0, u[axis], self.sign[axis] * deficit, deficit, self.sign[axis])
+            self.z[axis] = filter_steady_state(disc, q[axis], v[axis], held)
 
-    def _regressors(self, q, prev, velocity) -> tuple[np.ndarray, np.ndarray]:
+    def _regressors(self, q, prev, velocity, held_u) -> tuple[np.ndarray, np.ndarray]:
         """The one place the estimator's filter functions are used (control-spec section 7)."""
         n = q.shape[0]
         g = np.empty((n, 2, 4))
         sf = friction_shape(velocity, self.slope)
         deficit = 1.0 - np.abs(sf)
+        sign = self._held_sign(velocity)
+        error = sign * deficit
+        known = np.empty((n, 2), dtype=bool)
         for axis, disc in enumerate(self.discs):
-            held = np.stack([sf[:, axis], np.ones(n), deficit[:, axis]], axis=1)
+            held = np.stack(
+                [sf[:, axis], np.ones(n), held_u[:, axis], error[:, axis], deficit[:, axis], sign[:, axis]], 1
+            )
             acc, vel, filtered = filter_axis(self.z[axis], disc, q[:, axis], prev[:, axis], held, self.ts)
             g[:, axis, 0] = acc
             g[:, axis, 1] = vel
             g[:, axis, 2] = filtered[:, 0]
             g[:, axis, 3] = -filtered[:, 1]
-            self.deficit[-n:, axis] = filtered[:, 2]
+            self.u_f[-n:, axis] = filtered[:, 2]
+            self.friction_error[-n:, axis] = filtered[:, 3]
+            self.reversal_error[-n:, axis] = filtered[:, 4]
+            known[:, axis] = np.abs(filtered[:, 5]) >= SIGN_KNOWN
+        self.friction_error[-n:][~known] = 0.0
+        self.reversal_error[-n:][known] = 0.0
         speed = np.abs(g[:, :, 1])
-        g[np.abs(g[:, :, 2]) < self.gate] = 0.0
+        gated = np.abs(g[:, :, 2]) < self.gate
+        g[gated] = 0.0
+        self.u_f[-n:][gated] = 0.0  # as the estimator's: a gated row is no equation
         return g, speed
+
+    def _held_sign(self, velocity: np.ndarray) -> np.ndarray:
+        """sign(v) per sample (n, 2), a zero difference taking the last nonzero one's (the plant still slides)."""
+        sign = np.sign(velocity)
+        rows = np.arange(len(sign))[:, None]
+        last = np.maximum.accumulate(np.where(sign != 0.0, rows, -1), axis=0)
+        held = np.where(last >= 0, sign[np.maximum(last, 0), np.arange(2)], self.sign)
+        if len(sign):
+            self.sign = held[-1].copy()
+        return held
 
 
 def quantisation_noise(settings: FilterSettings, resolution_m: float, sample_period_s: float) -> np.ndarray:
@@ -197,38 +256,57 @@ def quantisation_noise(settings: FilterSettings, resolution_m: float, sample_per
 
 
 def estimate_bias(
-    parameter_v: np.ndarray, scale: np.ndarray, noise: np.ndarray, information: np.ndarray, moment: np.ndarray
+    parameter_v: np.ndarray,
+    scale: np.ndarray,
+    noise: np.ndarray,
+    information: np.ndarray,
+    moment: np.ndarray,
+    correlated: bool = False,
 ) -> np.ndarray:
-    """Bound of the relative bias (..., 8) of each estimate from its regressor errors (module docstring).
+    """The relative bias (..., 8) of each estimate from its regressor errors (module docstring).
 
     parameter_v (..., 8) V; scale (8,) nominal values; noise (2, 2): rms of
     [x_f'', x_f'] per axis (:func:`quantisation_noise`); information
-    (..., 2, 4, 4): sum g g^T dt; moment (..., 2, 4): sum |g| d dt over the
-    same samples. Errors in variables (noise / parameter_v)^2 plus the
-    friction column's Af |I^-1| m / scale; infinite without information.
+    (..., 2, 4, 4): sum g g^T dt; moment (..., 2, 2, 4): [sum g e dt, sum |g| d dt]
+    over the same samples (:func:`accumulate_moment`). Errors in variables:
+    with ``correlated``, |I^-1 W diag(sigma^2) theta| / scale (W: the
+    constant column's information, sum 1_f^2 dt, the seconds used;
+    theta = scale), otherwise only each column's own share,
+    (scale sigma / parameter_v)^2 (the monitor's, whose tests and 0.01 V floor
+    were set with it); plus the friction column's
+    Af (|I^-1 m_e| + |I^-1| m_d) / scale; infinite without information.
     """
-    noise_v = np.zeros(8)
-    noise_v[0:2] = scale[0:2] * noise[:, 0]  # M1, M2: x_f''
-    noise_v[2:4] = scale[2:4] * noise[:, 1]  # B1, B2: x_f'
+    nominal = np.stack([scale[0::2], scale[1::2]])  # (axis, column)
+    noise_energy = np.zeros((*information.shape[:-2], 4))
+    noise_energy[..., :2] = noise**2 * information[..., 3, 3, None]  # x_f'', x_f' columns
     eps = 1e-12 * np.trace(information, axis1=-2, axis2=-1)[..., None, None] + 1e-300
-    inverse = np.abs(np.linalg.inv(information + eps * np.eye(4)))
-    shift = np.einsum("...ij,...j->...i", inverse, moment)[..., AXIS_OF, COLUMN_OF]  # (..., 8), per unit Af
-    with np.errstate(divide="ignore", invalid="ignore"):
-        bias = (noise_v / parameter_v) ** 2 + scale[4:6][AXIS_OF] * shift / scale
+    inverse = np.linalg.inv(information + eps * np.eye(4))
+    variables = np.abs(np.einsum("...ij,...j->...i", inverse, noise_energy * nominal))
+    if not correlated:
+        own = np.zeros((2, 4))
+        own[:, :2] = nominal[:, :2] * noise  # noise_v of M, B per axis
+        with np.errstate(divide="ignore", invalid="ignore"):
+            variables = nominal * (own[AXIS_OF, COLUMN_OF] / parameter_v)[..., [[0, 2, 4, 6], [1, 3, 5, 7]]] ** 2
+    signed = np.abs(np.einsum("...ij,...j->...i", inverse, moment[..., 0, :, :]))
+    unsigned = np.einsum("...ij,...j->...i", np.abs(inverse), moment[..., 1, :, :])
+    friction = nominal[:, 2, None]  # Af per axis
+    bias = ((variables + friction * (signed + unsigned)) / nominal)[..., AXIS_OF, COLUMN_OF]
     return np.where(parameter_v > 0.0, bias, np.inf)
 
 
 @kernel
-def accumulate_moment(g, deficit, weight, first_index, period, acc, blocks):  # pragma: no cover
-    """Add weight_k |g_k| deficit_k (g (n, 2, 4), deficit (n, 2)) into per-period sums acc (2, 4), as
+def accumulate_moment(g, error, size, weight, first_index, period, acc, blocks):  # pragma: no cover
+    """Add weight_k g_k error_k into acc[0] and weight_k |g_k| size_k into acc[1] (g (n, 2, 4); error, size
+    (n, 2): the friction column's signed error and, where its sign is unknown, its size; acc (2, 2, 4)), as
     :func:`accumulate_information` does; each closed period into blocks[m]. Returns the number closed."""
     m = 0
     for k in range(g.shape[0]):
         for a in range(2):
-            w = weight[k, a] * abs(deficit[k, a])
-            if w != 0.0:
-                for i in range(4):
-                    acc[a, i] += w * abs(g[k, a, i])
+            w = weight[k, a] * error[k, a]
+            u = weight[k, a] * abs(size[k, a])
+            for i in range(4):
+                acc[0, a, i] += w * g[k, a, i]
+                acc[1, a, i] += u * abs(g[k, a, i])
         if (first_index + k + 1) % period == 0:
             blocks[m] = acc
             acc[:] = 0.0

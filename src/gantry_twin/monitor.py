@@ -127,6 +127,8 @@ class ExcitationSettings:
     min_moving_fraction: ... and its axis slid in this fraction of the latest period.
     max_bias: ... and the bound of the relative bias from its regressor errors is at most this
     (otherwise it is excited but untrustworthy).
+    max_error: an estimate in summary.json is trustworthy when that bound plus its gap to the
+    least-squares fit is at most this (:mod:`gantry_twin.confidence`).
     """
 
     window_s: ExcitationWindowS = 2.0
@@ -142,6 +144,8 @@ class ExcitationSettings:
     min_moving_fraction: Range(0.0, 1.0) = 0.5
     #: 2 %: a fifth of the health tolerance (10 %), so that a trusted estimate's bias cannot read as a drift.
     max_bias: Range(0.0, 1.0) = 0.02
+    #: 4 %: the issue-16 accuracy (5 %) less a margin for what the bound leaves out (docs/estimator-envelope.md).
+    max_error: Range(0.0, 1.0) = 0.04
 
     def __post_init__(self) -> None:
         if self.window_s < self.period_s:
@@ -307,16 +311,18 @@ class MachineMonitor:
         self._next = stop
         if stop <= start:
             return
-        g, speed = self._regressors.advance(trace.q_meas_m[trace.rows(start, stop)])
+        rows = trace.rows(start, stop)
+        g, speed = self._regressors.advance(trace.q_meas_m[rows], trace.u_v[rows])
         weight = np.where(speed >= self.excitation.sliding_speed_m_s, self._ts, 0.0)
         most = (stop - start) // self._period + 1
         blocks = np.empty((most, 2, 4, 4))
         block_moving = np.empty((most, 2))
         m = accumulate_information(g, weight, start, self._period, self._acc, self._moving, blocks, block_moving)
-        moments = np.empty((most, 2, 4))  # the friction column's error bound (excitation.estimate_bias)
-        accumulate_moment(g, self._regressors.deficit, weight, start, self._period, self._moment_acc, moments)
+        moments = np.empty((most, 2, 2, 4))  # the friction column's error (excitation.estimate_bias)
+        error, size = self._regressors.friction_error, self._regressors.reversal_error
+        accumulate_moment(g, error, size, weight, start, self._period, self._moment_acc, moments)
         theta = trace.controller_state.get("theta_hat")
-        ends, infos, window_moments = [], np.empty((m, 2, 4, 4)), np.empty((m, 2, 4))
+        ends, infos, window_moments = [], np.empty((m, 2, 4, 4)), np.empty((m, 2, 2, 4))
         for i in range(m):
             self._closed += 1
             ends.append(self._closed * self._period - 1)  # global index of the period's last sample
@@ -403,8 +409,8 @@ class MachineMonitor:
         self._ring = np.zeros((self._n_window, 2, 4, 4))
         self._ring_at = 0
         self._noise = quantisation_noise(ex, ex.resolution_m, self._ts)
-        self._moment_acc = np.zeros((2, 4))
-        self._moment_ring = np.zeros((self._n_window, 2, 4))
+        self._moment_acc = np.zeros((2, 2, 4))
+        self._moment_ring = np.zeros((self._n_window, 2, 2, 4))
         self._closed = 0
         self._next = 0
         self._baseline = self.given_baseline

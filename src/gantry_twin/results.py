@@ -222,8 +222,9 @@ def run_summary(
                 for name, est, tru in zip(THETA_NAMES, estimate, true, strict=True)
             }
             if metrics.confidence is not None:  # trustworthy, why, excitation_v, bias_bound_pct (docs/cli.md)
-                for name, verdict in metrics.confidence.verdicts().items():
+                for name, verdict in metrics.confidence.verdicts(estimate).items():
                     out["estimates"][name].update(verdict)
+                out["confidence"] = metrics.confidence.statistics()
     if health is not None:
         out["health"] = health_summary(health)
     return out
