@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -346,3 +347,18 @@ def test_sweep_takes_the_progress_flags(monkeypatch):
     args = parser.parse_args(["sweep", "s.yaml"])
     monkeypatch.setattr(cli.sys.stderr, "isatty", lambda: False)
     assert args.progress is None and cli._progress_wanted(args) is False
+
+
+def test_tick_labels_of_swept_objects_name_only_the_leaves_that_differ():
+    from gantry_twin.sweep.plots import tick_labels
+
+    contours = [
+        json.dumps({"type": "circle", "radius_m": r, "centre_m": [0.0, 0.0], "timing": {"rate_rad_s": w}})
+        for r, w in [(0.02, 1.0), (0.02, 2.5), (0.2, 1.0)]
+    ] + [json.dumps({"type": "ellipse", "semi_x_m": 0.2, "centre_m": [0.0, 0.0], "timing": {"rate_rad_s": 1.0}})]
+    labels = tick_labels(contours)
+    assert labels[0] == "type=circle radius_m=0.02 rate_rad_s=1.0"
+    assert labels[3] == "type=ellipse rate_rad_s=1.0 semi_x_m=0.2"  # centre_m is the same everywhere: left out
+    assert len(set(labels)) == 4
+    assert tick_labels([0.123456, 2]) == ["0.1235", "2"]
+    assert tick_labels(["a", "{not json"]) == ["a", "{not json"]

@@ -12,6 +12,7 @@ metric per cell of two grid axes, else the points coloured by the metric.
 from __future__ import annotations
 
 import io
+import json
 import math
 from collections import defaultdict
 from collections.abc import Sequence
@@ -24,6 +25,8 @@ from gantry_twin.sweep.points import STATUS_OK, Plan
 SUMMARY_FILE = "summary.md"
 #: At most this many lines (combinations of the other grid axes) in one plot.
 MAX_SERIES = 8
+#: At most this many labelled ticks on an axis of distinct values.
+MAX_TICKS = 16
 #: Best and worst points listed in summary.md.
 LISTED = 5
 
@@ -58,6 +61,45 @@ def _series(plan: Plan, rows: list[dict[str, Any]], field: str) -> dict[str, lis
     return groups if len(groups) <= MAX_SERIES else {"": rows}
 
 
+def _flat(value: Any, prefix: str = "") -> dict[str, Any]:
+    """A JSON object as {dotted key: leaf}; anything else as {prefix: value}."""
+    if isinstance(value, dict):
+        return {k: v for key, item in value.items() for k, v in _flat(item, f"{prefix}{key}.").items()}
+    return {prefix.rstrip("."): value}
+
+
+def tick_labels(values: Sequence[Any]) -> list[str]:
+    """Short axis labels: numbers to 4 digits; values that are JSON objects (a swept ``contour``) by the leaves
+    that differ between them (``type=circle radius_m=0.02 rate_rad_s=1``), not the whole object."""
+    if _numeric(values):
+        return [f"{v:.4g}" for v in values]
+    try:
+        flats = [_flat(json.loads(v)) if isinstance(v, str) and v.startswith("{") else None for v in values]
+    except ValueError:
+        flats = [None]
+    if not flats or any(f is None for f in flats):
+        return [str(v) for v in values]
+    keys = list(dict.fromkeys(k for f in flats for k in f))
+    # a leaf some objects lack (an ellipse's semi-axes beside circles) or whose value differs between them
+    varying = [k for k in keys if len({json.dumps(f[k]) if k in f else "" for f in flats}) > 1]
+    return [" ".join(f"{k.rsplit('.', 1)[-1]}={f[k]}" for k in varying if k in f) for f in flats]
+
+
+def _set_ticks(axis: Any, labels: list[str], rotation: float = 0) -> None:
+    """Every label when there are few, else every k-th (at most MAX_TICKS), so that they stay legible."""
+    step = max(1, math.ceil(len(labels) / MAX_TICKS))
+    longest = max((len(label) for label in labels), default=0)
+    small = longest > 20
+    axis.set_ticks(range(0, len(labels), step), labels[::step], rotation=rotation, fontsize=7 if small else None)
+    if small:  # room for the labels beside a plot of the usual size (about 0.055 in a character at 7 pt)
+        fig = axis.axes.figure
+        width, height = fig.get_size_inches()
+        extent = longest * 0.055 * (math.sin(math.radians(rotation)) if axis.axis_name == "x" else 1.0)
+        fig.set_size_inches(
+            width + (extent if axis.axis_name == "y" else 0), height + (extent if axis.axis_name == "x" else 0)
+        )
+
+
 def _positions(values: Sequence[Any]) -> tuple[list[float], list[Any] | None]:
     """x positions of values: the numbers themselves, else the index of each distinct value (and the labels)."""
     if _numeric(values):
@@ -74,7 +116,7 @@ def metric_plot(plan: Plan, rows: list[dict[str, Any]], field: str, metric: str,
     if not rows:
         return None
     _, labels = _positions([r[field] for r in rows])
-    fig, ax = plt.subplots(figsize=(7, 4.2))
+    fig, ax = plt.subplots(figsize=(7, 4.2), layout="constrained")
     is_grid = field in _grid_fields(plan)
     true_column = "true_" + metric.removeprefix("estimate_") if metric.startswith("estimate_") else None
     for name, group in _series(plan, rows, field).items():
@@ -92,14 +134,13 @@ def metric_plot(plan: Plan, rows: list[dict[str, Any]], field: str, metric: str,
             true = [_mean([r[true_column] for r in by_x[x]]) for x in order]
             ax.plot(order, true, "--", color=dots.get_color(), lw=0.9)
     if labels is not None:
-        ax.set_xticks(range(len(labels)), [str(v) for v in labels])
+        _set_ticks(ax.xaxis, tick_labels(labels), rotation=45 if len(labels) > 4 else 0)
     ax.set_xlabel(field)
     ax.set_ylabel(metric + (" (true dashed)" if true_column else ""))
     ax.grid(alpha=0.3)
     if ax.get_legend_handles_labels()[1]:
         ax.legend(fontsize=7)
     ax.set_title(f"{metric} against {field} ({len(rows)} points)")
-    fig.tight_layout()
     name = f"{metric}_vs_{field}.png"
     _save(fig, out / name)
     return name
@@ -112,7 +153,7 @@ def heat_map(plan: Plan, rows: list[dict[str, Any]], fx: str, fy: str, metric: s
     rows = [r for r in rows if r.get(metric) is not None]
     if not rows:
         return None
-    fig, ax = plt.subplots(figsize=(7, 5))
+    fig, ax = plt.subplots(figsize=(7, 5), layout="constrained")
     grid = _grid_fields(plan)
     if fx in grid and fy in grid:
         xs = list(dict.fromkeys(r[fx] for r in sorted(rows, key=lambda r: r["point"])))
@@ -124,21 +165,20 @@ def heat_map(plan: Plan, rows: list[dict[str, Any]], fx: str, fy: str, metric: s
             [_mean(cells[(j, i)]) if (j, i) in cells else math.nan for i in range(len(xs))] for j in range(len(ys))
         ]
         shown = ax.imshow(image, origin="lower", aspect="auto", cmap="viridis")
-        ax.set_xticks(range(len(xs)), [f"{v:.4g}" if _numeric([v]) else str(v) for v in xs], rotation=45)
-        ax.set_yticks(range(len(ys)), [f"{v:.4g}" if _numeric([v]) else str(v) for v in ys])
+        _set_ticks(ax.xaxis, tick_labels(xs), rotation=45)
+        _set_ticks(ax.yaxis, tick_labels(ys))
     else:
         px, xlabels = _positions([r[fx] for r in rows])
         py, ylabels = _positions([r[fy] for r in rows])
         shown = ax.scatter(px, py, c=[r[metric] for r in rows], cmap="viridis", s=25)
         if xlabels is not None:
-            ax.set_xticks(range(len(xlabels)), [str(v) for v in xlabels])
+            _set_ticks(ax.xaxis, tick_labels(xlabels), rotation=45 if len(xlabels) > 4 else 0)
         if ylabels is not None:
-            ax.set_yticks(range(len(ylabels)), [str(v) for v in ylabels])
+            _set_ticks(ax.yaxis, tick_labels(ylabels))
     fig.colorbar(shown, ax=ax, label=metric + (" (mean)" if fx in grid and fy in grid else ""))
     ax.set_xlabel(fx)
     ax.set_ylabel(fy)
     ax.set_title(f"{metric} over {fx} and {fy}")
-    fig.tight_layout()
     name = f"{metric}_{fx}_x_{fy}.png"
     _save(fig, out / name)
     return name
