@@ -17,11 +17,11 @@ import time
 
 import numpy as np
 
+from gantry_twin.contours import TimingLaw, paper_ellipse
 from gantry_twin.controllers import create
 from gantry_twin.excite import design, random_plant, run_on_twin
 from gantry_twin.identify import identify
 from gantry_twin.logs import Log
-from gantry_twin.paths import TimingLaw, paper_ellipse
 from gantry_twin.simulate import simulate
 
 TARGETS = {"excitation 20 s": (1.0, 3.0), "ellipse 30 s": (2.0, 5.0)}

@@ -38,8 +38,8 @@ def as_log(trace) -> Log:
 
 def circle_rms_um(plant: Plant) -> float:
     """rms contour error of the paper's circle (0.2 m at 2 rad/s, DIARC) over its second period, um."""
+    from gantry_twin.contours import TimingLaw, circle
     from gantry_twin.controllers import create
-    from gantry_twin.paths import TimingLaw, circle
     from gantry_twin.simulate import simulate
 
     period = np.pi

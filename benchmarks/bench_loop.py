@@ -42,7 +42,7 @@ import time, json
 t0 = time.perf_counter()
 from gantry_twin import Plant, TimingLaw, circle, simulate
 from gantry_twin.controllers import create
-from gantry_twin.paths import reference
+from gantry_twin.contours import reference
 t1 = time.perf_counter()
 for name in {names!r}:
     simulate(Plant(), circle(), TimingLaw(2.0), create(name), duration_s=0.01)
@@ -55,7 +55,7 @@ import json, resource
 import numpy as np
 from gantry_twin import Plant, TimingLaw, circle, simulate
 from gantry_twin.controllers import create
-from gantry_twin.paths import reference
+from gantry_twin.contours import reference
 simulate(Plant(), circle(), TimingLaw(2.0), create("diarc"), duration_s=0.01)
 before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
 trace = simulate(Plant(), circle(), TimingLaw(2.0), create("diarc"), duration_s=60.0)

@@ -228,7 +228,7 @@ def test_logged_lambda_max_matches_final_gamma():
 
 def test_plant_changes_compiled_equals_reference_and_restore_the_model():
     """Every kind of change at once (drift, pick-up, cogging, spike, hold, velocity noise): same bits."""
-    from gantry_twin.changes import (
+    from gantry_twin.faults import (
         CoggingRipple,
         EncoderGlitch,
         FrictionDrift,

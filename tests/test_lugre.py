@@ -19,8 +19,8 @@ import numpy as np
 import pytest
 
 from gantry_twin import Payload, Plant, TimingLaw, circle, simulate
-from gantry_twin.changes import CoggingRipple, FrictionDrift, PlantChanges
 from gantry_twin.controllers import create
+from gantry_twin.faults import CoggingRipple, FrictionDrift, PlantChanges
 from gantry_twin.friction import Friction, FrictionError, LuGreAxis
 from gantry_twin.run import execute
 from gantry_twin.scenario import ScenarioError, build, load_scenario

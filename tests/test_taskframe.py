@@ -4,7 +4,7 @@ s_c is checked against an independent route: eps = T e is formed along a smooth
 random trajectory, differentiated by central differences, and s = eps' +
 Lambda eps is rotated back with T. eps_n is checked against the true
 contouring error of paths.contour_error (itself checked against brute force in
-test_paths.py).
+test_contours.py).
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from gantry_twin.paths import TimingLaw, circle, contour_error, paper_ellipse, reference
+from gantry_twin.contours import TimingLaw, circle, contour_error, paper_ellipse, reference
 from gantry_twin.taskframe import (
     J,
     error_gains,

@@ -402,7 +402,7 @@ def test_health_alarms_are_events_on_the_timeline(tmp_path):
 
 def test_true_value_line_follows_plant_changes(tmp_path):
     """After a 5 kg pick-up the 'true' line of M1 shows the new mass, not the initial one."""
-    from gantry_twin.changes import PayloadChange, PlantChanges
+    from gantry_twin.faults import PayloadChange, PlantChanges
 
     path = tmp_path / "pickup.rrd"
     changes = PlantChanges(payload_change=(PayloadChange(time_s=0.5, mass_kg=5.0),))

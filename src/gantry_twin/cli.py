@@ -37,7 +37,6 @@ from gantry_twin.controllers import available
 from gantry_twin.events import touched_end_stop, travel_warnings
 from gantry_twin.logs import LogError
 from gantry_twin.monitor import Alarm
-from gantry_twin.ranges import shorten
 from gantry_twin.results import stop_signals_interrupt, whole_run_lines
 from gantry_twin.run import LARGE_TRACE_BYTES, RunWriter, trace_size
 from gantry_twin.rundirs import LATEST, new_run_dir, point_latest
@@ -51,6 +50,7 @@ from gantry_twin.scenario import (
     shipped,
 )
 from gantry_twin.scenario import listing as scenario_listing
+from gantry_twin.settings import shorten
 from gantry_twin.telemetry import TelemetryError, add_telemetry_arguments, telemetry_observers
 from gantry_twin.trace import RunInfo, Trace
 
@@ -311,7 +311,7 @@ def _out_dir(args: argparse.Namespace, scenario: Scenario) -> Path:
     """--out, else a new run directory under runs/<name>/ (gantry_twin.rundirs)."""
     if args.out is not None:
         return _checked_out(args.out)
-    base = _checked_out(RUNS_DIR / (scenario.outputs.dir or str(scenario.name)))  # labels (ranges.Label): under runs/
+    base = _checked_out(RUNS_DIR / (scenario.outputs.dir or str(scenario.name)))  # labels (settings.Label): under runs/
     return new_run_dir(base)
 
 

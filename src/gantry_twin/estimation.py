@@ -35,7 +35,7 @@ from scipy.linalg import expm
 from gantry_twin._jit import kernel
 from gantry_twin.linalg import cholesky_factor, cholesky_solve, cholesky_substitute, largest_eigenvalue
 from gantry_twin.plant import AXES, THETA_NAMES
-from gantry_twin.ranges import Range, Vector, settings
+from gantry_twin.settings import Range, Vector, validated
 
 #: The slope of the paper's smooth Coulomb shape Sf(v) = (2/pi) atan(9000 v), s/m (section 5).
 FRICTION_SLOPE_S_M = 9000.0
@@ -272,7 +272,7 @@ def project_metric(
     return x
 
 
-@settings("least_squares")
+@validated("least_squares")
 class LeastSquaresSettings:
     """Least squares with covariance limiting (eq. 27-28), paper values."""
 

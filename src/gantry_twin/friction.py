@@ -40,7 +40,7 @@ from typing import Literal, NamedTuple
 import mujoco
 import numpy as np
 
-from gantry_twin.ranges import Count, Range, fmt, rule, settings
+from gantry_twin.settings import Count, Range, fmt, rule, validated
 
 #: Names of the friction actuators a LuGre plant adds, per axis name.
 FRICTION_ACTUATOR = "{axis}_friction"
@@ -62,7 +62,7 @@ INTEGRATORS = {
 }
 
 
-@settings("lugre")
+@validated("lugre")
 class LuGreAxis:
     """LuGre parameters of one axis, SI.
 
@@ -102,7 +102,7 @@ def physical_problem(sigma0_n_m: float, fc_n: float, fs_n: float | None) -> tupl
     return None
 
 
-@settings("friction")
+@validated("friction")
 class Friction:
     """The friction model of both slide joints and how the plant integrates it.
 

@@ -32,7 +32,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from gantry_twin.plant import AXES, Plant
-from gantry_twin.ranges import VOLTS_MAX_V, shorten
+from gantry_twin.settings import VOLTS_MAX_V, shorten
 
 #: The columns every log has (SI units and volts).
 LOG_COLUMNS: tuple[str, ...] = ("t_s", "u_x_v", "u_y_v", "x_m", "y_m")

@@ -74,7 +74,8 @@ from gantry_twin.excitation import (
     quantisation_noise,
 )
 from gantry_twin.plant import THETA_NAMES, THETA_UNITS
-from gantry_twin.ranges import (
+from gantry_twin.sensing import ENCODER_RESOLUTION_M
+from gantry_twin.settings import (
     VOLTS_MAX_V,
     NonNegative,
     Positive,
@@ -84,9 +85,8 @@ from gantry_twin.ranges import (
     Window,
     quote,
     rule,
-    settings,
+    validated,
 )
-from gantry_twin.sensing import ENCODER_RESOLUTION_M
 
 #: Status codes of :attr:`MonitorReport.status` and their names.
 STATUS_NAMES: tuple[str, ...] = ("baseline", "not excited", "ok", "drifting", "alarm", "untrustworthy")
@@ -109,7 +109,7 @@ MinParameterV = Range(0.0, VOLTS_MAX_V, "V")
 DecisionIntervalS = Range(0.0, 100.0, "s", lo_open=True)
 
 
-@settings("excitation")
+@validated("excitation")
 class ExcitationSettings:
     """How the information of eq. (29) is measured.
 
@@ -152,7 +152,7 @@ class ExcitationSettings:
             raise rule("window_s", f"must be at least period_s = {self.period_s:g} s, got {self.window_s:g}")
 
 
-@settings("health")
+@validated("health")
 class HealthSettings:
     """The drift test.
 

@@ -28,7 +28,7 @@ from gantry_twin.friction import (
     lugre_parameters,
     steady_bristle_m,
 )
-from gantry_twin.ranges import Range, Vector, settings
+from gantry_twin.settings import Range, Vector, validated
 
 #: An axis by name; AXES: the names in the package's order (index 0 = X, 1 = Y).
 Axis = Literal["x", "y"]
@@ -59,7 +59,7 @@ def default_model_path() -> Path:
     return Path(__file__).resolve().parents[2] / "models" / "gantry.xml"
 
 
-@settings("payload")
+@validated("payload")
 class Payload:
     """A payload body on the X carriage.
 
@@ -72,7 +72,7 @@ class Payload:
     offset_m: PayloadOffset = (0.0, 0.0, 0.05)
 
 
-@settings("plant")
+@validated("plant")
 class PlantSettings:
     """How the machine departs from models/gantry.xml's defaults in a scenario.
 

@@ -25,8 +25,8 @@ from typing import Any
 
 import numpy as np
 
+from gantry_twin.contours import reference
 from gantry_twin.metrics import error_pct
-from gantry_twin.paths import reference
 from gantry_twin.plant import THETA_NAMES
 from gantry_twin.report import CONTOURS, CONTROLLERS, PAPER_CONTOUR_UM, SET_SCENARIOS, Case, CaseResult
 from gantry_twin.results import atomic_write, atomic_write_text

@@ -21,7 +21,7 @@ time and the sample; the samples before it are recorded, shown to the
 observers and kept in the error's ``trace``.
 
 One sample is written once, in :func:`_run_chunk`: plant changes
-(:mod:`gantry_twin.changes`), the encoder (:mod:`gantry_twin.sensing`), the
+(:mod:`gantry_twin.faults`), the encoder (:mod:`gantry_twin.sensing`), the
 controller, clipping and recording, MuJoCo's step. Two backends run it
 (docs/performance.md):
 
@@ -51,14 +51,7 @@ from numba import types
 
 from gantry_twin._jit import borrowed, is_cached, kernel, source_digest, specialise
 from gantry_twin._jit import reference as uncompiled
-from gantry_twin.changes import (
-    ChangeSchedule,
-    PlantChanges,
-    apply_plant_changes,
-    change_schedule,
-    cogging_force,
-    sensor_glitches,
-)
+from gantry_twin.contours import Contour, Reference, ReferenceStream, TimingLaw, contour_error
 from gantry_twin.controllers.base import (
     CompiledStep,
     Controller,
@@ -68,7 +61,14 @@ from gantry_twin.controllers.base import (
     compiled_step_of,
 )
 from gantry_twin.estimation import clip
-from gantry_twin.paths import Path, Reference, ReferenceStream, TimingLaw, contour_error
+from gantry_twin.faults import (
+    ChangeSchedule,
+    PlantChanges,
+    apply_plant_changes,
+    change_schedule,
+    cogging_force,
+    sensor_glitches,
+)
 from gantry_twin.plant import Plant
 from gantry_twin.sensing import Encoder, SensingConfig, encoder_measure
 from gantry_twin.taskframe import normal_errors
@@ -80,7 +80,7 @@ T = TypeVar("T")
 Disturbance = Callable[[np.ndarray], np.ndarray]
 
 
-def _finish_chunk(trace: Trace, ref: Reference, path: Path, start: int, stop: int) -> None:
+def _finish_chunk(trace: Trace, ref: Reference, path: Contour, start: int, stop: int) -> None:
     """Derived errors for samples [start, stop) (``ref``: the reference of the trace's samples): e, eps_n, eps_c."""
     rows = trace.rows(start, stop)
     normal_errors(ref.alpha[rows], trace.q_m[rows], ref.q_d[rows], trace.e_m[rows], trace.eps_n_m[rows])
@@ -292,7 +292,7 @@ def sample_count(duration_s: float, timestep_s: float) -> int:
 
 def simulate(
     plant: Plant,
-    path: Path,
+    path: Contour,
     timing: TimingLaw,
     controller: Controller,
     duration_s: float,
@@ -313,7 +313,7 @@ def simulate(
     when MuJoCo's library is found, else reference), ``compiled`` or
     ``reference``; both give the same trace (tests/test_backends.py).
     changes: faults applied to the plant and the sensor during the run
-    (:mod:`gantry_twin.changes`), never shown to the controller; the trace
+    (:mod:`gantry_twin.faults`), never shown to the controller; the trace
     then records the true theta over time (``true_theta_t``). A payload
     change needs a plant built with ``payload_body=True``. The model's
     damping, friction and masses are restored after the run.

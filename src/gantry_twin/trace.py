@@ -12,7 +12,7 @@ from typing import Protocol
 
 import numpy as np
 
-from gantry_twin.paths import Path, Reference, TimingLaw
+from gantry_twin.contours import Contour, Reference, TimingLaw
 from gantry_twin.plant import Plant
 
 
@@ -40,7 +40,7 @@ class Trace:
     (DIARC: theta_hat (N, 8), dc_hat (N, 2), gamma_diag (N, 8),
     gamma_lambda_max (N,)); true_theta (8,) volt units from the model at t = 0.
     true_theta_t (N, 8): the true theta at each sample when the run's
-    :class:`~gantry_twin.changes.PlantChanges` move it (None otherwise: it is
+    :class:`~gantry_twin.faults.PlantChanges` move it (None otherwise: it is
     ``true_theta`` throughout; :meth:`true_parameters_t` gives it either way).
     ``filled``: how many samples of the run hold data (all of them after the run).
 
@@ -148,12 +148,12 @@ class RunInfo:
     """What observers learn before the first sample.
 
     reference: the whole run's desired motion, or None when the run is held
-    in pieces (compute what is needed with ``paths.reference(path, timing, t)``).
+    in pieces (compute what is needed with ``contours.reference(path, timing, t)``).
     samples: how many samples the run will have.
     """
 
     plant: Plant
-    path: Path
+    path: Contour
     timing: TimingLaw
     reference: Reference | None
     duration_s: float

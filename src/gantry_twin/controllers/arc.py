@@ -60,7 +60,7 @@ from gantry_twin.estimation import (
     project_box,
 )
 from gantry_twin.plant import AXES, THETA_NAMES
-from gantry_twin.ranges import VOLTS_MAX_V, OrNamed, Range, Vector, settings
+from gantry_twin.settings import VOLTS_MAX_V, OrNamed, Range, Vector, validated
 
 #: DARC's adaptation rates (paper section 5).
 DARC_GAMMA = (10.0, 10.0, 10.0, 10.0, 1.0, 1.0, 10000.0, 10000.0)
@@ -72,7 +72,7 @@ Rates = Vector(Range(0.0, 1.0e8), THETA_NAMES)
 CLOCK_TIME_S, CLOCK_STARTED, CLOCK_LAMBDA_MAX = 0, 1, 2
 
 
-@settings("estimator")
+@validated("estimator")
 class EstimatorSettings:
     """DIARC's indirect estimator and fast compensation (paper section 5).
 

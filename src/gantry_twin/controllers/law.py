@@ -21,7 +21,7 @@ from gantry_twin._jit import kernel
 from gantry_twin.controllers.base import REF_ALPHA, REF_DALPHA, REF_DDALPHA, REF_DDQ, REF_DQ, REF_Q
 from gantry_twin.estimation import FRICTION_SLOPE_S_M, FrictionSlope, clip, friction_shape
 from gantry_twin.plant import THETA_NAMES
-from gantry_twin.ranges import Number, Range, Real, Vector, rule, settings
+from gantry_twin.settings import Number, Range, Real, Vector, rule, validated
 from gantry_twin.taskframe import error_gains, sliding_variable
 
 #: The paper's initial estimates theta0 (section 5), volt units.
@@ -43,7 +43,7 @@ Lambda = Vector(Range(1.0, 5000.0, "1/s"), TASK_AXES)
 Ks = Vector(Range(1.0, 1000.0, "V/(m/s)"), TASK_AXES)
 
 
-@settings("gains")
+@validated("gains")
 class ArcGains:
     """Settings shared by the three controllers (paper section 5).
 

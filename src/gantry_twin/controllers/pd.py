@@ -31,7 +31,7 @@ from gantry_twin.controllers.base import (
 )
 from gantry_twin.estimation import clip
 from gantry_twin.plant import AXES
-from gantry_twin.ranges import Range, Vector
+from gantry_twin.settings import Range, Vector
 
 # A gain per axis (X, Y); the types of PD's fields are what a scenario's options accept. Upper bounds:
 # kp and kd keep the discrete loop stable on the lightest axis (kd Ts / M1 < 2 with M1 = 0.12 V s^2/m:

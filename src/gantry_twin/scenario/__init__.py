@@ -7,7 +7,7 @@ disturbance, quantised sensing, 30 s. The modules, in the order data flows:
 
 * :mod:`.schema`: the fields. Domain settings (payload, sensing, plant
   changes, the built-in controllers' options) are validated by their own
-  types, whose ranges are declared once (:mod:`gantry_twin.ranges`).
+  types, whose ranges are declared once (:mod:`gantry_twin.settings`).
 * :mod:`.loading`: :func:`load_scenario` reads a file, applies ``--set
   key.path=value`` overrides and checks the cross-field rules (windows
   inside the duration).

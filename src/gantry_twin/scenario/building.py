@@ -15,19 +15,19 @@ from pathlib import Path
 
 import numpy as np
 
-from gantry_twin.changes import PlantChanges
 from gantry_twin.confidence import EstimateConfidence
+from gantry_twin.contours import Ellipse, TimingLaw
 from gantry_twin.controllers import Controller, EstimatorSettings, create
 from gantry_twin.estimation import FRICTION_SLOPE_S_M
+from gantry_twin.faults import PlantChanges
 from gantry_twin.friction import FrictionError
 from gantry_twin.monitor import Baseline, ExcitationSettings, HealthSettings, MachineMonitor
-from gantry_twin.paths import Ellipse, TimingLaw
 from gantry_twin.plant import AXES, Plant
-from gantry_twin.ranges import quote, shorten
 from gantry_twin.scenario.errors import ScenarioError
 from gantry_twin.scenario.loading import InputFileError, controller_options, read_input_file
 from gantry_twin.scenario.schema import Scenario
 from gantry_twin.sensing import SensingConfig
+from gantry_twin.settings import quote, shorten
 from gantry_twin.simulate import Disturbance
 
 #: Clearance kept between a contour and the end of travel, metres.

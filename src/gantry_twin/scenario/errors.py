@@ -7,9 +7,9 @@ from typing import Any, NoReturn
 
 from pydantic import ValidationError
 
-from gantry_twin.ranges import best_errors, describe, loc_text, more, quote
 from gantry_twin.scenario.files import display_source
 from gantry_twin.scenario.schema import CONTOUR_TYPES, EVENT_TYPES
+from gantry_twin.settings import best_errors, describe, loc_text, more, quote
 
 _UNION_TAGS = {*CONTOUR_TYPES, *EVENT_TYPES}
 

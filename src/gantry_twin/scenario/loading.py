@@ -15,9 +15,9 @@ from pydantic import ValidationError
 
 from gantry_twin.controllers import ArcGains
 from gantry_twin.controllers.base import factory_for
-from gantry_twin.ranges import QUOTE_MAX_CHARS, fmt, label_from, quote, shorten
 from gantry_twin.scenario.errors import ScenarioError, raise_validation
 from gantry_twin.scenario.schema import ControllerSpec, Scenario, typed_options
+from gantry_twin.settings import QUOTE_MAX_CHARS, fmt, label_from, quote, shorten
 
 #: Largest file read as YAML or JSON (a scenario file, ``monitor.baseline_summary``), bytes. A scenario
 #: is a few hundred bytes and a run's summary.json a few KiB; the cap bounds the time and memory of a parse.
@@ -263,7 +263,7 @@ def _check_windows(scenario: Scenario, source: str) -> None:
         ("window_s", scenario.window_s, scenario.metric_window_s, "the second period [T, 2T]"),
         ("estimates_window_s", scenario.estimates_window_s, scenario.estimate_window_s, "the last period"),
     ):
-        lo, hi = window  # end > start: a given window by its type (ranges.Window), a default by construction
+        lo, hi = window  # end > start: a given window by its type (settings.Window), a default by construction
         if lo < 0.0 or hi > d + 1e-9:
             if given is None:
                 raise ScenarioError(

@@ -4,7 +4,7 @@ The domain settings are fields of their own types (:class:`Payload`,
 :class:`PlantSettings` (the friction model), :class:`SensingConfig`,
 :class:`PlantChanges`, and the built-in controllers'
 ``gains``, ``estimator``, ...): their ranges are declared once, on those
-types (:mod:`gantry_twin.ranges`). What exists only in a scenario (the
+types (:mod:`gantry_twin.settings`). What exists only in a scenario (the
 contour and its timing, disturbance events, the monitor switch and windows,
 outputs) is declared here as pydantic models. Unknown keys are rejected with
 the list of allowed keys.
@@ -21,9 +21,10 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, create_model, model_validator
 from pydantic_core import PydanticCustomError
 
-from gantry_twin.changes import PlantChanges
+from gantry_twin.contours import Ellipse, TimingLaw
 from gantry_twin.controllers import available
 from gantry_twin.estimation import FilterHz
+from gantry_twin.faults import PlantChanges
 from gantry_twin.monitor import (
     DecisionIntervalS,
     ExcitationSettings,
@@ -31,10 +32,9 @@ from gantry_twin.monitor import (
     HealthSettings,
     MinParameterV,
 )
-from gantry_twin.paths import Ellipse, TimingLaw
 from gantry_twin.plant import Payload, PlantSettings
-from gantry_twin.ranges import VOLTS_MAX_V, Frequency, Label, Range, Real, Seconds, Window, known_keys, quote
 from gantry_twin.sensing import SensingConfig
+from gantry_twin.settings import VOLTS_MAX_V, Frequency, Label, Range, Real, Seconds, Window, known_keys, quote
 from gantry_twin.simulate import Disturbance
 
 #: Longest run accepted, s (30 s is the paper's; an hour is 18 M samples).

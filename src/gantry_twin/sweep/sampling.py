@@ -18,7 +18,7 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, model_validator
 
-from gantry_twin.ranges import Count, Positive, Real, known_keys, rule
+from gantry_twin.settings import Count, Positive, Real, known_keys, rule
 
 #: Most points one sweep may hold (grid x samples x repeats).
 POINTS_MAX = 100_000

@@ -16,7 +16,6 @@ from typing import Any
 
 from pydantic import ValidationError, model_validator
 
-from gantry_twin.ranges import rule
 from gantry_twin.scenario import (
     ScenarioError,
     parse_yaml,
@@ -26,6 +25,7 @@ from gantry_twin.scenario import (
     shipped_scenarios,
 )
 from gantry_twin.scenario.errors import raise_validation
+from gantry_twin.settings import rule
 from gantry_twin.sweep.sampling import (
     POINTS_MAX,
     Linspace,

@@ -14,7 +14,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from gantry_twin.paths import contour_error
+from gantry_twin.contours import contour_error
 from gantry_twin.plant import Plant
 
 #: Default magnification of the contour error in the XY view (1 um drawn as 10 mm).

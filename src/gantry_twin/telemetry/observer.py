@@ -35,7 +35,7 @@ included) with a margin and labelled ticks, sent again, widened, when data
 leaves it; eps_c is drawn wide in orange under eps_n thin in dark blue.
 
 Magnified contour: each actual point q is drawn at p + K (q - p), where p is
-the closest point of the desired curve (``paths.contour_error``), so a contour
+the closest point of the desired curve (``contours.contour_error``), so a contour
 error of 1 um shows as K um; with the default K = 10 000, as 10 mm. (The
 controllers hold eps_c near 1 um on the paper's 200 mm circle: at 1000x that
 is under a pixel.)
@@ -55,7 +55,7 @@ import numpy as np
 import pyarrow as pa
 import rerun as rr
 
-from gantry_twin.paths import reference
+from gantry_twin.contours import reference
 from gantry_twin.plant import THETA_NAMES, THETA_UNITS
 from gantry_twin.telemetry.dashboard import (
     ERROR_MAGNIFICATION,

@@ -14,7 +14,7 @@ from typing import TextIO
 
 import rerun as rr
 
-from gantry_twin.ranges import quote, shorten
+from gantry_twin.settings import quote, shorten
 from gantry_twin.telemetry.observer import RerunObserver
 from gantry_twin.telemetry.sinks import (
     RealtimePacer,

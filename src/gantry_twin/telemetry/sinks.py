@@ -21,7 +21,7 @@ from pathlib import Path
 
 import rerun as rr
 
-from gantry_twin.ranges import quote
+from gantry_twin.settings import quote
 from gantry_twin.trace import RunInfo, Trace
 
 #: Every server and viewer this module starts listens on the loopback interface only.

@@ -9,18 +9,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gantry_twin.changes import CoggingRipple, EncoderGlitch, FrictionDrift, PayloadChange, VelocityNoise
 from gantry_twin.controllers import DARC, DIARC, DRC, PD, ArcGains, EstimatorSettings, register, unregister
 from gantry_twin.estimation import LeastSquaresSettings
+from gantry_twin.faults import CoggingRipple, EncoderGlitch, FrictionDrift, PayloadChange, VelocityNoise
 from gantry_twin.monitor import ExcitationSettings, HealthSettings
 from gantry_twin.plant import Payload
-from gantry_twin.ranges import QUOTE_MAX_CHARS, Count, Range, Vector, quote, settings
 from gantry_twin.scenario import ScenarioError, validate_data
 from gantry_twin.scenario.schema import typed_options
 from gantry_twin.sensing import SensingConfig
+from gantry_twin.settings import QUOTE_MAX_CHARS, Count, Range, Vector, quote, validated
 
 
-@settings("thing")
+@validated("thing")
 class Thing:
     """A settings type of every kind of field, for the tests."""
 

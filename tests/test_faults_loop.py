@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from gantry_twin import Payload, Plant, TimingLaw, circle, simulate
-from gantry_twin.changes import CoggingRipple, FrictionDrift, PayloadChange, PlantChanges
 from gantry_twin.controllers import DIARC, PD
+from gantry_twin.faults import CoggingRipple, FrictionDrift, PayloadChange, PlantChanges
 from gantry_twin.plant import moving_masses_kg
 
 ZERO_PD = dict(kp_v_m=(0.0, 0.0), kd_v_s_m=(0.0, 0.0), kv_v_s_m=(0.0, 0.0), ka_v_s2_m=(0.0, 0.0))
@@ -64,7 +64,7 @@ def test_friction_drift_equals_an_edited_model_after_the_drift():
 @pytest.mark.parametrize("backend", ["compiled", "reference"])
 def test_cogging_is_a_position_periodic_input_force(backend):
     """Zero-gain PD: the plant driven by cogging alone, against a plain mj_step loop fed the public
-    PlantChanges.cogging_force_v (itself checked by hand in test_changes.py)."""
+    PlantChanges.cogging_force_v (itself checked by hand in test_faults.py)."""
     changes = PlantChanges(cogging=(CoggingRipple("x", 0.5, 0.016), CoggingRipple("y", 0.3, 0.01, 1.0)))
     trace = simulate(Plant(), circle(), TimingLaw(2.0), PD(**ZERO_PD), 0.2, backend=backend, changes=changes)
     plant = Plant()

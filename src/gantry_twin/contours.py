@@ -11,7 +11,7 @@ and the task frame need, vectorised over time:
     alpha'  = alpha_phi phi'
     alpha'' = alpha_phiphi phi'^2 + alpha_phi phi''
 
-A new path type is one new class implementing :class:`Path`.
+A new path type is one new class implementing :class:`Contour`.
 """
 
 from __future__ import annotations
@@ -23,10 +23,10 @@ from typing import Literal, Protocol
 import numpy as np
 
 from gantry_twin._jit import kernel
-from gantry_twin.ranges import quote
+from gantry_twin.settings import quote
 
 
-class Path(Protocol):
+class Contour(Protocol):
     """A smooth planar curve parametrised by phi (radians or any unit)."""
 
     def derivatives(self, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -145,7 +145,7 @@ class Reference:
         return np.column_stack([self.q_d, self.dq_d, self.ddq_d, self.alpha, self.dalpha, self.ddalpha])
 
 
-def tangent_angle(path: Path, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def tangent_angle(path: Contour, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """alpha(phi) and its first two phi-derivatives from the curve geometry."""
     _, dp, ddp, dddp = path.derivatives(phi)
     x1, y1 = dp[..., 0], dp[..., 1]
@@ -159,7 +159,7 @@ def tangent_angle(path: Path, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray, 
     return alpha, alpha_phi, alpha_phiphi
 
 
-def reference(path: Path, timing: TimingLaw, t_s: np.ndarray) -> Reference:
+def reference(path: Contour, timing: TimingLaw, t_s: np.ndarray) -> Reference:
     """Sample the desired motion at times t_s (vectorised)."""
     return ReferenceStream(path, timing).next(t_s)
 
@@ -173,7 +173,7 @@ class ReferenceStream:
     on from the last sample of the previous piece).
     """
 
-    def __init__(self, path: Path, timing: TimingLaw) -> None:
+    def __init__(self, path: Contour, timing: TimingLaw) -> None:
         self.path, self.timing = path, timing
         self._last: tuple[float, float] | None = None  # (raw alpha, its accumulated correction) of the last sample
 
@@ -229,7 +229,7 @@ def _unwrap_corrections(dd: np.ndarray) -> np.ndarray:
 
 
 def contour_error(
-    path: Path, q_m: np.ndarray, phi_guess: np.ndarray, iterations: int = 8, tolerance_rad: float = 1e-13
+    path: Contour, q_m: np.ndarray, phi_guess: np.ndarray, iterations: int = 8, tolerance_rad: float = 1e-13
 ) -> tuple[np.ndarray, np.ndarray]:
     """True contouring error eps_c: distance from q to the whole curve (metres).
 

@@ -1,6 +1,6 @@
 """The runs behind the ranges of the estimator and controller settings (issue 12, item 7; docs/scenarios.md).
 
-    PYTHONPATH=src python benchmarks/bench_ranges.py [--seconds 10] [--only filter_hz,ks_v_s_m]
+    PYTHONPATH=src python benchmarks/bench_settings.py [--seconds 10] [--only filter_hz,ks_v_s_m]
 
 Each setting is run at values inside and beyond its declared range: the named controller on the paper's
 circle, no load, the default (quantised) sensing, ``--seconds`` of simulation, compiled backend. Printed per

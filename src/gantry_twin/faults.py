@@ -35,7 +35,7 @@ import numpy as np
 from gantry_twin._jit import kernel, reference
 from gantry_twin.friction import identified_af_b, lugre_parameters
 from gantry_twin.plant import AXES, Axis, PayloadMass, Plant, moving_masses_kg
-from gantry_twin.ranges import Count, Range, Vector, fmt, rule, settings
+from gantry_twin.settings import Count, Range, Vector, fmt, rule, validated
 
 #: Latest time a change may name, s.
 TIME_MAX_S = 1.0e6
@@ -74,7 +74,7 @@ def _after(start_s: float, end_s: float) -> None:
         raise rule("end_s", f"must be after start_s = {fmt(start_s)} s, got {fmt(end_s)}")
 
 
-@settings("friction_drift")
+@validated("friction_drift")
 class FrictionDrift:
     """Friction of one axis drifting linearly from ``start_s`` to ``end_s``.
 
@@ -108,7 +108,7 @@ class FrictionDrift:
         return AXES.index(self.axis)
 
 
-@settings("payload_change")
+@validated("payload_change")
 class PayloadChange:
     """From ``time_s`` on, the payload on the X carriage weighs ``mass_kg`` (0: dropped)."""
 
@@ -116,7 +116,7 @@ class PayloadChange:
     mass_kg: PayloadMass
 
 
-@settings("cogging")
+@validated("cogging")
 class CoggingRipple:
     """Position-periodic force on one axis: amplitude_v sin(2 pi q / pitch_m + phase_rad), volts."""
 
@@ -130,7 +130,7 @@ class CoggingRipple:
         return AXES.index(self.axis)
 
 
-@settings("encoder_glitch")
+@validated("encoder_glitch")
 class EncoderGlitch:
     """A bad encoder reading at the sample nearest ``time_s``.
 
@@ -153,7 +153,7 @@ class EncoderGlitch:
             )
 
 
-@settings("velocity_noise")
+@validated("velocity_noise")
 class VelocityNoise:
     """Extra Gaussian noise on the measured velocity from ``start_s`` to ``end_s``.
 
@@ -170,7 +170,7 @@ class VelocityNoise:
         _after(self.start_s, self.end_s)
 
 
-@settings("")
+@validated("")
 class PlantChanges:
     """Everything that changes in the plant or the sensor during one run.
 
@@ -403,7 +403,7 @@ def apply_plant_changes(dof_index, changes, k):
     Only body_mass changes; MuJoCo derives the mass matrix from it at every
     step. dof_invweight0 (set at compile time, used to scale constraint
     regularisation) keeps its unloaded value: with this model's stiff friction
-    that changes nothing measurable (tests/test_changes_loop.py compares with a
+    that changes nothing measurable (tests/test_faults_loop.py compares with a
     plant compiled with the payload).
     """
     if changes.damping_n_s_m.shape[0] > 0:

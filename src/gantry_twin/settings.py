@@ -2,9 +2,9 @@
 
 Every setting of the twin (the payload, the sensor, a plant change, the
 controllers' gains and estimator, the monitor) is a frozen dataclass made
-by :func:`settings`, whose fields carry their allowed range in their type::
+by :func:`validated`, whose fields carry their allowed range in their type::
 
-    @settings("payload")
+    @validated("payload")
     class Payload:
         mass_kg: Range(0.0, PAYLOAD_MAX_KG, "kg") = 0.0
 
@@ -287,7 +287,7 @@ def known_keys(cls: type, data: Any) -> Any:
 
 
 @dataclass_transform(frozen_default=True)
-def settings(name: str) -> Callable[[type[T]], type[T]]:
+def validated(name: str) -> Callable[[type[T]], type[T]]:
     """Make ``cls`` a frozen, validated dataclass; ``name`` prefixes the field in its errors from Python.
 
     Unknown keys are rejected. From Python a bad value is a one-line
@@ -414,6 +414,6 @@ __all__ = [
     "label_from",
     "quote",
     "rule",
-    "settings",
+    "validated",
     "shorten",
 ]
