@@ -19,10 +19,10 @@ import numpy as np
 
 from gantry_twin.contours import TimingLaw, paper_ellipse
 from gantry_twin.controllers import create
-from gantry_twin.excite import design, random_plant, run_on_twin
-from gantry_twin.identify import identify
-from gantry_twin.logs import Log
 from gantry_twin.simulate import simulate
+from gantry_twin.sysid.identify import identify
+from gantry_twin.sysid.logs import Log
+from gantry_twin.sysid.trajectory import design, random_plant, run_on_twin
 
 TARGETS = {"excitation 20 s": (1.0, 3.0), "ellipse 30 s": (2.0, 5.0)}
 

@@ -20,11 +20,11 @@ from pathlib import Path
 
 import numpy as np
 
-from gantry_twin.excite import design, random_lugre_plant, run_on_twin, with_plateaus
-from gantry_twin.identify import identify, plant_xml
-from gantry_twin.identify_lugre import identify_lugre
-from gantry_twin.logs import Log
 from gantry_twin.plant import Plant
+from gantry_twin.sysid.identify import identify, plant_xml
+from gantry_twin.sysid.logs import Log
+from gantry_twin.sysid.lugre import identify_lugre
+from gantry_twin.sysid.trajectory import design, random_lugre_plant, run_on_twin, with_plateaus
 
 #: Issue 17's targets, relative: Fc, sigma2, Fs 10 %, vs and sigma0 30 %, the circle's rms contour error 15 %.
 TARGETS = {"fc_n": 0.10, "fs_n": 0.10, "sigma2_ns_m": 0.10, "vs_m_s": 0.30, "sigma0_n_m": 0.30, "sigma1_ns_m": None}

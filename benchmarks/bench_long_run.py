@@ -45,11 +45,10 @@ def main() -> None:
 
     import pyarrow.parquet as pq
 
-    from gantry_twin.cli import _scenario_path
     from gantry_twin.run import trace_size
-    from gantry_twin.scenario import build, load_scenario
+    from gantry_twin.scenario import build, load_scenario, resolve_scenario
 
-    built = build(load_scenario(_scenario_path(args.scenario), [f"duration_s={args.duration:g}"]))
+    built = build(load_scenario(resolve_scenario(args.scenario), [f"duration_s={args.duration:g}"]))
     size = trace_size(built)
     with tempfile.TemporaryDirectory() as folder:
         out = args.keep or Path(folder) / "run"

@@ -3,7 +3,7 @@
     PYTHONPATH=src python benchmarks/bench_report.py [--processes 2] [--duration 30] [--cold]
 
 The runs of the paper's Tables 1-4, as ``gantry-twin report`` runs them
-(:func:`gantry_twin.report.paper_matrix`: the shipped scenarios, C1 DARC,
+(:func:`gantry_twin.reports.paper.paper_matrix`: the shipped scenarios, C1 DARC,
 C2 DIARC, C3 DRC on the circle and the ellipse for Sets 1-3, C3 not on Set 3;
 16 runs, contour metrics over the scenarios' windows, the report's: each row
 prints its window). ``--duration`` other
@@ -27,7 +27,7 @@ from dataclasses import astuple
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:  # the workers import the package inside run(), where it is timed
-    from gantry_twin.report import Case
+    from gantry_twin.reports.paper import Case
 
 #: The paper's own columns (the report adds C2r, DIARC with the recommended estimator).
 PAPER_LABELS = ("C1", "C2", "C3")
@@ -36,7 +36,7 @@ PAPER_LABELS = ("C1", "C2", "C3")
 def run(fields: tuple) -> dict:
     """Run one case of the report's matrix (its fields: a Case would import the package when unpickled)."""
     t0 = time.perf_counter()
-    from gantry_twin.report import Case, run_case
+    from gantry_twin.reports.paper import Case, run_case
 
     t1 = time.perf_counter()
     case = Case(*fields)
@@ -66,7 +66,7 @@ def main() -> None:
     parser.add_argument("--duration", type=float, default=30.0, help="simulated seconds per run")
     parser.add_argument("--cold", action="store_true", help="start from an empty numba cache (includes compiling)")
     args = parser.parse_args()
-    from gantry_twin.report import paper_matrix
+    from gantry_twin.reports.paper import paper_matrix
 
     cases = paper_matrix([f"duration_s={args.duration:g}"], labels=PAPER_LABELS)
     with tempfile.TemporaryDirectory() as cache:

@@ -1,4 +1,4 @@
-"""Time to draw a run's figures (plots/*.png, gantry_twin.runplots) beside the time of the run itself (issue 13).
+"""Time to draw a run's figures (plots/*.png, gantry_twin.outputs.plots) beside the time of the run itself (issue 13).
 
     PYTHONPATH=src python benchmarks/bench_runplots.py [--scenario no_load_circle] [--duration 30] [--repeat 3]
 
@@ -38,7 +38,7 @@ def main() -> None:
             outcome = writer.run()
         run_s = time.perf_counter() - started
         summary = json.loads((out / "summary.json").read_text())
-        from gantry_twin.runplots import write_plots
+        from gantry_twin.outputs.plots import write_plots
 
         draws, cpu = [], []
         for _ in range(args.repeat):

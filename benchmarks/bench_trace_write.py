@@ -3,7 +3,7 @@
     PYTHONPATH=src python benchmarks/bench_trace_write.py [--duration 30] [--scenario no_load_circle] [--repeats 5]
 
 Simulates one run in memory (DIARC on the scenario, full 5 kHz), builds its table as
-:func:`gantry_twin.results.trace_table` does (float64 time and positions, float32 the rest) and as
+:func:`gantry_twin.outputs.tracefile.trace_table` does (float64 time and positions, float32 the rest) and as
 before issue 13 (every column float64), then writes it once per choice below into a temporary
 file, one row group per 10 s of the run as ``gantry-twin run`` writes it, and prints the file's
 size and the best of ``--repeats`` write times (``pq.write_table`` on the ready table; building
@@ -24,8 +24,9 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from gantry_twin import results
-from gantry_twin.results import PARQUET_OPTIONS, TRACE_PARQUET_OPTIONS, trace_table
+from gantry_twin.outputs import tracefile as results
+from gantry_twin.outputs.files import PARQUET_OPTIONS
+from gantry_twin.outputs.tracefile import TRACE_PARQUET_OPTIONS, trace_table
 
 BSS = {"column_encoding": "BYTE_STREAM_SPLIT"}
 #: (label, all float64?, writer options); the first is the writer before issue 13, the shipped one is marked.
@@ -65,11 +66,10 @@ def rounded(table: pa.Table, bits: int) -> pa.Table:
 
 
 def simulated_trace(scenario: str, duration_s: float):
-    from gantry_twin.cli import _scenario_path
     from gantry_twin.run import execute
-    from gantry_twin.scenario import build, load_scenario
+    from gantry_twin.scenario import build, load_scenario, resolve_scenario
 
-    return execute(build(load_scenario(_scenario_path(scenario), [f"duration_s={duration_s:g}"])))
+    return execute(build(load_scenario(resolve_scenario(scenario), [f"duration_s={duration_s:g}"])))
 
 
 def write_once(table: pa.Table, path: Path, rows_per_group: int, options: dict[str, Any]) -> float:

@@ -20,7 +20,7 @@ the plant's fields to ``SET`` (e.g. a friction model) and write again.
 ``--estimator NAME`` maps that estimator alone (half the points);
 ``--keep-runs`` keeps each point's run, whose summary.json holds what its
 trustworthy verdicts were judged from, so that ``map --rejudge`` judges
-them again with this checkout's criterion (gantry_twin.confidence.judge)
+them again with this checkout's criterion (gantry_twin.health.confidence.judge)
 without running anything.
 
 ``map`` prints, per estimator, the largest |error| of M, B, Af over the
@@ -121,8 +121,8 @@ def write_sweep(
 def rejudge(row: dict, runs: Path) -> None:
     """Judge the row's estimates again with this checkout's criterion, from the kept run's summary.json
     (its ``confidence`` statistics: no simulation)."""
-    from gantry_twin.confidence import judge
-    from gantry_twin.monitor import ExcitationSettings
+    from gantry_twin.health.confidence import judge
+    from gantry_twin.health.monitor import ExcitationSettings
     from gantry_twin.plant import THETA_NAMES
 
     summary = json.loads((runs / row["key"] / "summary.json").read_text())

@@ -36,9 +36,9 @@ for _constant in (MASS_NO_LOAD_KG, DAMPING_N_S_PER_M, FRICTION_N, THETA_MIN, THE
     _constant.flags.writeable = False  # shared by every test: no test may change them
 
 
-#: float32's relative rounding, 2**-24 (half an ulp). trace.parquet stores every column but time and the positions
-#: as float32 (gantry_twin.results.FLOAT64_COLUMNS): a figure computed from those columns is within this (twice it,
-#: leaving room for the float64 arithmetic on top) of the figure computed in memory.
+#: float32's relative rounding, 2**-24 (half an ulp). trace.parquet stores every column but time and the
+#: positions as float32 (gantry_twin.outputs.tracefile.FLOAT64_COLUMNS): a figure computed from those columns is
+#: within this (twice it, leaving room for the float64 arithmetic on top) of the figure computed in memory.
 FLOAT32_REL = 2.0**-24
 
 
@@ -127,8 +127,8 @@ def run(
 
 
 def run_main(argv: list[str], capsys) -> tuple[int, str, str]:  # noqa: ANN001
-    """The command line through ``gantry_twin.cli.main``: (exit code, stdout, stderr)."""
-    from gantry_twin import cli
+    """The command line through ``gantry_twin.cli.app``: (exit code, stdout, stderr)."""
+    from gantry_twin.cli import app as cli
 
     code = cli.main(argv)
     captured = capsys.readouterr()

@@ -9,7 +9,8 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from gantry_twin import cli, results
+from gantry_twin.cli import app as cli
+from gantry_twin.outputs import files as results
 from gantry_twin.plant import THETA_NAMES
 from gantry_twin.run import execute
 from gantry_twin.scenario import shipped

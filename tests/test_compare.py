@@ -13,7 +13,7 @@ import shutil
 import pytest
 
 from gantry_twin import run as run_module
-from gantry_twin.runplots import FIGURES
+from gantry_twin.outputs.plots import FIGURES
 from gantry_twin.trace import SimulationError
 
 from .helpers import run_main
@@ -58,7 +58,7 @@ def run_main_plain(argv):
     import contextlib
     import io
 
-    from gantry_twin import cli
+    from gantry_twin.cli import app as cli
 
     out, err = io.StringIO(), io.StringIO()
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):

@@ -1,13 +1,13 @@
-"""summary.json's trustworthy verdicts (gantry_twin.confidence, issue 16): what they are judged from."""
+"""summary.json's trustworthy verdicts (gantry_twin.health.confidence, issue 16): what they are judged from."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from gantry_twin.confidence import judge
-from gantry_twin.excitation import FilteredRegressors, estimate_bias, normalised_excitation
-from gantry_twin.monitor import ExcitationSettings
+from gantry_twin.health.confidence import judge
+from gantry_twin.health.excitation import FilteredRegressors, estimate_bias, normalised_excitation
+from gantry_twin.health.monitor import ExcitationSettings
 from gantry_twin.plant import THETA_NAMES
 from gantry_twin.run import execute, summarise
 from gantry_twin.scenario import build, load_scenario, shipped

@@ -193,7 +193,7 @@ def cli_args(command, controller, out, *extra):
 
 @pytest.mark.parametrize("command", ["run", "monitor"])
 def test_cli_reports_an_end_stop_and_strict_makes_it_an_error(tmp_path, capsys, plugin, command):
-    from gantry_twin.cli import EXIT_END_STOP, EXIT_OK
+    from gantry_twin.cli.app import EXIT_END_STOP, EXIT_OK
 
     plugin("push_x", lambda: Schedule([(0.0, (DAC_LIMIT_V, 0.0))]))
     code, _, err = run_main(cli_args(command, "push_x", tmp_path / "a"), capsys)

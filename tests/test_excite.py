@@ -7,7 +7,8 @@ import pyarrow.csv as pacsv
 import pytest
 
 from gantry_twin.cli import main
-from gantry_twin.excite import (
+from gantry_twin.sysid.logs import read_log
+from gantry_twin.sysid.trajectory import (
     COMMAND_BUDGET_V,
     PLATEAU_COUNT,
     PLATEAU_HOLD_S,
@@ -18,7 +19,6 @@ from gantry_twin.excite import (
     design,
     with_plateaus,
 )
-from gantry_twin.logs import read_log
 
 
 @pytest.mark.parametrize("duration_s, plateaus", [(8.0, False), (20.0, False), (20.0, True)])

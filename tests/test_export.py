@@ -1,4 +1,4 @@
-"""gantry-twin export RUN --csv (gantry_twin.export): the trace as CSV, positions bit for bit."""
+"""gantry-twin export RUN --csv (gantry_twin.outputs.export): the trace as CSV, positions bit for bit."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from gantry_twin import export
-from gantry_twin.results import FLOAT64_COLUMNS
+from gantry_twin.outputs import export
+from gantry_twin.outputs.tracefile import FLOAT64_COLUMNS
 
 from .helpers import run_main
 
@@ -19,7 +19,7 @@ SHORT = ["--set", "duration_s=0.2", "--set", "window_s=[0.05, 0.2]", "--set", "e
 @pytest.fixture(scope="module")
 def run_dir(tmp_path_factory):
     """A 0.2 s DIARC run's directory (its trace: 1000 rows)."""
-    from gantry_twin import cli
+    from gantry_twin.cli import app as cli
 
     out = tmp_path_factory.mktemp("export") / "run"
     assert cli.main(["run", "no_load_circle", *SHORT, "--out", str(out), "--no-progress"]) == 0

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from gantry_twin.cli import main
-from gantry_twin.excite import design, log_of, random_lugre_plant, run_on_twin, with_plateaus
-from gantry_twin.identify_lugre import LuGreSettings, fit_steady, steady_samples
-from gantry_twin.logs import Log, write_log
 from gantry_twin.scenario import build, load_scenario
+from gantry_twin.sysid.logs import Log, write_log
+from gantry_twin.sysid.lugre import LuGreSettings, fit_steady, steady_samples
+from gantry_twin.sysid.trajectory import design, log_of, random_lugre_plant, run_on_twin, with_plateaus
 
 
 def test_steady_fit_recovers_a_stribeck_curve():

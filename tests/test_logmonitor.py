@@ -8,11 +8,12 @@ import numpy as np
 import pytest
 
 from gantry_twin.cli import main
-from gantry_twin.logmonitor import estimates
-from gantry_twin.logs import read_log, write_log
-from gantry_twin.results import trace_table, write_parquet
+from gantry_twin.health.log_monitor import estimates
+from gantry_twin.outputs.files import write_parquet
+from gantry_twin.outputs.tracefile import trace_table
 from gantry_twin.run import execute
 from gantry_twin.scenario import build, load_scenario, shipped
+from gantry_twin.sysid.logs import read_log, write_log
 
 
 def _built(name: str, *overrides: str):

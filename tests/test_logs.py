@@ -11,7 +11,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from gantry_twin.cli import main
-from gantry_twin.logs import LogError, read_log, write_log
+from gantry_twin.sysid.logs import LogError, read_log, write_log
 
 # Typed by hand, as a user would: a comment line, spaces after commas, an extra column, a CRLF line end,
 # a blank line at the end, numbers written several ways.
@@ -37,7 +37,7 @@ def test_hand_written_csv_is_read_exactly(tmp_path):
 
 
 def _twin_trace_table(n: int = 50) -> pa.Table:
-    """A table with the columns of the twin's trace.parquet (results.trace_table), true and encoder positions."""
+    """A table with the columns of the twin's trace.parquet (tracefile.trace_table), true and encoder positions."""
     rng = np.random.default_rng(0)
     t = np.arange(n) * 2e-4
     q = np.cumsum(rng.normal(0.0, 1e-5, (n, 2)), axis=0)

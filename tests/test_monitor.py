@@ -1,4 +1,4 @@
-"""The excitation and health monitors (gantry_twin.monitor) on synthetic and short real traces."""
+"""The excitation and health monitors (gantry_twin.health.monitor) on synthetic and short real traces."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ import pytest
 
 from gantry_twin import Plant, SensingConfig, TimingLaw, circle, simulate
 from gantry_twin.controllers import create
-from gantry_twin.excitation import FilteredRegressors
-from gantry_twin.monitor import (
+from gantry_twin.health.excitation import FilteredRegressors
+from gantry_twin.health.monitor import (
     ALARM,
     NOT_EXCITED,
     UNTRUSTWORTHY,

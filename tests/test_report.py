@@ -1,4 +1,4 @@
-"""The paper-reproduction report (gantry_twin.report): the matrix, its numbers against independent runs, findings."""
+"""The paper-reproduction report (gantry_twin.reports.paper): the matrix, its numbers, its findings."""
 
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from gantry_twin import report
 from gantry_twin.plant import THETA_NAMES
+from gantry_twin.reports import paper as report
 
 from .helpers import FLOAT32_REL, deviation_pct, run_main, spec_theta, trace_column
 

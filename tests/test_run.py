@@ -14,12 +14,13 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from gantry_twin import cli
 from gantry_twin import run as run_module
+from gantry_twin.cli import app as cli
 from gantry_twin.controllers import PD, register, unregister
 from gantry_twin.controllers.base import CompiledStep
 from gantry_twin.controllers.pd import PDParams, pd_command
-from gantry_twin.results import summary_json, trace_table
+from gantry_twin.outputs.summary import summary_json
+from gantry_twin.outputs.tracefile import trace_table
 from gantry_twin.run import RunWriter, execute, run_and_write, trace_size
 from gantry_twin.scenario import build, load_scenario, shipped
 from gantry_twin.simulate import compiled_available

@@ -1,12 +1,12 @@
-"""Run directories that never overwrite and the ``latest`` pointer (gantry_twin.rundirs)."""
+"""Run directories that never overwrite and the ``latest`` pointer (gantry_twin.outputs.rundirs)."""
 
 from __future__ import annotations
 
 import os
 import re
 
-from gantry_twin import rundirs
-from gantry_twin.rundirs import LATEST, new_run_dir, point_latest, resolve_run
+from gantry_twin.outputs import rundirs
+from gantry_twin.outputs.rundirs import LATEST, new_run_dir, point_latest, resolve_run
 
 
 def test_run_dir_names_sort_by_time_and_differ_within_a_second(tmp_path):

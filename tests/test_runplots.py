@@ -1,4 +1,4 @@
-"""The figures drawn with every run (gantry_twin.runplots): what they read from the trace, and that a figure
+"""The figures drawn with every run (gantry_twin.outputs.plots): what they read from the trace, and that a figure
 never costs the run."""
 
 from __future__ import annotations
@@ -9,8 +9,8 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from gantry_twin import runplots
-from gantry_twin.runplots import FIGURES, envelope, magnification, read_series
+from gantry_twin.outputs import plots as runplots
+from gantry_twin.outputs.plots import FIGURES, envelope, magnification, read_series
 
 from .helpers import run_main
 
@@ -20,7 +20,7 @@ SHORT = ["--set", "duration_s=1", "--set", "window_s=[0.2, 1]", "--set", "estima
 @pytest.fixture(scope="module")
 def strided_run(tmp_path_factory):
     """A 1 s DIARC run on the ellipse keeping one sample in 7 (figures read the rows the trace has)."""
-    from gantry_twin import cli
+    from gantry_twin.cli import app as cli
 
     out = tmp_path_factory.mktemp("plots") / "run"
     code = cli.main(["run", "no_load_ellipse", *SHORT, "--set", "outputs.trace_stride=7", "--out", str(out)])

@@ -268,7 +268,7 @@ def test_a_name_taken_from_the_file_name_is_made_a_label(tmp_path, file_name, na
 
 def test_default_output_directories_stay_under_runs(tmp_path, monkeypatch):
     """A run whose scenario says ``outputs.dir`` writes into runs/<dir>/ of the working directory and nowhere else."""
-    from gantry_twin import cli
+    from gantry_twin.cli import app as cli
 
     monkeypatch.chdir(tmp_path)
     path = write(tmp_path, "name: n\noutputs: {dir: here, trace: false}\nduration_s: 0.01\nwindow_s: [0, 0.01]\n")

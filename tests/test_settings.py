@@ -12,7 +12,7 @@ import pytest
 from gantry_twin.controllers import DARC, DIARC, DRC, PD, ArcGains, EstimatorSettings, register, unregister
 from gantry_twin.estimation import LeastSquaresSettings
 from gantry_twin.faults import CoggingRipple, EncoderGlitch, FrictionDrift, PayloadChange, VelocityNoise
-from gantry_twin.monitor import ExcitationSettings, HealthSettings
+from gantry_twin.health.monitor import ExcitationSettings, HealthSettings
 from gantry_twin.plant import Payload
 from gantry_twin.scenario import ScenarioError, validate_data
 from gantry_twin.scenario.schema import typed_options

@@ -9,7 +9,7 @@ import signal
 
 import pytest
 
-from gantry_twin.results import Interrupted, SwallowedInterrupt, stop_signals_interrupt
+from gantry_twin.outputs.signals import Interrupted, SwallowedInterrupt, stop_signals_interrupt
 
 
 def _callback_that_raises(signum: int):

@@ -23,7 +23,7 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from gantry_twin import cli
+from gantry_twin.cli import app as cli
 from gantry_twin.metrics import axial_rms_um, max_abs_command_v
 from gantry_twin.sweep import load_sweep, plan_sweep
 from gantry_twin.sweep.points import override

@@ -339,7 +339,7 @@ def test_plan_errors_are_scenario_errors_naming_the_sweep_file(tmp_path):
 
 
 def test_sweep_takes_the_progress_flags(monkeypatch):
-    from gantry_twin import cli
+    from gantry_twin.cli import app as cli
 
     parser = cli.build_parser()
     assert parser.parse_args(["sweep", "s.yaml", "--no-progress"]).progress is False

@@ -286,7 +286,7 @@ def test_viewer_without_display_says_so_in_one_line(monkeypatch, capsys, tmp_pat
     with pytest.raises(TelemetryError) as error:
         telemetry_observers(namespace(viewer=True))
     assert "\n" not in str(error.value) and "--serve-web" in str(error.value) and "display" in str(error.value)
-    from gantry_twin import cli
+    from gantry_twin.cli import app as cli
 
     out = tmp_path / "out"
     assert cli.main(["run", "no_load_circle", *SHORT_RUN, "--viewer", "--out", str(out), "--no-progress"]) == 2
@@ -334,7 +334,7 @@ def test_connect_streams_every_sample_to_a_running_rerun_server(tmp_path):
     """--connect end to end: `rerun --save` listens on a port; what it receives equals the run's trace."""
     import pyarrow.parquet as pq
 
-    from gantry_twin import cli
+    from gantry_twin.cli import app as cli
     from gantry_twin.telemetry import free_port, local_grpc_url, rerun_binary, wait_for_port
 
     port, received = free_port(), tmp_path / "received.rrd"
@@ -371,7 +371,7 @@ def test_health_alarms_are_events_on_the_timeline(tmp_path):
     """A monitored run records each alarm as a text event at its time, and the excitation per axis."""
     import json
 
-    from gantry_twin import cli
+    from gantry_twin.cli import app as cli
 
     rrd = tmp_path / "pickup.rrd"
     out = tmp_path / "out"

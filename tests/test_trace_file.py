@@ -1,4 +1,4 @@
-"""trace.parquet's storage (gantry_twin.results): float64 time and positions, float32 the rest, zstd.
+"""trace.parquet's storage (gantry_twin.outputs.tracefile): float64 time and positions, float32 the rest, zstd.
 
 The figures a user computes from the written trace (contour error rms/max, mean estimates, axial
 errors from the positions) against the same figures computed from the run in memory.
@@ -11,8 +11,8 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
+from gantry_twin.outputs.tracefile import FLOAT64_COLUMNS, TRACE_COLUMNS
 from gantry_twin.plant import THETA_NAMES
-from gantry_twin.results import FLOAT64_COLUMNS, TRACE_COLUMNS
 from gantry_twin.run import execute, write_run
 from gantry_twin.scenario import build, load_scenario, shipped
 

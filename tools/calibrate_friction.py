@@ -24,7 +24,7 @@ on both axes (Y phase 1 rad).
 Each point is judged on the six numbers of circle Set 1 (C1 DARC, C2 DIARC
 with the paper's estimator, C3 DRC: rms and max of eps_c over [T, 2T], um) by
 the mean squared log ratio twin / paper. The runs are the report's cases
-(gantry_twin.report) on the sweep engine's Dask cluster, shortened to 6.5 s
+(gantry_twin.reports.paper) on the sweep engine's Dask cluster, shortened to 6.5 s
 (the window ends at 2 pi s; the loop is causal, so the numbers are those of
 the 30 s runs). Every other cell of Tables 1-2 is validation and is never run
 here.
@@ -52,7 +52,7 @@ import numpy as np
 from scipy.optimize import minimize
 
 from gantry_twin.plant import Plant
-from gantry_twin.report import PAPER_CONTOUR_UM, Case, _load, _warm_run_case, paper_matrix
+from gantry_twin.reports.paper import PAPER_CONTOUR_UM, Case, _load, _warm_run_case, paper_matrix
 from gantry_twin.sweep.engine import open_client, prepare_workers, run_tasks
 
 LABELS = ("C1", "C2", "C3")

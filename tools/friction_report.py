@@ -4,7 +4,7 @@
 
 FIT_JSON: the ``fit.json`` of tools/calibrate_friction.py (its ``overrides``
 make the rig plant). The table, the acceptance checks and the reversal-spike
-figure are ``gantry-twin report --rig FIT_JSON``'s (gantry_twin.rig_report);
+figure are ``gantry-twin report --rig FIT_JSON``'s (gantry_twin.reports.rig);
 this script writes them alone into ``friction.md`` (without the paper report)
 and adds the health monitor on the four no-load / 5 kg paper scenarios over
 ``--monitor-s`` seconds with the rig plant.
@@ -15,8 +15,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from gantry_twin import rig_report
-from gantry_twin.report import paper_matrix, run_matrix
+from gantry_twin.reports import rig as rig_report
+from gantry_twin.reports.paper import paper_matrix, run_matrix
 
 
 def main() -> None:

@@ -143,8 +143,9 @@ class RunMetrics:
         periods_s: tuple[float, float] | None = None,
         confidence: Any = None,
     ) -> None:
-        """confidence: an Observer with ``verdicts(estimate)`` (:class:`gantry_twin.confidence.EstimateConfidence`) fed
-        the same chunks, or None (no trustworthiness in the summary)."""
+        """confidence: an Observer with ``verdicts(estimate)``
+        (:class:`gantry_twin.health.confidence.EstimateConfidence`) fed the same chunks, or None (no
+        trustworthiness in the summary)."""
         self.contour_window_s, self.estimate_window_s = contour_window_s, estimate_window_s
         self.run_window_s, self.periods_s = run_window_s, periods_s
         self.confidence = confidence

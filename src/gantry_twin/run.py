@@ -6,7 +6,7 @@ the directory can be written before anything runs, writes the trace as the
 run goes (a hidden temporary file), and at the end deletes the old
 summary.json, puts the new files in place, removes the files of an earlier
 run that this run does not write, and writes summary.json last (the figures,
-``plots/``, before it, when asked for: :mod:`gantry_twin.runplots`). An
+``plots/``, before it, when asked for: :mod:`gantry_twin.outputs.plots`). An
 interrupted run removes its temporary files (and a directory it made and
 left empty); a run stopped by a fault (:class:`SimulationError`) is written
 with the trace up to the fault and ``status: failed``.
@@ -24,21 +24,11 @@ from typing import Any, NamedTuple
 from gantry_twin.controllers.base import compiled_step_of
 from gantry_twin.events import TravelWatch
 from gantry_twin.metrics import RunMetrics
+from gantry_twin.outputs.files import atomic_write_text, discard, remove_tree, temporary_file
+from gantry_twin.outputs.signals import SwallowedInterrupt, signals_held
+from gantry_twin.outputs.summary import Failure, run_summary, summary_json
+from gantry_twin.outputs.tracefile import TRACE_COLUMNS, TraceWriter, stored_row_bytes
 from gantry_twin.plant import THETA_NAMES
-from gantry_twin.results import (
-    TRACE_COLUMNS,
-    Failure,
-    SwallowedInterrupt,
-    TraceWriter,
-    atomic_write_text,
-    discard,
-    remove_tree,
-    run_summary,
-    signals_held,
-    stored_row_bytes,
-    summary_json,
-    temporary_file,
-)
 from gantry_twin.scenario import BuiltRun, dump_yaml
 from gantry_twin.scenario.building import estimate_confidence
 from gantry_twin.simulate import sample_count, simulate
@@ -50,7 +40,7 @@ SCENARIO_FILE = "scenario.yaml"
 TRACE_FILE = "trace.parquet"
 RUN_INFO_FILE = "run_info.json"
 RUN_FILES = (SUMMARY_FILE, SCENARIO_FILE, TRACE_FILE, RUN_INFO_FILE)
-#: The directory of a run's figures (:mod:`gantry_twin.runplots`), written before summary.json when asked for.
+#: The directory of a run's figures (:mod:`gantry_twin.outputs.plots`), written before summary.json when asked for.
 PLOTS_DIR = "plots"
 
 #: How much of a run :func:`run_and_write` holds in memory, s: the trace goes to disk a piece (row group) at a time.
@@ -90,7 +80,7 @@ def _simulate(built: BuiltRun, observers: Sequence[Observer], hold_s: float | No
 class TraceSize(NamedTuple):
     """How large a run's trace.parquet can be: the run's samples, outputs.trace_stride, columns (at least:
     a Python controller's log is known only once it runs), bytes per row before compression
-    (:func:`gantry_twin.results.stored_row_bytes`); compression only makes the file smaller."""
+    (:func:`gantry_twin.outputs.tracefile.stored_row_bytes`); compression only makes the file smaller."""
 
     samples: int
     stride: int
@@ -238,9 +228,9 @@ class RunWriter:
         return RunOutcome(data, wall_time_s, tuple(f"{f}/" if f == PLOTS_DIR else f for f in files))
 
     def _plot(self, data: dict[str, Any], traced: bool) -> bool:
-        """Draw the run's figures into plots/ (:func:`gantry_twin.runplots.write_plots`); False, with
+        """Draw the run's figures into plots/ (:func:`gantry_twin.outputs.plots.write_plots`); False, with
         :attr:`plots_skipped` saying why, when there is no trace or the drawing raised (the run is kept)."""
-        from gantry_twin.runplots import write_plots
+        from gantry_twin.outputs.plots import write_plots
 
         if not traced:
             self.plots_skipped = "no trace.parquet to draw from (outputs.trace: false)"

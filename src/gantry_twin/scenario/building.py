@@ -15,13 +15,13 @@ from pathlib import Path
 
 import numpy as np
 
-from gantry_twin.confidence import EstimateConfidence
 from gantry_twin.contours import Ellipse, TimingLaw
 from gantry_twin.controllers import Controller, EstimatorSettings, create
 from gantry_twin.estimation import FRICTION_SLOPE_S_M
 from gantry_twin.faults import PlantChanges
 from gantry_twin.friction import FrictionError
-from gantry_twin.monitor import Baseline, ExcitationSettings, HealthSettings, MachineMonitor
+from gantry_twin.health.confidence import EstimateConfidence
+from gantry_twin.health.monitor import Baseline, ExcitationSettings, HealthSettings, MachineMonitor
 from gantry_twin.plant import AXES, Plant
 from gantry_twin.scenario.errors import ScenarioError
 from gantry_twin.scenario.loading import InputFileError, controller_options, read_input_file

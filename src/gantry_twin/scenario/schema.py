@@ -25,7 +25,7 @@ from gantry_twin.contours import Ellipse, TimingLaw
 from gantry_twin.controllers import available
 from gantry_twin.estimation import FilterHz
 from gantry_twin.faults import PlantChanges
-from gantry_twin.monitor import (
+from gantry_twin.health.monitor import (
     DecisionIntervalS,
     ExcitationSettings,
     ExcitationWindowS,
@@ -219,7 +219,7 @@ _EXCITATION = ExcitationSettings()
 
 
 class MonitorSpec(_Model):
-    """The excitation and health monitor (gantry_twin.monitor, docs/health.md).
+    """The excitation and health monitor (gantry_twin.health.monitor, docs/health.md).
 
     Its fields are those of :class:`ExcitationSettings` and
     :class:`HealthSettings` (same types and defaults), except the tolerance,

@@ -6,7 +6,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from gantry_twin.results import stop_signals_interrupt
+from gantry_twin.outputs.signals import stop_signals_interrupt
 from gantry_twin.sweep.engine import open_client, prepare_workers, run_tasks
 from gantry_twin.sweep.plots import write_figures, write_summary
 from gantry_twin.sweep.points import STATUS_OK, Plan, failed_row, run_point
@@ -96,7 +96,7 @@ def run_sweep(
 
 
 def _write_run_files(directory: Path, files: dict[str, bytes]) -> None:
-    from gantry_twin.results import atomic_write
+    from gantry_twin.outputs.files import atomic_write
     from gantry_twin.run import SUMMARY_FILE
 
     # summary.json last: present means the run's other files are complete (as gantry-twin run writes them).

@@ -19,7 +19,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from gantry_twin.results import atomic_write, atomic_write_text
+from gantry_twin.outputs.files import atomic_write, atomic_write_text
 from gantry_twin.sweep.points import STATUS_OK, Plan
 
 SUMMARY_FILE = "summary.md"

@@ -9,7 +9,7 @@ run --set ...`` loads it (the file read once, then, as
 before anything runs; the workers get
 the *resolved* scenario (plain data, never MuJoCo objects), validate and
 build it again, run it with :func:`gantry_twin.run.execute` and summarise
-it with :func:`gantry_twin.results.summary`, the code ``gantry-twin run``
+it with :func:`gantry_twin.run.summarise`, the code ``gantry-twin run``
 uses: a row's contour rms equals that run's to the last bit.
 
 Each point is keyed by a hash of its resolved scenario and the package
@@ -174,7 +174,7 @@ def metrics_row(data: dict[str, Any], axial_um: Any, max_abs_u_v: Any) -> dict[s
             e["true"],
             e["error_pct"],
         )
-        row[f"trustworthy_{name}"] = e.get("trustworthy")  # DIARC only (gantry_twin.confidence)
+        row[f"trustworthy_{name}"] = e.get("trustworthy")  # DIARC only (gantry_twin.health.confidence)
     row["alarms"] = len(data["health"]["alarms"]) if "health" in data else None
     return row
 

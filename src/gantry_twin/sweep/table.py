@@ -6,7 +6,7 @@ random draw), ``seed`` (the repeat's seed), one column per swept field named
 by its field path (``payload.mass_kg``), the kept metrics, ``wall_time_s``
 (of the run itself), ``status`` (``ok``/``failed``), ``error`` and
 ``finished_utc``. Every write replaces the whole file through a temporary
-file and a rename (:func:`gantry_twin.results.write_parquet`), so the file
+file and a rename (:func:`gantry_twin.outputs.files.write_parquet`), so the file
 on disk is always a valid table of the points finished so far: a killed
 sweep loses only the points in flight.
 """
@@ -23,7 +23,7 @@ from typing import Any
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from gantry_twin.results import write_parquet
+from gantry_twin.outputs.files import write_parquet
 from gantry_twin.scenario import ScenarioError
 from gantry_twin.sweep.points import STATUS_OK, Plan, Point
 

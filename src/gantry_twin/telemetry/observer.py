@@ -174,7 +174,7 @@ class RerunObserver:
         self.estimate_rate_hz = float(estimate_rate_hz)
         self._run: RunInfo | None = None
 
-    def watch(self, monitor) -> None:  # noqa: ANN001 (a gantry_twin.monitor.MachineMonitor)
+    def watch(self, monitor) -> None:  # noqa: ANN001 (a gantry_twin.health.monitor.MachineMonitor)
         """Also log a health monitor's alarms (text events on the timeline, entity
         ``health/alarms``) and its excitation level per axis (``health/excitation_V``).
         The monitor must come before this observer in simulate's list."""

@@ -7,7 +7,7 @@ each row naming its window: the contour error over the paper's window and
 over the whole run after the first period, axial errors, commands and
 saturation, rms per period, estimates against the true values, health
 alarms, end-stop contacts. The overlay figures (``plots/``, drawn by
-:mod:`gantry_twin.runplots` from each run's trace.parquet) are those of a run
+:mod:`gantry_twin.outputs.plots` from each run's trace.parquet) are those of a run
 with one line per run. A run written by an older gantry-twin lacks some
 figures: its cells say ``missing`` and a note under the table names them.
 """
@@ -24,9 +24,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from gantry_twin.outputs.files import atomic_write_dir, atomic_write_text
+from gantry_twin.outputs.rundirs import new_run_dir, resolve_run
 from gantry_twin.plant import AXES, THETA_NAMES
-from gantry_twin.results import atomic_write_dir, atomic_write_text
-from gantry_twin.rundirs import new_run_dir, resolve_run
 
 #: Where compare writes without --out: RUNS_DIR/compare/<UTC time>-<id>/ (RUNS_DIR of the command line).
 DEFAULT_SUBDIR = "compare"
@@ -250,7 +250,7 @@ def _json(runs: Sequence[Run], rows: list[tuple[str, list[Any]]], notes: list[st
 
 def command(args: argparse.Namespace) -> int:
     """Run ``compare``: CompareError on bad input (the command line exits 2), 0 when written."""
-    from gantry_twin.runplots import draw, read_series
+    from gantry_twin.outputs.plots import draw, read_series
 
     if len(args.runs) < 2:
         raise CompareError(f"compare needs two runs or more, got one: {args.runs[0]}")

@@ -1,6 +1,6 @@
 """The paper's matrix with the rig's friction beside the Coulomb twin, cell by cell (issue 15, item 6).
 
-``gantry-twin report --rig FILE`` runs the report's matrix (:mod:`gantry_twin.report`)
+``gantry-twin report --rig FILE`` runs the report's matrix (:mod:`gantry_twin.reports.paper`)
 a second time with the rig plant, the scenario overrides of FILE (the
 ``overrides`` list of the ``fit.json`` that ``tools/calibrate_friction.py``
 writes), and adds to report.md a section with paper / twin with rig friction
@@ -27,9 +27,9 @@ import numpy as np
 
 from gantry_twin.contours import reference
 from gantry_twin.metrics import error_pct
+from gantry_twin.outputs.files import atomic_write, atomic_write_text
 from gantry_twin.plant import THETA_NAMES
-from gantry_twin.report import CONTOURS, CONTROLLERS, PAPER_CONTOUR_UM, SET_SCENARIOS, Case, CaseResult
-from gantry_twin.results import atomic_write, atomic_write_text
+from gantry_twin.reports.paper import CONTOURS, CONTROLLERS, PAPER_CONTOUR_UM, SET_SCENARIOS, Case, CaseResult
 from gantry_twin.run import execute
 from gantry_twin.scenario import BuiltRun, ScenarioError, build, load_scenario, shipped
 

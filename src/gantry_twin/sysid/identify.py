@@ -6,7 +6,7 @@ The model (control-spec section 1), per axis, in volts:
 
 Both sides pass through the estimator's filter Hf(s) = wn^2 / (s^2 + 2 z wn s
 + wn^2), discretised exactly as DIARC's estimator does it
-(:func:`gantry_twin.excitation.filter_axis`: the position with a first-order
+(:func:`gantry_twin.health.excitation.filter_axis`: the position with a first-order
 hold, u, the friction shape and the constant held), which gives the linear
 regression of eq. (25), one row per sample:
 
@@ -32,7 +32,7 @@ several times too narrow. They cover the noise of the data, not a model
 that does not fit (the fit report's residuals show that).
 
 The LuGre parameters (``--friction lugre``) build on this fit:
-:mod:`gantry_twin.identify_lugre`; the command: :mod:`gantry_twin.identify_command`.
+:mod:`gantry_twin.sysid.lugre`; the command: :mod:`gantry_twin.cli.identify`.
 """
 
 from __future__ import annotations
@@ -44,9 +44,9 @@ from pathlib import Path
 import numpy as np
 
 from gantry_twin.estimation import discretise_filter, friction_shape
-from gantry_twin.excitation import filter_axis, filter_steady_state
-from gantry_twin.logs import Log, centred_velocity
+from gantry_twin.health.excitation import filter_axis, filter_steady_state
 from gantry_twin.plant import AXES, THETA_NAMES, THETA_UNITS, build_spec, moving_masses_kg
+from gantry_twin.sysid.logs import Log, centred_velocity
 
 #: Columns of one axis' regression, in THETA_NAMES' per-axis order.
 COLUMNS = ("M", "B", "Af", "dN")

@@ -1,7 +1,7 @@
 """``gantry-twin identify LOG [LOG...] --out DIR [--friction coulomb|lugre]`` (issue 17, docs/logs.md).
 
-coulomb: M, B, Af, dN (:mod:`gantry_twin.identify`); lugre: those, then each
-axis' LuGre parameters (:mod:`gantry_twin.identify_lugre`). Writes
+coulomb: M, B, Af, dN (:mod:`gantry_twin.sysid.identify`); lugre: those, then each
+axis' LuGre parameters (:mod:`gantry_twin.sysid.lugre`). Writes
 DIR/identified.json, DIR/plant.xml (the masses, B and Af), DIR/plant.yaml
 (a scenario's ``plant`` section: the file and, for lugre, the friction),
 DIR/fit_report.md and its figures (the logged commands replayed through the
@@ -19,12 +19,12 @@ from pathlib import Path
 
 import yaml
 
-from gantry_twin.fit_report import WINDOW_S, Replay, replay, write_figures
-from gantry_twin.identify import Identified, IdentifySettings, identify, plant_xml
-from gantry_twin.identify_lugre import LuGreFit, identify_lugre
-from gantry_twin.logs import Log, read_log
+from gantry_twin.outputs.files import atomic_write_text
 from gantry_twin.plant import AXES, Plant
-from gantry_twin.results import atomic_write_text
+from gantry_twin.sysid.identify import Identified, IdentifySettings, identify, plant_xml
+from gantry_twin.sysid.logs import Log, read_log
+from gantry_twin.sysid.lugre import LuGreFit, identify_lugre
+from gantry_twin.sysid.replay import WINDOW_S, Replay, replay, write_figures
 
 IDENTIFIED_FILE = "identified.json"
 PLANT_FILE = "plant.xml"

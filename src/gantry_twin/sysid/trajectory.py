@@ -41,8 +41,8 @@ from pathlib import Path
 import numpy as np
 
 from gantry_twin.contours import TimingLaw
-from gantry_twin.logs import write_columns, write_log
 from gantry_twin.plant import Payload, Plant
+from gantry_twin.sysid.logs import write_columns, write_log
 
 #: Position limit of the trajectory, m: the 255 mm half travel less a margin for the tracking error.
 POSITION_LIMIT_M = 0.2

@@ -367,8 +367,8 @@ def draw(runs: Sequence[RunSeries], directory: Path) -> list[str]:
 
 def write_plots(run_dir: Path, plots_dir: Path, summary: dict[str, Any]) -> list[str]:
     """The figures of the run in ``run_dir`` (its trace.parquet, its summary ``summary``) into ``plots_dir``,
-    written as one directory (:func:`gantry_twin.results.atomic_write_dir`); the file names."""
-    from gantry_twin.results import atomic_write_dir
+    written as one directory (:func:`gantry_twin.outputs.files.atomic_write_dir`); the file names."""
+    from gantry_twin.outputs.files import atomic_write_dir
 
     series = read_series(run_dir, summary, run_label(summary))
     if series is None:

@@ -1,7 +1,7 @@
 """Whether each of DIARC's estimates in summary.json can be trusted for this run (issue 16).
 
 From what the controller measured and commanded, with the estimator's own
-filters, friction shape and reversal gate (:mod:`gantry_twin.excitation`),
+filters, friction shape and reversal gate (:mod:`gantry_twin.health.excitation`),
 over the run from its start to the end of the estimates window (the data
 the estimator has seen: a direction the estimates window does not excite,
 e.g. Af against dN on a contour whose axis does not reverse in it, keeps
@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from gantry_twin.excitation import (
+from gantry_twin.health.excitation import (
     AXIS_OF,
     COLUMN_OF,
     FilteredRegressors,
@@ -43,7 +43,7 @@ from gantry_twin.excitation import (
     normalised_excitation,
     quantisation_noise,
 )
-from gantry_twin.monitor import ExcitationSettings
+from gantry_twin.health.monitor import ExcitationSettings
 from gantry_twin.plant import AXES, THETA_NAMES
 from gantry_twin.trace import Trace
 

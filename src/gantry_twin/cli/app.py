@@ -27,20 +27,19 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, NoReturn
 
-from gantry_twin import excite as excite_command
-from gantry_twin import export, identify_command, rig_report
-from gantry_twin.compare import CompareError
-from gantry_twin.compare import add_arguments as add_compare_arguments
-from gantry_twin.compare import command as compare_command
+from gantry_twin.cli import identify as identify_command
+from gantry_twin.cli.printing import format_health, format_summary
 from gantry_twin.compiling import compile_notice
 from gantry_twin.controllers import available
 from gantry_twin.events import touched_end_stop, travel_warnings
-from gantry_twin.logs import LogError
-from gantry_twin.monitor import Alarm
-from gantry_twin.results import stop_signals_interrupt, whole_run_lines
+from gantry_twin.outputs import export
+from gantry_twin.outputs.rundirs import LATEST, new_run_dir, point_latest
+from gantry_twin.outputs.signals import stop_signals_interrupt
+from gantry_twin.reports import rig as rig_report
+from gantry_twin.reports.compare import CompareError
+from gantry_twin.reports.compare import add_arguments as add_compare_arguments
+from gantry_twin.reports.compare import command as compare_command
 from gantry_twin.run import LARGE_TRACE_BYTES, RunWriter, trace_size
-from gantry_twin.rundirs import LATEST, new_run_dir, point_latest
-from gantry_twin.runplots import run_label
 from gantry_twin.scenario import (
     Scenario,
     ScenarioError,
@@ -51,6 +50,8 @@ from gantry_twin.scenario import (
 )
 from gantry_twin.scenario import listing as scenario_listing
 from gantry_twin.settings import shorten
+from gantry_twin.sysid import trajectory as excite_command
+from gantry_twin.sysid.logs import LogError
 from gantry_twin.telemetry import TelemetryError, add_telemetry_arguments, telemetry_observers
 from gantry_twin.trace import RunInfo, Trace
 
@@ -308,7 +309,7 @@ def _validate(args: argparse.Namespace) -> int:
 
 
 def _out_dir(args: argparse.Namespace, scenario: Scenario) -> Path:
-    """--out, else a new run directory under runs/<name>/ (gantry_twin.rundirs)."""
+    """--out, else a new run directory under runs/<name>/ (gantry_twin.outputs.rundirs)."""
     if args.out is not None:
         return _checked_out(args.out)
     base = _checked_out(RUNS_DIR / (scenario.outputs.dir or str(scenario.name)))  # labels (settings.Label): under runs/
@@ -354,10 +355,10 @@ def _announce_large_trace(built: Any) -> None:
 
 
 def _monitor_log(args: argparse.Namespace) -> int:
-    """``monitor --log``: DIARC's estimator and the health monitor over a log (gantry_twin.logmonitor)."""
-    from gantry_twin.logmonitor import command
+    """``monitor --log``: DIARC's estimator and the health monitor over a log (gantry_twin.health.log_monitor)."""
+    from gantry_twin.health.log_monitor import command
 
-    # runs never overwrite: a new directory under runs/<log>-monitor/ unless --out names one (gantry_twin.rundirs)
+    # runs never overwrite: a new directory under runs/<log>-monitor/ unless --out names one (outputs.rundirs)
     out = (
         _checked_out(args.out)
         if args.out is not None
@@ -426,53 +427,8 @@ def _point_latest(out: Path) -> None:
         print(f"{PROG}: warning: {out.parent / LATEST} not updated ({exc.strerror or exc})", file=sys.stderr)
 
 
-def format_summary(data: dict[str, Any], wall_time_s: float, out: Path | None = None, files: Sequence[str] = ()) -> str:
-    """The short human summary ``run`` prints (``files``: those written into ``out``)."""
-    c = data["contour_error_um"]
-    lines = [
-        f"{run_label(data)}: {data['duration_s']:g} s simulated ({data['steps']} steps) in {wall_time_s:.1f} s",
-        f"contour error eps_c over [{c['window_s'][0]:.3f}, {c['window_s'][1]:.3f}] s (window_s): "
-        f"rms {c['rms']:.3f} um, max {c['max']:.3f} um",
-        *whole_run_lines(data),
-    ]
-    if "estimates" in data:
-        w = data["estimates_window_s"]
-        lines.append(f"estimates (mean over [{w[0]:.3f}, {w[1]:.3f}] s)  estimate     true    error")
-        for name, e in data["estimates"].items():
-            pct = "      -" if e["error_pct"] is None else f"{e['error_pct']:+7.2f} %"
-            lines.append(f"  {name:<4} {e['estimate']:12.5f} {e['true']:8.4f}  {pct}")
-    if "health" in data:
-        lines.extend(format_health(data["health"]))
-    if out is not None:
-        lines.append(f"results in {out}/" + (f" ({', '.join(files)})" if files else ""))
-    return "\n".join(lines)
-
-
-def format_health(health: dict[str, Any]) -> list[str]:
-    """The health monitor's alarms and per-parameter status, for the printed summary."""
-    alarms = health["alarms"]
-    lines = [
-        f"health: {len(alarms)} alarm{'' if len(alarms) == 1 else 's'}"
-        + (f" (baseline: {health['baseline']['source']})" if "baseline" in health else "")
-    ]
-    for a in alarms:  # summary.json's alarms hold exactly an Alarm's fields
-        cleared = "" if a["cleared_s"] is None else f", cleared at {a['cleared_s']:.2f} s"
-        lines.append(f"  ALARM {Alarm(**a).describe()}{cleared}")
-    status = health["status"]
-    if status:
-        lines.append("  status at the end: " + ", ".join(f"{n} {s}" for n, s in status.items()))
-    ex = ", ".join(
-        f"{axis} {e['level_v_final']:.3g} V"
-        for axis, e in health["excitation"].items()
-        if e["level_v_final"] is not None
-    )
-    if ex:
-        lines.append(f"  excitation level at the end (sqrt lambda_min, eq. 29): {ex}")
-    return lines
-
-
 def _report(args: argparse.Namespace) -> int:
-    from gantry_twin.report import paper_matrix, run_matrix, write_report
+    from gantry_twin.reports.paper import paper_matrix, run_matrix, write_report
 
     if args.jobs is not None and args.jobs < 1:
         raise BadInput(f"--jobs: must be a positive integer, got {args.jobs}")

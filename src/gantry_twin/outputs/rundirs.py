@@ -19,7 +19,7 @@ import secrets
 import time
 from pathlib import Path
 
-from gantry_twin.results import atomic_write_text
+from gantry_twin.outputs.files import atomic_write_text
 
 #: The name of the pointer to a name's last complete run.
 LATEST = "latest"

@@ -8,7 +8,7 @@ through Sf, and the constant, with the same exact discretised filters Hf as
 DIARC's estimator (:class:`FilteredRegressors`). The information over the
 last ``window_s`` seconds, I_i = int g_i g_i^T dt (eq. 29), is normalised by
 the nominal parameter values D = diag(scale) and the window length W
-(``window_s``, ``scale``: :class:`gantry_twin.monitor.ExcitationSettings`):
+(``window_s``, ``scale``: :class:`gantry_twin.health.monitor.ExcitationSettings`):
 
     N_i = D I_i D / W        (volts^2)
 
@@ -60,7 +60,7 @@ An estimate is **trustworthy** when its parameter is excited
 ``min_moving_fraction`` of the time, and that bias bound is at most
 ``max_bias``.
 
-:class:`gantry_twin.monitor.MachineMonitor` runs this over a sliding window
+:class:`gantry_twin.health.monitor.MachineMonitor` runs this over a sliding window
 and judges the estimates only where it finds enough excitation.
 """
 
@@ -90,7 +90,7 @@ COLUMN_OF = np.array([0, 0, 1, 1, 2, 2, 3, 3])
 
 
 class FilterSettings(Protocol):
-    """What :class:`FilteredRegressors` needs (e.g. a :class:`gantry_twin.monitor.ExcitationSettings`)."""
+    """What :class:`FilteredRegressors` needs (e.g. a :class:`gantry_twin.health.monitor.ExcitationSettings`)."""
 
     filter_hz: tuple[float, float]  # Hf per axis, Hz
     filter_zeta: float

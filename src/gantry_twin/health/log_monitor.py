@@ -6,7 +6,7 @@ the loop: at sample k it filters the position (first-order hold from
 sample k-1), Sf of the backward-difference velocity and the command of
 sample k-1 (what the DAC held over that interval), then takes the
 least-squares step; sample 0 starts its filters. Its estimates theta^(t)
-then go through the same :class:`gantry_twin.monitor.MachineMonitor` as a
+then go through the same :class:`gantry_twin.health.monitor.MachineMonitor` as a
 simulated run's, with the scenario's estimator and monitor settings, and
 give the same ``health`` section of summary.json and the same printed alarms.
 
@@ -26,11 +26,11 @@ import numpy as np
 
 from gantry_twin.controllers import DIARC
 from gantry_twin.controllers.base import U_MAX_V, Measurement, RunContext
-from gantry_twin.estimator_replay import estimator_replay
-from gantry_twin.logs import Log, read_log
-from gantry_twin.monitor import MachineMonitor, MonitorReport
+from gantry_twin.health.estimator_replay import estimator_replay
+from gantry_twin.health.monitor import MachineMonitor, MonitorReport
+from gantry_twin.outputs.summary import SUMMARY_SCHEMA_VERSION, health_summary
 from gantry_twin.plant import THETA_NAMES
-from gantry_twin.results import SUMMARY_SCHEMA_VERSION, health_summary
+from gantry_twin.sysid.logs import Log, read_log
 from gantry_twin.trace import Trace
 
 #: summary.json's estimates: the mean over the log's last ESTIMATE_WINDOW_S (at most half the log), s.
@@ -113,7 +113,8 @@ def command(args: Any, scenario_path: Path | None, out: Path) -> dict[str, Any]:
     ScenarioError or ValueError (bad input: exit 2).
     """
     from gantry_twin.controllers import create
-    from gantry_twin.results import atomic_write_text, summary_json
+    from gantry_twin.outputs.files import atomic_write_text
+    from gantry_twin.outputs.summary import summary_json
     from gantry_twin.scenario import apply_overrides, controller_options, load_scenario, make_monitor, validate_data
 
     overrides = ["monitor.enable=true", *args.overrides]

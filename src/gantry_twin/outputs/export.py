@@ -6,7 +6,7 @@ writer): the float64 columns (time and positions) round-trip bit for bit when pa
 (Python's ``float``, NumPy's float64); the float32 columns when parsed as float32. The trace's schema
 metadata (``true_theta``) is not in the CSV: it is in summary.json. The file is written a row group
 at a time (memory does not grow with the run) into a temporary file renamed at the end
-(:func:`gantry_twin.results.atomic_write`): an interrupted export leaves no partial CSV.
+(:func:`gantry_twin.outputs.files.atomic_write`): an interrupted export leaves no partial CSV.
 """
 
 from __future__ import annotations
@@ -19,9 +19,9 @@ import pyarrow as pa
 import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 
-from gantry_twin.results import atomic_write
+from gantry_twin.outputs.files import atomic_write
+from gantry_twin.outputs.rundirs import resolve_run
 from gantry_twin.run import TRACE_FILE
-from gantry_twin.rundirs import resolve_run
 
 #: The CSV's name beside the trace when --out is not given.
 CSV_FILE = "trace.csv"

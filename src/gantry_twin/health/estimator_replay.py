@@ -1,4 +1,4 @@
-"""DIARC's indirect estimator over recorded samples, one compiled loop (used by :mod:`gantry_twin.logmonitor`).
+"""DIARC's indirect estimator over recorded samples, one compiled loop (used by :mod:`gantry_twin.health.log_monitor`).
 
 A module of its own: a kernel's module and the modules it imports key the
 compiled cache (:func:`gantry_twin._jit.cache_dir`), so this one imports

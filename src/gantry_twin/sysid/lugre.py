@@ -3,7 +3,7 @@
 Three stages, each on what the previous one found (friction model:
 :mod:`gantry_twin.friction`):
 
-1. M, B, Af, dN by the linear regression of :func:`gantry_twin.identify.identify`.
+1. M, B, Af, dN by the linear regression of :func:`gantry_twin.sysid.identify.identify`.
 2. Fc, Fs, vs, sigma2 from the steady friction-velocity relation: the
    friction force F = kf (u_f - M x_f'' + dN) of the filtered regression,
    binned by the filtered velocity x_f' (log-spaced bins per direction),
@@ -20,7 +20,7 @@ Three stages, each on what the previous one found (friction model:
 3. sigma0 and sigma1 (the bristle: pre-sliding) from short windows around
    the velocity reversals, replayed open loop through the LuGre plant of
    stages 1-2 (``mujoco.rollout``, each window started from the measured
-   state with the bristle at its steady deflection; :func:`gantry_twin.fit_report.replay_windows`),
+   state with the bristle at its steady deflection; :func:`gantry_twin.sysid.replay.replay_windows`),
    by least squares on the position residual, each window's best-fit
    offset + slope in time removed (:func:`detrend`: the initial velocity
    from the encoder's steps is a few mm/s off and would dominate), over
@@ -44,7 +44,6 @@ from pathlib import Path
 
 import numpy as np
 
-from gantry_twin.fit_report import VELOCITY_FIT_S, replay_windows
 from gantry_twin.friction import (
     PRESLIDING_M,
     STRIBECK_RATIO,
@@ -54,9 +53,10 @@ from gantry_twin.friction import (
     LuGreParameters,
     steady_force_n,
 )
-from gantry_twin.identify import Identified, axis_regressions, plant_xml
-from gantry_twin.logs import Log, centred_velocity
 from gantry_twin.plant import AXES, Plant, moving_masses_kg
+from gantry_twin.sysid.identify import Identified, axis_regressions, plant_xml
+from gantry_twin.sysid.logs import Log, centred_velocity
+from gantry_twin.sysid.replay import VELOCITY_FIT_S, replay_windows
 
 #: The least number of steady velocity bins per direction below LuGreSettings.fast_speed_m_s (stage 2 fits four
 #: parameters to the curve; docs/logs.md).

@@ -27,10 +27,10 @@ from typing import Any
 import numpy as np
 
 from gantry_twin.metrics import contour_metrics, error_pct, steady_estimates, steady_true_parameters
+from gantry_twin.outputs.files import atomic_write, atomic_write_text
+from gantry_twin.outputs.plots import envelope
 from gantry_twin.plant import THETA_NAMES, THETA_UNITS
-from gantry_twin.results import atomic_write, atomic_write_text
 from gantry_twin.run import execute
-from gantry_twin.runplots import envelope
 from gantry_twin.scenario import build, load_scenario, shipped
 
 SET_SCENARIOS = {1: "no_load", 2: "load_5kg", 3: "step_disturbance"}
@@ -192,7 +192,7 @@ def _warm_run_case(case: Case) -> CaseResult:
 
 def run_matrix(cases: Sequence[Case], jobs: int = 1, progress: bool = False) -> list[CaseResult]:
     """Run every case on a local Dask cluster of ``jobs`` worker processes (the sweep engine); results in case order."""
-    from gantry_twin.results import stop_signals_interrupt
+    from gantry_twin.outputs.signals import stop_signals_interrupt
     from gantry_twin.sweep.engine import open_client, prepare_workers, run_tasks
 
     scenarios = [_load(case) for case in cases]
@@ -393,7 +393,7 @@ def write_report(
 ) -> Path:
     """Write report.md, results.json and the PNG figures into ``out``; returns report.md's path.
 
-    ``appendix``: Markdown lines put after the figures (``report --rig``: :func:`gantry_twin.rig_report.section`).
+    ``appendix``: Markdown lines put after the figures (``report --rig``: :func:`gantry_twin.reports.rig.section`).
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)

@@ -6,7 +6,7 @@ offline on a finished trace by :func:`monitor_trace`; both give the same
 numbers, bit for bit, because every recursion runs sample by sample in the
 same order whatever the chunking.
 
-**Excitation (eq. 29)**, in :mod:`gantry_twin.excitation`: per axis, the
+**Excitation (eq. 29)**, in :mod:`gantry_twin.health.excitation`: per axis, the
 information I_i of the filtered regressor over the last ``window_s``,
 normalised by the nominal parameter values into volts: ``level_v`` (per
 axis, the least excited direction) and ``parameter_v`` (per parameter, what
@@ -38,7 +38,7 @@ frozen and its status is ``not excited``: with no information the
 estimator's output says nothing about the machine. Nor is it judged while it
 is excited but untrustworthy: its regressor errors (encoder quantisation in
 x_f'', x_f'; the friction column's gap from sign(v)) can bias it by more than
-``max_bias`` (:func:`gantry_twin.excitation.estimate_bias`); status
+``max_bias`` (:func:`gantry_twin.health.excitation.estimate_bias`); status
 ``untrustworthy``.
 
 Status per parameter: ``baseline`` (baseline not yet known or before
@@ -64,7 +64,7 @@ from gantry_twin.estimation import (
     FilterZeta,
     FrictionSlope,
 )
-from gantry_twin.excitation import (
+from gantry_twin.health.excitation import (
     AXIS_OF,
     FilteredRegressors,
     accumulate_information,
@@ -128,7 +128,7 @@ class ExcitationSettings:
     max_bias: ... and the bound of the relative bias from its regressor errors is at most this
     (otherwise it is excited but untrustworthy).
     max_error: an estimate in summary.json is trustworthy when that bound plus its gap to the
-    least-squares fit is at most this (:mod:`gantry_twin.confidence`).
+    least-squares fit is at most this (:mod:`gantry_twin.health.confidence`).
     """
 
     window_s: ExcitationWindowS = 2.0

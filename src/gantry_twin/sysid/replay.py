@@ -19,8 +19,8 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from gantry_twin.logs import Log
 from gantry_twin.plant import AXES, Plant
+from gantry_twin.sysid.logs import Log
 
 #: Default replay window, s.
 WINDOW_S = 1.0

@@ -1,0 +1,1 @@
+"""Machine health: excitation of the estimates (eq. 29), trust in them, the CUSUM monitor, the monitor over logs."""

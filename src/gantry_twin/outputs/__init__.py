@@ -1,0 +1,1 @@
+"""What a run leaves behind: run directories, atomic files, stop signals, the trace file, the typed summary, plots."""

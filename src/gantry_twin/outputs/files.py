@@ -1,0 +1,129 @@
+"""Every file a command writes, atomically: a hidden temporary beside it, fsync, then ``os.replace``.
+
+A crash leaves either the old file, the new file, or a hidden
+``.<name>.*.part`` file, never a half-written file under the final name; an
+exception (Ctrl-C, and SIGTERM and SIGHUP under the command line) removes the
+temporary file.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import tempfile
+from collections.abc import Callable
+from pathlib import Path
+from typing import IO, Any
+
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from gantry_twin.outputs.signals import signals_held
+
+
+def temporary_file(path: Path) -> tuple[IO[bytes], Path]:
+    """A new hidden ``.<name>.*.part`` file beside ``path`` (with the usual permissions), open for writing.
+
+    Create and name it inside ``with signals_held():`` within the ``try``
+    whose ``except`` discards it, so that an interrupt comes after the name is known.
+    """
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".part")
+    try:
+        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give the usual permissions
+        return os.fdopen(fd, "wb"), Path(tmp)
+    except BaseException:
+        os.close(fd)
+        os.unlink(tmp)
+        raise
+
+
+def commit(fh: IO[bytes], tmp: Path, path: Path) -> None:
+    """Flush, fsync and close ``fh`` (the temporary file ``tmp``), rename it to ``path``, fsync the directory."""
+    fh.flush()
+    os.fsync(fh.fileno())
+    fh.close()
+    os.replace(tmp, path)
+    _fsync_dir(path.parent)
+
+
+def discard(fh: IO[bytes] | None, tmp: Path | None) -> None:
+    """Close and remove a temporary file (whatever state it is in)."""
+    if fh is not None:
+        with contextlib.suppress(OSError):
+            fh.close()
+    if tmp is not None:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+
+
+def atomic_write(path: Path, write: Callable[[IO[bytes]], None]) -> None:
+    """Write a file via temp file + fsync + os.replace; on error no file appears."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fh = tmp = None
+    try:
+        with signals_held():
+            fh, tmp = temporary_file(path)
+        write(fh)
+        commit(fh, tmp, path)
+    except BaseException:
+        discard(fh, tmp)
+        raise
+
+
+def remove_tree(path: Path) -> None:
+    """Remove a directory and what it holds, if it exists."""
+    import shutil
+
+    shutil.rmtree(path, ignore_errors=True)
+
+
+def atomic_write_dir(path: Path, write: Callable[[Path], None]) -> None:
+    """Fill a directory via a hidden ``.<name>.*.part`` directory beside it renamed to ``path`` (an earlier
+    ``path`` is removed first); on error no directory appears."""
+    path = Path(path)
+    tmp = None
+    try:
+        with signals_held():
+            tmp = Path(tempfile.mkdtemp(dir=path.parent, prefix=f".{path.name}.", suffix=".part"))
+        os.chmod(tmp, 0o777 & ~_umask())
+        write(tmp)
+        remove_tree(path)
+        os.replace(tmp, path)
+        _fsync_dir(path.parent)
+    except BaseException:
+        if tmp is not None:
+            remove_tree(tmp)
+        raise
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def atomic_write_text(path: Path, text: str) -> None:
+    atomic_write(path, lambda fh: fh.write(text.encode("utf-8")))
+
+
+def _fsync_dir(directory: Path) -> None:
+    """Make the rename durable (POSIX; a no-op where directories cannot be opened)."""
+    try:
+        fd = os.open(directory, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+#: Parquet writer options: float columns rarely repeat a value, so dictionary pages would only add to the file.
+PARQUET_OPTIONS: dict[str, Any] = {"use_dictionary": False}
+
+
+def write_parquet(path: Path, table: pa.Table) -> None:
+    atomic_write(path, lambda fh: pq.write_table(table, fh, **PARQUET_OPTIONS))
