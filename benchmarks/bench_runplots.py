@@ -48,7 +48,7 @@ def main() -> None:
             cpu.append(time.process_time() - started_cpu)
         size_mb = (out / "trace.parquet").stat().st_size / 1e6
     print(
-        f"{args.scenario}, {args.duration:g} s ({outcome.summary['steps']} steps, trace {size_mb:.0f} MB): "
+        f"{args.scenario}, {args.duration:g} s ({outcome.summary.steps} steps, trace {size_mb:.0f} MB): "
         f"run and write {run_s:.2f} s; draw {len(names)} figures {draws[0]:.2f} s "
         f"(matplotlib import included), then " + ", ".join(f"{d:.2f}" for d in draws[1:]) + " s wall; "
         "CPU " + ", ".join(f"{c:.2f}" for c in cpu) + " s"

@@ -123,15 +123,17 @@ def rejudge(row: dict, runs: Path) -> None:
     (its ``confidence`` statistics: no simulation)."""
     from gantry_twin.health.confidence import judge
     from gantry_twin.health.monitor import ExcitationSettings
+    from gantry_twin.outputs.summary import RunSummary
     from gantry_twin.plant import THETA_NAMES
 
-    summary = json.loads((runs / row["key"] / "summary.json").read_text())
-    if "confidence" not in summary:
+    summary = RunSummary.read(runs / row["key"] / "summary.json")
+    if summary.confidence is None:
         return
-    if np.shape(summary["confidence"]["friction_moment"]) != (2, 2, 4):
+    stats = summary.confidence.model_dump()
+    if np.shape(stats["friction_moment"]) != (2, 2, 4):
         raise SystemExit(f"{runs / row['key']}: judged from an older criterion's sums; run the sweep again")
-    estimate = np.array([summary["estimates"][name]["estimate"] for name in THETA_NAMES])
-    for name, verdict in judge(summary["confidence"], estimate, ExcitationSettings()).items():
+    estimate = np.array([summary.estimates[name].estimate for name in THETA_NAMES])
+    for name, verdict in judge(stats, estimate, ExcitationSettings()).items():
         row[f"trustworthy_{name}"] = verdict["trustworthy"]
 
 

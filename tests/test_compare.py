@@ -165,8 +165,8 @@ def test_compare_names_the_figures_an_older_run_lacks(two_runs, tmp_path, capsys
         ("no_such", ("no_such: no such run directory",)),
         ("a_file", ("a_file: not a run directory",)),
         ("no_summary", ("no_summary: not a run directory: no summary.json",)),
-        ("bad_json", ("summary.json: not a readable summary.json",)),
-        ("not_ours", ("summary.json: not a gantry-twin summary.json",)),
+        ("bad_json", ("summary.json: is not a run's summary.json (invalid JSON",)),
+        ("not_ours", ("summary.json: is not a run's summary.json (input should be an object",)),
         ("out_is_a_file", ("--out", "exists and is not a directory")),
     ],
 )

@@ -22,7 +22,7 @@ RESOLUTION_M = 0.5e-6
 @pytest.fixture(scope="module")
 def summary():
     built = build(load_scenario(shipped("no_load_circle"), list(SHORT)))
-    return summarise(built, execute(built))
+    return summarise(built, execute(built)).as_dict()
 
 
 def estimates_of(summary) -> np.ndarray:

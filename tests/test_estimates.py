@@ -77,7 +77,7 @@ ISSUE7_ESTIMATOR = (
 def slow_circle_estimates(estimator_override: str) -> dict:
     """summary.json's estimates (with their trustworthiness) of the slow circle run as ``gantry-twin run`` runs it."""
     built = build(load_scenario(shipped("no_load_circle"), [*SLOW_CIRCLE, estimator_override]))
-    return summarise(built, execute(built))["estimates"]
+    return summarise(built, execute(built)).as_dict()["estimates"]
 
 
 def test_slow_circle_recommended_estimator_within_5_percent():

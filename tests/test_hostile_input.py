@@ -22,7 +22,8 @@ from typing import NamedTuple
 
 import pytest
 
-from gantry_twin.scenario.loading import INPUT_MAX_BYTES, INPUT_MAX_DEPTH
+from gantry_twin.inputs import INPUT_MAX_BYTES
+from gantry_twin.scenario.loading import INPUT_MAX_DEPTH
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "hostile-input.md"
 #: What every case must stay within: CPU seconds (start-up included), and a wall-clock bound for a blocked read.

@@ -237,7 +237,7 @@ def test_a_fault_in_a_run_held_in_pieces_keeps_every_piece_before_it(tmp_path, f
 
 def test_a_good_run_says_status_ok(tmp_path):
     built = build(load_scenario(shipped("no_load_circle"), OVERRIDES))
-    assert run_and_write(tmp_path / "out", built).summary["status"] == "ok"
+    assert run_and_write(tmp_path / "out", built).summary.status == "ok"
 
 
 # ---------------------------------------------------------------------------------------------

@@ -169,36 +169,3 @@ def travel_summary(plant: Plant, trace: Trace) -> dict[str, Any]:
         stop = min(trace.filled, start + SCAN_BLOCK)
         watch.scan(trace.t_s[start:stop], trace.q_m[start:stop], trace.u_v[start:stop])
     return watch.summary()
-
-
-def touched_end_stop(summary: dict[str, Any]) -> bool:
-    """True if the run's summary records an end-stop contact (what ``--strict`` refuses)."""
-    return any(summary.get("end_stop_contacts", {}).values())
-
-
-def travel_warnings(summary: dict[str, Any]) -> list[str]:
-    """One line per axis that touched an end stop or whose command saturated above the warning level."""
-    lines = []
-    contacts = summary.get("end_stop_contacts", {})
-    for axis in AXES:
-        n = contacts.get(axis, 0)
-        if not n:
-            continue
-        listed = [e for e in summary.get("events", []) if e["kind"] == END_STOP and e["axis"] == axis]
-        where = ""
-        if listed:
-            first, furthest = listed[0], max(listed, key=lambda e: abs(e["position_m"]))
-            where = (
-                f" ({first['end_m']:+.3f} m) at t = {first['t_s']:.4f} s, furthest at {furthest['position_m']:+.5f} m"
-            )
-        lines.append(
-            f"end stop: the {axis.upper()} carriage reached its travel end{where} ({n} contact{'' if n == 1 else 's'})"
-        )
-    for axis, s in summary.get("saturation", {}).items():
-        if s["fraction"] > SATURATION_WARNING_FRACTION:
-            lo, hi = s["limit_v"]
-            lines.append(
-                f"saturation: the {axis.upper()} command was at its limit ({lo:+g} / {hi:+g} V) in "
-                f"{100 * s['fraction']:.2f} % of samples (warning above {100 * SATURATION_WARNING_FRACTION:g} %)"
-            )
-    return lines

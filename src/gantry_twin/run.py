@@ -26,7 +26,7 @@ from gantry_twin.events import TravelWatch
 from gantry_twin.metrics import RunMetrics
 from gantry_twin.outputs.files import atomic_write_text, discard, remove_tree, temporary_file
 from gantry_twin.outputs.signals import SwallowedInterrupt, signals_held
-from gantry_twin.outputs.summary import Failure, run_summary, summary_json
+from gantry_twin.outputs.summary import Failure, RunSummary, run_summary, summary_json
 from gantry_twin.outputs.tracefile import TRACE_COLUMNS, TraceWriter, stored_row_bytes
 from gantry_twin.plant import THETA_NAMES
 from gantry_twin.scenario import BuiltRun, dump_yaml
@@ -117,14 +117,14 @@ class RunOutcome(NamedTuple):
     """What :func:`run_and_write` did: summary.json's content, wall time s, the files written (in ``out``),
     the error that stopped a failed run."""
 
-    summary: dict[str, Any]
+    summary: RunSummary
     wall_time_s: float
     files: tuple[str, ...]
     error: SimulationError | None = None
 
     @property
     def failed(self) -> bool:
-        return self.summary["status"] != "ok"
+        return self.summary.failed
 
 
 class RunWriter:
@@ -227,7 +227,7 @@ class RunWriter:
         files = tuple(name for name in (*RUN_FILES, PLOTS_DIR) if name in written or name == SUMMARY_FILE)
         return RunOutcome(data, wall_time_s, tuple(f"{f}/" if f == PLOTS_DIR else f for f in files))
 
-    def _plot(self, data: dict[str, Any], traced: bool) -> bool:
+    def _plot(self, data: RunSummary, traced: bool) -> bool:
         """Draw the run's figures into plots/ (:func:`gantry_twin.outputs.plots.write_plots`); False, with
         :attr:`plots_skipped` saying why, when there is no trace or the drawing raised (the run is kept)."""
         from gantry_twin.outputs.plots import write_plots
@@ -271,7 +271,7 @@ def run_and_write(
         return writer.run(observers, hold_s)
 
 
-def write_run(out: Path, built: BuiltRun, trace: Trace, wall_time_s: float) -> dict[str, Any]:
+def write_run(out: Path, built: BuiltRun, trace: Trace, wall_time_s: float) -> RunSummary:
     """Write a finished run's whole trace into ``out`` by the output contract; summary.json's content."""
     with RunWriter(out, built) as writer:
         for observer in writer.observers():
@@ -288,20 +288,27 @@ def _summary(
     failure: Failure | None = None,
     overrides: Sequence[str] = (),
     controller_option: str | None = None,
-) -> dict[str, Any]:
+) -> RunSummary:
     """summary.json's content from what a run's observers gathered (``trace``: its last piece, or None)."""
     scenario = built.scenario
     health = built.monitor.report() if built.monitor is not None else None
     steps = trace.filled if trace is not None else 0
     period = trace.sample_period_s if trace is not None else built.plant.timestep_s
-    data = run_summary(
-        scenario, scenario.controller.name, period, steps, metrics, health, failure, overrides, controller_option
+    return run_summary(
+        scenario,
+        scenario.controller.name,
+        period,
+        steps,
+        metrics,
+        health,
+        failure,
+        overrides,
+        controller_option,
+        travel.summary(),
     )
-    data.update(travel.summary())
-    return data
 
 
-def summarise(built: BuiltRun, trace: Trace) -> dict[str, Any]:
+def summarise(built: BuiltRun, trace: Trace) -> RunSummary:
     """summary.json's content for a finished run's whole trace, as :class:`RunWriter` writes it (nothing written)."""
     scenario = built.scenario
     metrics = RunMetrics.for_scenario(scenario, estimate_confidence(built))

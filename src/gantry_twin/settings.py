@@ -31,7 +31,15 @@ from collections.abc import Callable, Sequence
 from dataclasses import fields
 from typing import Annotated, Any, TypeVar, dataclass_transform
 
-from pydantic import AfterValidator, BeforeValidator, ConfigDict, TypeAdapter, ValidationError, model_validator
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    TypeAdapter,
+    ValidationError,
+    model_validator,
+)
 from pydantic.dataclasses import dataclass as pydantic_dataclass
 from pydantic_core import PydanticCustomError
 
@@ -287,6 +295,15 @@ def known_keys(cls: type, data: Any) -> Any:
 
 
 @dataclass_transform(frozen_default=True)
+class Model(BaseModel):
+    """The one pydantic base of the package's files (a scenario, a sweep spec, summary.json): frozen, unknown keys
+    rejected with the list of allowed keys."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    _known_keys = model_validator(mode="before")(classmethod(known_keys))
+
+
 def validated(name: str) -> Callable[[type[T]], type[T]]:
     """Make ``cls`` a frozen, validated dataclass; ``name`` prefixes the field in its errors from Python.
 
@@ -396,6 +413,7 @@ __all__ = [
     "FREQUENCY_MAX_HZ",
     "VOLTS_MAX_V",
     "Count",
+    "Model",
     "Frequency",
     "LABEL_RULE",
     "Label",

@@ -28,10 +28,9 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 from gantry_twin.cli import identify as identify_command
-from gantry_twin.cli.printing import format_health, format_summary
+from gantry_twin.cli.printing import format_health, format_summary, touched_end_stop, travel_warnings
 from gantry_twin.compiling import compile_notice
 from gantry_twin.controllers import available
-from gantry_twin.events import touched_end_stop, travel_warnings
 from gantry_twin.outputs import export
 from gantry_twin.outputs.rundirs import LATEST, new_run_dir, point_latest
 from gantry_twin.outputs.signals import stop_signals_interrupt
@@ -356,7 +355,7 @@ def _announce_large_trace(built: Any) -> None:
 
 def _monitor_log(args: argparse.Namespace) -> int:
     """``monitor --log``: DIARC's estimator and the health monitor over a log (gantry_twin.health.log_monitor)."""
-    from gantry_twin.health.log_monitor import command
+    from gantry_twin.cli.monitor import monitor_log_command
 
     # runs never overwrite: a new directory under runs/<log>-monitor/ unless --out names one (outputs.rundirs)
     out = (
@@ -365,13 +364,13 @@ def _monitor_log(args: argparse.Namespace) -> int:
         else new_run_dir(_checked_out(RUNS_DIR / f"{Path(args.log).stem}-monitor"))
     )
     try:
-        data = command(args, None if args.scenario is None else _scenario_path(args.scenario), out)
+        data = monitor_log_command(args, None if args.scenario is None else _scenario_path(args.scenario), out)
     except ValueError as exc:
         raise BadInput(str(exc).splitlines()[0]) from None
     if args.out is None:
         point_latest(out)
-    print("\n".join([*format_health(data["health"]), f"results in {out}/ (summary.json)"]), flush=True)
-    return EXIT_ALARM if args.fail_on_alarm and data["health"]["alarms"] else EXIT_OK
+    print("\n".join([*format_health(data.health), f"results in {out}/ (summary.json)"]), flush=True)
+    return EXIT_ALARM if args.fail_on_alarm and data.health.alarms else EXIT_OK
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -398,9 +397,9 @@ def _run(args: argparse.Namespace) -> int:
             if outcome.failed:
                 if os.environ.get("GANTRY_TWIN_DEBUG") and outcome.error is not None:
                     raise outcome.error
-                failure = outcome.summary["failure"]
+                failure = outcome.summary.failure
                 print(
-                    f"{PROG}: run failed: {failure['error']}; the run up to it is in {out}/ "
+                    f"{PROG}: run failed: {failure.error}; the run up to it is in {out}/ "
                     f"({', '.join(outcome.files)}; status: failed)",
                     file=sys.stderr,
                 )
@@ -414,7 +413,7 @@ def _run(args: argparse.Namespace) -> int:
         print(f"{PROG}: warning: {line}", file=sys.stderr)
     if args.strict and touched_end_stop(outcome.summary):
         return EXIT_END_STOP
-    if getattr(args, "fail_on_alarm", False) and outcome.summary.get("health", {}).get("alarms"):
+    if getattr(args, "fail_on_alarm", False) and outcome.summary.health is not None and outcome.summary.health.alarms:
         return EXIT_ALARM
     return EXIT_OK
 

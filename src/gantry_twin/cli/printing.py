@@ -4,87 +4,128 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
 
+from gantry_twin.events import END_STOP, SATURATION_WARNING_FRACTION
 from gantry_twin.health.monitor import Alarm
 from gantry_twin.outputs.plots import run_label
+from gantry_twin.outputs.summary import Estimate, Health, RunSummary
+from gantry_twin.plant import AXES
+
+#: The printed summary lists the rms of each period when the run has at most this many (else the first and last).
+PERIODS_PRINTED = 12
 
 
-def format_summary(data: dict[str, Any], wall_time_s: float, out: Path | None = None, files: Sequence[str] = ()) -> str:
+def format_summary(summary: RunSummary, wall_time_s: float, out: Path | None = None, files: Sequence[str] = ()) -> str:
     """The short human summary ``run`` prints (``files``: those written into ``out``)."""
-    c = data["contour_error_um"]
-    lines = [
-        f"{run_label(data)}: {data['duration_s']:g} s simulated ({data['steps']} steps) in {wall_time_s:.1f} s",
-        f"contour error eps_c over [{c['window_s'][0]:.3f}, {c['window_s'][1]:.3f}] s (window_s): "
-        f"rms {c['rms']:.3f} um, max {c['max']:.3f} um",
-        *whole_run_lines(data),
-    ]
-    if "estimates" in data:
-        w = data["estimates_window_s"]
+    c = summary.contour_error_um
+    lines = [f"{run_label(summary)}: {summary.duration_s:g} s simulated ({summary.steps} steps) in {wall_time_s:.1f} s"]
+    if c is not None:
+        lines.append(
+            f"contour error eps_c over [{c.window_s[0]:.3f}, {c.window_s[1]:.3f}] s (window_s): "
+            f"rms {c.rms:.3f} um, max {c.max:.3f} um"
+        )
+    lines += whole_run_lines(summary)
+    if summary.estimates is not None and summary.estimates_window_s is not None:
+        w = summary.estimates_window_s
         lines.append(f"estimates (mean over [{w[0]:.3f}, {w[1]:.3f}] s)  estimate     true    error")
-        for name, e in data["estimates"].items():
-            pct = "      -" if e["error_pct"] is None else f"{e['error_pct']:+7.2f} %"
-            lines.append(f"  {name:<4} {e['estimate']:12.5f} {e['true']:8.4f}  {pct}")
-    if "health" in data:
-        lines.extend(format_health(data["health"]))
+        for name, e in summary.estimates.items():
+            lines.append(f"  {name:<4} {e.estimate:12.5f} {_true(e)}  {_pct(e)}{trust_mark(e)}")
+    if summary.health is not None:
+        lines.extend(format_health(summary.health))
     if out is not None:
         lines.append(f"results in {out}/" + (f" ({', '.join(files)})" if files else ""))
     return "\n".join(lines)
 
 
-def format_health(health: dict[str, Any]) -> list[str]:
+def _true(e: Estimate) -> str:
+    return "       -" if e.true is None else f"{e.true:8.4f}"
+
+
+def _pct(e: Estimate) -> str:
+    return "      -" if e.error_pct is None else f"{e.error_pct:+7.2f} %"
+
+
+def trust_mark(e: Estimate) -> str:
+    """``  (not trusted: why)`` after an estimate the run's own signals cannot vouch for; empty otherwise."""
+    return f"  (not trusted: {e.why})" if e.trustworthy is False else ""
+
+
+def format_health(health: Health) -> list[str]:
     """The health monitor's alarms and per-parameter status, for the printed summary."""
-    alarms = health["alarms"]
+    alarms = health.alarms
     lines = [
         f"health: {len(alarms)} alarm{'' if len(alarms) == 1 else 's'}"
-        + (f" (baseline: {health['baseline']['source']})" if "baseline" in health else "")
+        + (f" (baseline: {health.baseline['source']})" if health.baseline is not None else "")
     ]
     for a in alarms:  # summary.json's alarms hold exactly an Alarm's fields
-        cleared = "" if a["cleared_s"] is None else f", cleared at {a['cleared_s']:.2f} s"
-        lines.append(f"  ALARM {Alarm(**a).describe()}{cleared}")
-    status = health["status"]
-    if status:
-        lines.append("  status at the end: " + ", ".join(f"{n} {s}" for n, s in status.items()))
+        cleared = "" if a.cleared_s is None else f", cleared at {a.cleared_s:.2f} s"
+        lines.append(f"  ALARM {Alarm(**a.model_dump()).describe()}{cleared}")
+    if health.status:
+        lines.append("  status at the end: " + ", ".join(f"{n} {s}" for n, s in health.status.items()))
     ex = ", ".join(
-        f"{axis} {e['level_v_final']:.3g} V"
-        for axis, e in health["excitation"].items()
-        if e["level_v_final"] is not None
+        f"{axis} {e.level_v_final:.3g} V" for axis, e in health.excitation.items() if e.level_v_final is not None
     )
     if ex:
         lines.append(f"  excitation level at the end (sqrt lambda_min, eq. 29): {ex}")
     return lines
 
 
-#: The printed summary lists the rms of each period when the run has at most this many (else the first and last).
-PERIODS_PRINTED = 12
-
-
-def whole_run_lines(data: dict[str, Any]) -> list[str]:
-    """The printed lines of summary.json's whole-run figures, each with its window (none for an older summary)."""
-    whole, periods = data.get("whole_run"), data.get("contour_error_per_period_um")
+def whole_run_lines(summary: RunSummary) -> list[str]:
+    """The printed lines of summary.json's whole-run figures, each with its window."""
+    whole, periods = summary.whole_run, summary.contour_error_per_period_um
     lines = []
     if whole is not None:
-        (a, b), (ca, cb) = whole["window_s"], whole["command_window_s"]
-        c, e, u = whole["contour_error_um"], whole["axial_error_rms_um"], whole["max_abs_command_v"]
+        (a, b), (ca, cb) = whole.window_s, whole.command_window_s
+        c, e, u = whole.contour_error_um, whole.axial_error_rms_um, whole.max_abs_command_v
         lines += [
             f"contour error eps_c over [{a:.3f}, {b:.3f}] s (whole run from the start of window_s): "
-            f"rms {c['rms']:.3f} um, max {c['max']:.3f} um",
+            f"rms {c.rms:.3f} um, max {c.max:.3f} um",
             f"axial error e over [{a:.3f}, {b:.3f}] s: rms " + ", ".join(f"{k} {v:.3f} um" for k, v in e.items()),
             f"command u over [{ca:.3f}, {cb:.3f}] s: max |u| " + ", ".join(f"{k} {v:.3f} V" for k, v in u.items()),
         ]
-        saturation = data.get("saturation")
-        if saturation:
+        if summary.saturation:
             lines[-1] += "; at the limit " + ", ".join(
-                f"{k} {100 * s['fraction']:.2f} %" for k, s in saturation.items()
+                f"{k} {100 * s.fraction:.2f} %" for k, s in summary.saturation.items()
             )
-    if periods is not None and periods["rms"]:
-        rms = periods["rms"]
+    if periods is not None and periods.rms:
+        rms = periods.rms
         shown = " ".join(f"{v:.3f}" for v in rms)
         if len(rms) > PERIODS_PRINTED:
             half = PERIODS_PRINTED // 2
             shown = " ".join(f"{v:.3f}" for v in rms[:half]) + " ... " + " ".join(f"{v:.3f}" for v in rms[-half:])
         lines.append(
-            f"rms eps_c per period of {periods['period_s']:.3f} s from {periods['start_s']:.3f} s "
+            f"rms eps_c per period of {periods.period_s:.3f} s from {periods.start_s:.3f} s "
             f"({len(rms)} period{'' if len(rms) == 1 else 's'}, the last up to the end): {shown} um"
         )
+    return lines
+
+
+def touched_end_stop(summary: RunSummary) -> bool:
+    """True if the run's summary records an end-stop contact (what ``--strict`` refuses)."""
+    return any((summary.end_stop_contacts or {}).values())
+
+
+def travel_warnings(summary: RunSummary) -> list[str]:
+    """One line per axis that touched an end stop or whose command saturated above the warning level."""
+    lines = []
+    contacts = summary.end_stop_contacts or {}
+    for axis in AXES:
+        n = contacts.get(axis, 0)
+        if not n:
+            continue
+        listed = [e for e in summary.events or [] if e.kind == END_STOP and e.axis == axis]
+        where = ""
+        if listed:
+            first, furthest = listed[0], max(listed, key=lambda e: abs(e.position_m))
+            where = f" ({first.end_m:+.3f} m) at t = {first.t_s:.4f} s, furthest at {furthest.position_m:+.5f} m"
+        lines.append(
+            f"end stop: the {axis.upper()} carriage reached its travel end{where} ({n} contact{'' if n == 1 else 's'})"
+        )
+    for axis, s in (summary.saturation or {}).items():
+        if s.fraction > SATURATION_WARNING_FRACTION:
+            lo, hi = s.limit_v
+            lines.append(
+                f"saturation: the {axis.upper()} command was at its limit ({lo:+g} / {hi:+g} V) in "
+                f"{100 * s.fraction:.2f} % of samples (warning above {100 * SATURATION_WARNING_FRACTION:g} %)"
+            )
     return lines

@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from gantry_twin.outputs.summary import RunSummary
 from gantry_twin.plant import AXES, THETA_NAMES
 
 #: Each series is cut into at most this many bins (the points drawn per line).
@@ -67,7 +68,7 @@ class RunSeries:
     """One run's series, binned for drawing: times s, errors um, commands V, positions m, estimates volt units."""
 
     label: str
-    summary: dict[str, Any]
+    summary: RunSummary
     t_eps_s: np.ndarray
     eps_c_um: np.ndarray
     contour_m: np.ndarray  # (n, 4): x_d, y_d and the path's unit left normal at the eps_c peaks
@@ -123,7 +124,7 @@ def _left_normal(x_m: np.ndarray, y_m: np.ndarray) -> np.ndarray:
         return np.column_stack([-ty / norm, tx / norm])
 
 
-def read_series(run_dir: Path, summary: dict[str, Any], label: str) -> RunSeries | None:
+def read_series(run_dir: Path, summary: RunSummary, label: str) -> RunSeries | None:
     """A run's series binned for drawing, read from ``run_dir/trace.parquet`` (None if it has none)."""
     import pyarrow.parquet as pq
 
@@ -179,9 +180,8 @@ def read_series(run_dir: Path, summary: dict[str, Any], label: str) -> RunSeries
 # The figures: each takes one run's series or several (overlaid, labelled).
 
 
-def _window(summary: dict[str, Any]) -> tuple[float, float] | None:
-    w = summary.get("contour_error_um", {}).get("window_s")
-    return (float(w[0]), float(w[1])) if w else None
+def _window(summary: RunSummary) -> tuple[float, float] | None:
+    return summary.contour_error_um.window_s if summary.contour_error_um is not None else None
 
 
 def _legend(ax: Any, runs: Sequence[RunSeries]) -> None:
@@ -256,7 +256,8 @@ def fig_commands(plt: Any, runs: Sequence[RunSeries]) -> Any:
     """u_x(t), u_y(t), V, with the motor's limits."""
 
     def limits(ax: Any, axis: str) -> None:
-        limit = runs[0].summary.get("saturation", {}).get(axis, {}).get("limit_v")
+        saturation = runs[0].summary.saturation or {}
+        limit = saturation[axis].limit_v if axis in saturation else None
         if limit:
             for v in limit:
                 ax.axhline(v, color="tab:red", lw=0.8, ls="--")
@@ -365,7 +366,7 @@ def draw(runs: Sequence[RunSeries], directory: Path) -> list[str]:
     return written
 
 
-def write_plots(run_dir: Path, plots_dir: Path, summary: dict[str, Any]) -> list[str]:
+def write_plots(run_dir: Path, plots_dir: Path, summary: RunSummary) -> list[str]:
     """The figures of the run in ``run_dir`` (its trace.parquet, its summary ``summary``) into ``plots_dir``,
     written as one directory (:func:`gantry_twin.outputs.files.atomic_write_dir`); the file names."""
     from gantry_twin.outputs.files import atomic_write_dir
@@ -378,10 +379,10 @@ def write_plots(run_dir: Path, plots_dir: Path, summary: dict[str, Any]) -> list
     return names
 
 
-def run_label(summary: dict[str, Any]) -> str:
+def run_label(summary: RunSummary) -> str:
     """``<scenario> with <controller>`` and the command line's overrides: how the printed header names a run."""
-    label = f"{summary.get('scenario', '?')} with {summary.get('controller', '?')}"
-    overrides = summary.get("overrides") or []
+    label = f"{summary.scenario or summary.log or '?'} with {summary.controller}"
+    overrides = summary.overrides or []
     if overrides:
         label += " (" + " ".join(f"--set {o}" for o in overrides) + ")"
     return label

@@ -10,16 +10,196 @@ from __future__ import annotations
 import json
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from pathlib import Path
+from typing import Any, Literal
 
 import numpy as np
+from pydantic import ValidationError
 
+from gantry_twin.inputs import InputFileError, read_input_file
 from gantry_twin.metrics import RunMetrics, WholeRunMetrics, estimate_errors_pct
 from gantry_twin.plant import AXES, THETA_NAMES
-from gantry_twin.scenario import Scenario
+from gantry_twin.settings import Model, describe, quote, shorten
 
 #: Version of the summary.json layout; bumped on any incompatible change.
 SUMMARY_SCHEMA_VERSION = 1
+
+Window = tuple[float, float]
+PerAxis = dict[str, float]
+
+
+class ContourError(Model):
+    """eps_c over the scenario's metric window, um."""
+
+    rms: float
+    max: float
+    window_s: Window
+
+
+class WholeRunContour(Model):
+    rms: float
+    max: float
+
+
+class WholeRun(Model):
+    """From the start of the metric window to the end of the run: eps_c, axial rms, largest |u|."""
+
+    window_s: Window
+    contour_error_um: WholeRunContour
+    axial_error_rms_um: PerAxis
+    command_window_s: Window
+    max_abs_command_v: PerAxis
+
+
+class PerPeriod(Model):
+    start_s: float
+    period_s: float
+    rms: list[float]
+
+
+class Estimate(Model):
+    """One parameter's estimate (volt units), its true value, the error, and the trust verdict (docs/cli.md)."""
+
+    estimate: float
+    true: float | None = None
+    error_pct: float | None = None
+    trustworthy: bool | None = None
+    why: str | None = None
+    excitation_v: float | None = None
+    bias_bound_pct: float | None = None
+    fit_gap_pct: float | None = None
+
+
+class Confidence(Model):
+    """The sums the trust verdicts were judged from (:func:`gantry_twin.health.confidence.judge`)."""
+
+    span_s: Window
+    seconds: float
+    window_sliding_fraction: list[float]
+    information: list[Any]
+    friction_moment: list[Any]
+    quantisation_noise: list[Any]
+    scale: list[float]
+
+
+class AlarmRecord(Model):
+    """An alarm as :class:`gantry_twin.health.monitor.Alarm` holds it."""
+
+    parameter: str
+    time_s: float
+    direction: str
+    change_pct: float | None
+    change: float
+    unit: str
+    estimate: float
+    baseline: float
+    cleared_s: float | None
+
+
+class AxisExcitation(Model):
+    level_v_final: float | None
+    level_v_min: float | None
+    excited_fraction: float
+
+
+class Health(Model):
+    """The health monitor's verdict (docs/health.md)."""
+
+    alarms: list[AlarmRecord]
+    status: dict[str, str]
+    time_in_status_s: dict[str, dict[str, float]]
+    excitation: dict[str, AxisExcitation]
+    baseline: dict[str, str | float] | None = None
+
+
+class FailureRecord(Model):
+    time_s: float | None
+    step: int | None
+    error: str
+
+
+class EndStopEvent(Model):
+    t_s: float
+    kind: str
+    axis: str
+    end_m: float
+    position_m: float
+    left_s: float | None
+
+
+class Saturation(Model):
+    fraction: float
+    limit_v: Window
+
+
+class RunSummary(Model):
+    """summary.json: the one type every producer writes and every consumer reads (docs/cli.md, "summary.json").
+
+    A run of a scenario names ``scenario``; ``monitor --log`` names ``log``.
+    Sections a run does not have are absent (never null): a failed run has
+    ``failure`` and no contour error; a controller without estimates has no
+    ``estimates``; a run without the monitor has no ``health``.
+    """
+
+    schema_version: Literal[SUMMARY_SCHEMA_VERSION]  # type: ignore[valid-type]
+    scenario: str | None = None
+    log: str | None = None
+    controller: str
+    overrides: list[str] | None = None
+    controller_option: str | None = None
+    duration_s: float
+    sample_period_s: float
+    steps: int
+    status: Literal["ok", "failed"]
+    failure: FailureRecord | None = None
+    contour_error_um: ContourError | None = None
+    whole_run: WholeRun | None = None
+    contour_error_per_period_um: PerPeriod | None = None
+    estimates_window_s: Window | None = None
+    estimates: dict[str, Estimate] | None = None
+    confidence: Confidence | None = None
+    health: Health | None = None
+    events: list[EndStopEvent] | None = None
+    end_stop_contacts: dict[str, int] | None = None
+    saturation: dict[str, Saturation] | None = None
+
+    @property
+    def failed(self) -> bool:
+        return self.status != "ok"
+
+    def as_dict(self) -> dict[str, Any]:
+        """The JSON-ready content, exactly the keys that were given (what :func:`summary_json` writes)."""
+        return self.model_dump(mode="json", exclude_unset=True)
+
+    @classmethod
+    def read(cls, path: str | Path) -> RunSummary:
+        """A summary.json read back through the type; :class:`SummaryError` when it is not a regular file, too
+        large, not JSON, or a key is unknown, missing or of the wrong type (the error names the field)."""
+        try:
+            text = read_input_file(path, "a run's summary.json")
+        except InputFileError as exc:
+            raise SummaryError(path, str(exc)) from None
+        try:
+            return cls.model_validate_json(text)
+        except ValidationError as exc:
+            error = exc.errors()[0]
+            if error["type"] == "json_invalid":
+                why = shorten(str(error.get("ctx", {}).get("error", "")) or error["msg"], 80)
+                raise SummaryError(path, f"is not a run's summary.json (invalid JSON: {why})") from None
+            field, message = describe(error)
+            raise SummaryError(
+                path, f"{field}: {message}" if field else f"is not a run's summary.json ({message})"
+            ) from None
+        except RecursionError:
+            raise SummaryError(path, "is nested too deeply to be a run's summary.json") from None
+
+
+class SummaryError(ValueError):
+    """A summary.json that cannot be read as :class:`RunSummary`: the file and one line saying what is wrong."""
+
+    def __init__(self, path: str | Path, reason: str) -> None:
+        super().__init__(f"{path}: {reason}")
+        self.path, self.reason = Path(path), reason
 
 
 @dataclass(frozen=True)
@@ -32,7 +212,7 @@ class Failure:
 
 
 def run_summary(
-    scenario: Scenario,
+    scenario: Any,
     controller_name: str,
     sample_period_s: float,
     steps: int,
@@ -41,8 +221,10 @@ def run_summary(
     failure: Failure | None = None,
     overrides: Sequence[str] = (),
     controller_option: str | None = None,
-) -> dict[str, Any]:
-    """:func:`summary` from what the run's observers gathered; ``failure``: the run stopped early (status failed,
+    travel: dict[str, Any] | None = None,
+) -> RunSummary:
+    """summary.json of a run of ``scenario`` (a :class:`gantry_twin.scenario.Scenario`) from what the run's
+    observers gathered; ``failure``: the run stopped early (status failed,
     no contour error or estimates: they judge a whole run). ``overrides``, ``controller_option``: the command
     line's ``--set KEY=VALUE`` and ``--controller`` (already in the resolved scenario; kept to say how it was made)."""
     out: dict[str, Any] = {
@@ -79,7 +261,8 @@ def run_summary(
                 out["confidence"] = metrics.confidence.statistics()
     if health is not None:
         out["health"] = health_summary(health)
-    return out
+    out.update(travel or {})  # events, end_stop_contacts, saturation (gantry_twin.events.TravelWatch.summary)
+    return RunSummary.model_validate(out)
 
 
 def whole_run_summary(whole: WholeRunMetrics) -> dict[str, Any]:
@@ -138,6 +321,30 @@ def health_summary(report: Any) -> dict[str, Any]:
     return out
 
 
-def summary_json(data: dict[str, Any]) -> str:
-    """Canonical JSON text: fixed key order, shortest round-trip floats, newline at the end."""
-    return json.dumps(data, indent=2, allow_nan=False) + "\n"
+def summary_json(summary: RunSummary) -> str:
+    """Canonical JSON text: the type's key order, shortest round-trip floats, newline at the end."""
+    return json.dumps(summary.as_dict(), indent=2, allow_nan=False) + "\n"
+
+
+def log_summary(log: Any, report: Any, estimate_window_s: tuple[float, float]) -> RunSummary:
+    """summary.json of ``monitor --log``: the log (:class:`gantry_twin.sysid.logs.Log`), the mean estimates over
+    the window, the ``health`` section of the monitor's :class:`gantry_twin.health.monitor.MonitorReport`."""
+    theta = report.estimate
+    t = report.t_s
+    lo, hi = estimate_window_s
+    inside = (t >= lo) & (t <= hi) if theta is not None else np.zeros(0, dtype=bool)
+    data: dict[str, Any] = {
+        "schema_version": SUMMARY_SCHEMA_VERSION,
+        "log": str(Path(log.path)),
+        "controller": "diarc",
+        "duration_s": log.duration_s,
+        "sample_period_s": log.sample_period_s,
+        "steps": log.samples,
+        "status": "ok",
+    }
+    if theta is not None and inside.any():
+        mean = theta[inside].mean(axis=0)
+        data["estimates_window_s"] = [lo, hi]
+        data["estimates"] = {name: {"estimate": float(v)} for name, v in zip(THETA_NAMES, mean, strict=True)}
+    data["health"] = health_summary(report)
+    return RunSummary.model_validate(data)

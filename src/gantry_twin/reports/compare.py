@@ -26,6 +26,7 @@ from typing import Any
 
 from gantry_twin.outputs.files import atomic_write_dir, atomic_write_text
 from gantry_twin.outputs.rundirs import new_run_dir, resolve_run
+from gantry_twin.outputs.summary import RunSummary, SummaryError
 from gantry_twin.plant import AXES, THETA_NAMES
 
 #: Where compare writes without --out: RUNS_DIR/compare/<UTC time>-<id>/ (RUNS_DIR of the command line).
@@ -44,17 +45,17 @@ class Run:
     """One run to compare: its directory, summary.json's content, its column name (#1, #2, ...)."""
 
     directory: Path
-    summary: dict[str, Any]
+    summary: RunSummary
     column: str
 
 
 def labels(runs: Sequence[Run]) -> list[str]:
     """Legend labels: column, controller and the ``--set`` overrides not common to every run (shortened)."""
-    sets = [list(run.summary.get("overrides") or []) for run in runs]
+    sets = [list(run.summary.overrides or []) for run in runs]
     common = set.intersection(*(set(s) for s in sets)) if sets else set()
     return [
         textwrap.shorten(
-            f"{run.column} {run.summary.get('controller', '?')} " + " ".join(o for o in s if o not in common),
+            f"{run.column} {run.summary.controller} " + " ".join(o for o in s if o not in common),
             LABEL_CHARS,
             placeholder="...",
         )
@@ -87,11 +88,9 @@ def load_run(arg: str, column: str) -> Run:
     if not summary_path.is_file():
         raise CompareError(f"{arg}: not a run directory: no summary.json (a run that did not finish?)")
     try:
-        summary = json.loads(summary_path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, ValueError) as exc:
-        raise CompareError(f"{summary_path}: not a readable summary.json ({exc})") from None
-    if not isinstance(summary, dict) or "scenario" not in summary or "controller" not in summary:
-        raise CompareError(f"{summary_path}: not a gantry-twin summary.json (no 'scenario' and 'controller')")
+        summary = RunSummary.read(summary_path)
+    except SummaryError as exc:
+        raise CompareError(str(exc)) from None
     return Run(directory, summary, column)
 
 
@@ -100,10 +99,14 @@ def load_run(arg: str, column: str) -> Run:
 
 
 def _get(data: Any, *keys: Any) -> Any:
+    """summary.<key>.<key>... through the typed summary (a field or a per-axis / per-parameter key); None if absent."""
     for key in keys:
-        if not isinstance(data, dict) or key not in data:
+        if isinstance(data, dict):
+            data = data.get(key)
+        else:
+            data = getattr(data, key, None)
+        if data is None:
             return None
-        data = data[key]
     return data
 
 
@@ -111,15 +114,16 @@ def _window(w: Any) -> str | None:
     return None if w is None else f"[{w[0]:.3f}, {w[1]:.3f}]"
 
 
-def _estimate(s: dict[str, Any], name: str) -> Any:
+def _estimate(s: RunSummary, name: str) -> Any:
     e = _get(s, "estimates", name)
     if e is None:
         return None
-    pct = "" if e["error_pct"] is None else f" ({e['error_pct']:+.2f} %)"
-    return f"{e['estimate']:.5f} / {e['true']:.4f}{pct}"
+    pct = "" if e.error_pct is None else f" ({e.error_pct:+.2f} %)"
+    true = "-" if e.true is None else f"{e.true:.4f}"
+    return f"{e.estimate:.5f} / {true}{pct}"
 
 
-def _periods(s: dict[str, Any]) -> Any:
+def _periods(s: RunSummary) -> Any:
     rms = _get(s, "contour_error_per_period_um", "rms")
     if not rms:
         return None
@@ -127,20 +131,20 @@ def _periods(s: dict[str, Any]) -> Any:
     return f"{rms[0]:.3f} / {rms[-1]:.3f} / {rms[worst]:.3f} (period {worst})"
 
 
-def _alarms(s: dict[str, Any]) -> Any:
-    if "health" not in s:
+def _alarms(s: RunSummary) -> Any:
+    if s.health is None:
         return "no monitor"
-    alarms = s["health"]["alarms"]
-    return f"{len(alarms)}" + (": " + ", ".join(a["parameter"] for a in alarms) if alarms else "")
+    alarms = s.health.alarms
+    return f"{len(alarms)}" + (": " + ", ".join(a.parameter for a in alarms) if alarms else "")
 
 
 #: (row name, the summary.json section it reads (for the missing-figure note), value of a summary).
-ROWS: list[tuple[str, str, Callable[[dict[str, Any]], Any]]] = [
-    ("scenario", "scenario", lambda s: s.get("scenario")),
-    ("controller", "controller", lambda s: s.get("controller")),
-    ("--set overrides", "overrides", lambda s: None if "overrides" not in s else " ".join(s["overrides"]) or "-"),
-    ("duration (s)", "duration_s", lambda s: s.get("duration_s")),
-    ("status", "status", lambda s: s.get("status")),
+ROWS: list[tuple[str, str, Callable[[RunSummary], Any]]] = [
+    ("scenario", "scenario", lambda s: s.scenario or s.log),
+    ("controller", "controller", lambda s: s.controller),
+    ("--set overrides", "overrides", lambda s: None if s.overrides is None else " ".join(s.overrides) or "-"),
+    ("duration (s)", "duration_s", lambda s: s.duration_s),
+    ("status", "status", lambda s: s.status),
     ("paper's window window_s (s)", "contour_error_um", lambda s: _window(_get(s, "contour_error_um", "window_s"))),
     ("eps_c rms over window_s (um)", "contour_error_um", lambda s: _get(s, "contour_error_um", "rms")),
     ("eps_c max over window_s (um)", "contour_error_um", lambda s: _get(s, "contour_error_um", "max")),
@@ -164,34 +168,34 @@ ROWS: list[tuple[str, str, Callable[[dict[str, Any]], Any]]] = [
         (
             f"u_{a} at its limit, whole run (%)",
             "saturation",
-            lambda s, a=a: None if _get(s, "saturation", a) is None else 100.0 * s["saturation"][a]["fraction"],
+            lambda s, a=a: None if _get(s, "saturation", a) is None else 100.0 * s.saturation[a].fraction,
         )
         for a in AXES
     ],
     ("eps_c rms per period: first / last / largest (um)", "contour_error_per_period_um", _periods),
-    ("estimates window (s)", "estimates", lambda s: _window(s.get("estimates_window_s"))),
+    ("estimates window (s)", "estimates", lambda s: _window(s.estimates_window_s)),
     *[(f"{n} estimate / true (error)", "estimates", lambda s, n=n: _estimate(s, n)) for n in THETA_NAMES],
     ("health alarms", "health", _alarms),
     (
         "end-stop contacts",
         "end_stop_contacts",
         lambda s: (
-            None if "end_stop_contacts" not in s else ", ".join(f"{a} {n}" for a, n in s["end_stop_contacts"].items())
+            None if s.end_stop_contacts is None else ", ".join(f"{a} {n}" for a, n in s.end_stop_contacts.items())
         ),
     ),
 ]
 
 
-def _why_absent(s: dict[str, Any], section: str) -> str | None:
+def _why_absent(s: RunSummary, section: str) -> str | None:
     """Why a run has no value for a row: None when the figure should be there (then it is missing)."""
-    if s.get("status") == "failed" and section in (
+    if s.failed and section in (
         "contour_error_um",
         "whole_run",
         "contour_error_per_period_um",
         "estimates",
     ):
         return "- (failed run)"
-    if section == "estimates" and "contour_error_um" in s and "estimates" not in s:
+    if section == "estimates" and s.contour_error_um is not None and s.estimates is None:
         return "- (not estimated)"
     return None
 

@@ -8,7 +8,6 @@ its options (an exception from a plug-in's factory is reported against
 
 from __future__ import annotations
 
-import json
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,9 +21,10 @@ from gantry_twin.faults import PlantChanges
 from gantry_twin.friction import FrictionError
 from gantry_twin.health.confidence import EstimateConfidence
 from gantry_twin.health.monitor import Baseline, ExcitationSettings, HealthSettings, MachineMonitor
+from gantry_twin.outputs.summary import RunSummary, SummaryError
 from gantry_twin.plant import AXES, Plant
 from gantry_twin.scenario.errors import ScenarioError
-from gantry_twin.scenario.loading import InputFileError, controller_options, read_input_file
+from gantry_twin.scenario.loading import controller_options
 from gantry_twin.scenario.schema import Scenario
 from gantry_twin.sensing import SensingConfig
 from gantry_twin.settings import quote, shorten
@@ -147,14 +147,13 @@ def _baseline_from_summary(given: str, source: str) -> Baseline:
         path = Path(source).parent / path
     field = "monitor.baseline_summary"
     try:
-        text = read_input_file(path, "a run's summary.json")
-    except InputFileError as exc:
-        raise ScenarioError(source, field, f"{quote(str(path))}: {exc}") from None
+        summary = RunSummary.read(path)
+    except SummaryError as exc:
+        raise ScenarioError(source, field, f"{quote(str(path))}: {exc.reason}") from None
     try:
-        data = json.loads(text)
-        estimates = {name: float(e["estimate"]) for name, e in data["estimates"].items()}
+        estimates = {name: e.estimate for name, e in (summary.estimates or {}).items()}
         return Baseline.from_mapping(estimates, f"commissioning run {path}")
-    except (ValueError, KeyError, TypeError, AttributeError, RecursionError) as exc:
+    except ValueError as exc:
         why = shorten(str(exc).splitlines()[0] if str(exc) else type(exc).__name__, 120)
         raise ScenarioError(
             source, field, f"{quote(str(path))} is not a DIARC run's summary.json with estimates ({why})"

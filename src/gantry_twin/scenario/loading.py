@@ -3,9 +3,7 @@
 from __future__ import annotations
 
 import copy
-import os
 import re
-import stat
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
@@ -15,58 +13,15 @@ from pydantic import ValidationError
 
 from gantry_twin.controllers import ArcGains
 from gantry_twin.controllers.base import factory_for
+from gantry_twin.inputs import InputFileError, read_input_file
 from gantry_twin.scenario.errors import ScenarioError, raise_validation
 from gantry_twin.scenario.schema import ControllerSpec, Scenario, typed_options
 from gantry_twin.settings import QUOTE_MAX_CHARS, fmt, label_from, quote, shorten
 
-#: Largest file read as YAML or JSON (a scenario file, ``monitor.baseline_summary``), bytes. A scenario
-#: is a few hundred bytes and a run's summary.json a few KiB; the cap bounds the time and memory of a parse.
-INPUT_MAX_BYTES = 256 * 1024
 #: Deepest nesting of mappings and lists in a YAML input (a scenario needs 5; ``--set`` paths alike).
 INPUT_MAX_DEPTH = 20
 
 _YAML_BASE: type = getattr(yaml, "CSafeLoader", yaml.SafeLoader)  # libyaml's parser when present (faster)
-
-
-class InputFileError(ValueError):
-    """A file that is not read: one line saying why (no such file, a device, too large, not UTF-8)."""
-
-
-def read_input_file(path: str | Path, what: str) -> str:
-    """The UTF-8 text of a regular file of at most :data:`INPUT_MAX_BYTES`; else :class:`InputFileError`.
-
-    Checked before anything is read: a directory, device, FIFO or socket (also
-    behind a symlink, e.g. to /dev/zero) is refused without being opened, and
-    at most INPUT_MAX_BYTES + 1 bytes are ever read. ``what`` names what the
-    file should be ("a scenario YAML file").
-    """
-    try:
-        info = os.stat(path)
-    except FileNotFoundError:
-        raise InputFileError(f"no such file; give {what}") from None
-    except OSError as exc:
-        raise InputFileError(f"cannot read ({exc.strerror}); give {what}") from None
-    if stat.S_ISDIR(info.st_mode):
-        raise InputFileError(f"is a directory; give {what}")
-    if not stat.S_ISREG(info.st_mode):
-        raise InputFileError(f"is not a regular file (a device, FIFO or socket); give {what}")
-    too_large = f"is larger than {INPUT_MAX_BYTES // 1024} KiB, the limit for {what}"
-    if info.st_size > INPUT_MAX_BYTES:
-        raise InputFileError(too_large)
-    try:
-        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0))
-        with os.fdopen(fd, "rb") as fh:
-            if not stat.S_ISREG(os.fstat(fh.fileno()).st_mode):  # replaced since the stat above
-                raise InputFileError(f"is not a regular file; give {what}")
-            data = fh.read(INPUT_MAX_BYTES + 1)
-    except OSError as exc:
-        raise InputFileError(f"cannot read ({exc.strerror}); give {what}") from None
-    if len(data) > INPUT_MAX_BYTES:
-        raise InputFileError(too_large)
-    try:
-        return data.decode("utf-8")
-    except UnicodeDecodeError:
-        raise InputFileError(f"not UTF-8 text; give {what}") from None
 
 
 class _Loader(_YAML_BASE):  # type: ignore[misc, valid-type]

@@ -18,7 +18,7 @@ import math
 from typing import Annotated, Any, ClassVar, Literal, get_type_hints
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, create_model, model_validator
+from pydantic import Field, create_model, model_validator
 from pydantic_core import PydanticCustomError
 
 from gantry_twin.contours import Ellipse, TimingLaw
@@ -34,7 +34,7 @@ from gantry_twin.health.monitor import (
 )
 from gantry_twin.plant import Payload, PlantSettings
 from gantry_twin.sensing import SensingConfig
-from gantry_twin.settings import VOLTS_MAX_V, Frequency, Label, Range, Real, Seconds, Window, known_keys, quote
+from gantry_twin.settings import VOLTS_MAX_V, Frequency, Label, Model, Range, Real, Seconds, Window, quote
 from gantry_twin.simulate import Disturbance
 
 #: Longest run accepted, s (30 s is the paper's; an hour is 18 M samples).
@@ -43,19 +43,11 @@ DURATION_MAX_S = 3600.0
 Volts = Range(-VOLTS_MAX_V, VOLTS_MAX_V, "V")
 
 
-class _Model(BaseModel):
-    """Frozen, unknown keys rejected with the list of allowed keys."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-    _known_keys = model_validator(mode="before")(classmethod(known_keys))
-
-
 # ---------------------------------------------------------------------------
 # The contour and its timing.
 
 
-class TimingSpec(_Model):
+class TimingSpec(Model):
     """phi(t): constant rate after an optional smooth start (control-spec section 3)."""
 
     rate_rad_s: Range(0.0, 20.0, "rad/s", lo_open=True) | None = None
@@ -67,7 +59,7 @@ Point2 = tuple[Real, Real]
 Extent = Range(0.0, 1.0, "m", lo_open=True)
 
 
-class CircleSpec(_Model):
+class CircleSpec(Model):
     """The paper's circle (5.1): radius 0.2 m at 2 rad/s (0.4 m/s)."""
 
     type: Literal["circle"] = "circle"
@@ -81,7 +73,7 @@ class CircleSpec(_Model):
         return Ellipse(self.radius_m, self.radius_m, tuple(self.centre_m))
 
 
-class EllipseSpec(_Model):
+class EllipseSpec(Model):
     """p(phi) = centre + [a sin phi, -b cos phi]; the paper's (5.2) at 3 rad/s."""
 
     type: Literal["ellipse"] = "ellipse"
@@ -103,7 +95,7 @@ ContourSpec = Annotated[CircleSpec | EllipseSpec, Field(discriminator="type")]
 # Disturbance events.
 
 
-class _Event(_Model):
+class _Event(Model):
     start_s: Seconds = 0.0
     end_s: Seconds | None = None
 
@@ -167,7 +159,7 @@ CONTOUR_TYPES = tuple(m.model_fields["type"].default for m in (CircleSpec, Ellip
 EVENT_TYPES = tuple(m.model_fields["type"].default for m in (StepEvent, RampEvent, SineEvent))
 
 
-class DisturbanceSpec(_Model):
+class DisturbanceSpec(Model):
     """Input disturbance per axis (volts, summed over events), unseen by the controller."""
 
     x: list[EventSpec] = []
@@ -196,7 +188,7 @@ class DisturbanceSpec(_Model):
 # Controller, monitor, outputs.
 
 
-class ControllerSpec(_Model):
+class ControllerSpec(Model):
     """A controller by registry name and the keyword options of its factory."""
 
     name: str = "diarc"
@@ -218,7 +210,7 @@ _HEALTH = HealthSettings()
 _EXCITATION = ExcitationSettings()
 
 
-class MonitorSpec(_Model):
+class MonitorSpec(Model):
     """The excitation and health monitor (gantry_twin.health.monitor, docs/health.md).
 
     Its fields are those of :class:`ExcitationSettings` and
@@ -238,7 +230,7 @@ class MonitorSpec(_Model):
     filter_hz: FilterHz | None = None
 
 
-class OutputsSpec(_Model):
+class OutputsSpec(Model):
     """Where and what ``gantry-twin run`` writes: ``runs/<dir>/`` (default ``runs/<name>/``) unless ``--out``."""
 
     dir: Label | None = None
@@ -250,7 +242,7 @@ class OutputsSpec(_Model):
 # The whole run.
 
 
-class Scenario(_Model):
+class Scenario(Model):
     """A whole run. Every field has a default; see docs/scenarios.md."""
 
     name: Label | None = None
@@ -322,7 +314,7 @@ class Scenario(_Model):
 
 
 @functools.cache
-def typed_options(factory: Any) -> type[_Model] | None:
+def typed_options(factory: Any) -> type[Model] | None:
     """A model of the factory's keyword arguments, for a built-in (defined in gantry_twin); None for a plug-in."""
     if not str(getattr(factory, "__module__", "")).startswith("gantry_twin."):
         return None
@@ -332,4 +324,4 @@ def typed_options(factory: Any) -> type[_Model] | None:
         for name, p in inspect.signature(factory).parameters.items()
         if p.kind in (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)
     }
-    return create_model(f"{factory.__name__}Options", __base__=_Model, **fields)
+    return create_model(f"{factory.__name__}Options", __base__=Model, **fields)

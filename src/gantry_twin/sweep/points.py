@@ -31,6 +31,7 @@ from typing import Any
 import yaml
 
 from gantry_twin.metrics import axial_rms_um, max_abs_command_v
+from gantry_twin.outputs.summary import RunSummary
 from gantry_twin.plant import AXES
 from gantry_twin.run import RUN_FILES, execute, package_version, summarise, write_run
 from gantry_twin.scenario import ScenarioError, apply_overrides, build, read_scenario_file, validate_data
@@ -160,22 +161,19 @@ def run_point(resolved: dict[str, Any], source: str, keep_runs: bool = False) ->
     return PointResult({**row, "wall_time_s": wall_time_s, "status": STATUS_OK, "error": None}, files)
 
 
-def metrics_row(data: dict[str, Any], axial_um: Any, max_abs_u_v: Any) -> dict[str, Any]:
-    """A row's metric columns from a run's summary.json data and the metrics summary lacks."""
-    contour = data["contour_error_um"]
-    row: dict[str, Any] = {"contour_rms_um": contour["rms"], "contour_max_um": contour["max"]}
+def metrics_row(summary: RunSummary, axial_um: Any, max_abs_u_v: Any) -> dict[str, Any]:
+    """A row's metric columns from a run's summary and the metrics the summary lacks."""
+    contour = summary.contour_error_um
+    row: dict[str, Any] = {"contour_rms_um": contour.rms, "contour_max_um": contour.max}
+    saturation = summary.saturation or {}
     for i, axis in enumerate(AXES):
         row[f"axial_rms_{axis}_um"] = float(axial_um[i])
         row[f"max_abs_u_{axis}_v"] = float(max_abs_u_v[i])
-        row[f"saturated_fraction_{axis}"] = float(data["saturation"][axis]["fraction"])
-    for name, e in data.get("estimates", {}).items():
-        row[f"estimate_{name}"], row[f"true_{name}"], row[f"error_pct_{name}"] = (
-            e["estimate"],
-            e["true"],
-            e["error_pct"],
-        )
-        row[f"trustworthy_{name}"] = e.get("trustworthy")  # DIARC only (gantry_twin.health.confidence)
-    row["alarms"] = len(data["health"]["alarms"]) if "health" in data else None
+        row[f"saturated_fraction_{axis}"] = float(saturation[axis].fraction)
+    for name, e in (summary.estimates or {}).items():
+        row[f"estimate_{name}"], row[f"true_{name}"], row[f"error_pct_{name}"] = e.estimate, e.true, e.error_pct
+        row[f"trustworthy_{name}"] = e.trustworthy  # DIARC only (gantry_twin.health.confidence)
+    row["alarms"] = len(summary.health.alarms) if summary.health is not None else None
     return row
 
 

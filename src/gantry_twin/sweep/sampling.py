@@ -16,23 +16,15 @@ import math
 from typing import Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, model_validator
+from pydantic import model_validator
 
-from gantry_twin.settings import Count, Positive, Real, known_keys, rule
+from gantry_twin.settings import Count, Model, Positive, Real, rule
 
 #: Most points one sweep may hold (grid x samples x repeats).
 POINTS_MAX = 100_000
 Num = Count(1, POINTS_MAX)
 Seed = Count(0, 2**63 - 1)
 Method = Literal["random", "latin_hypercube"]
-
-
-class _Model(BaseModel):
-    """Frozen, unknown keys rejected with the list of allowed keys."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-    _known_keys = model_validator(mode="before")(classmethod(known_keys))
 
 
 def _pair(cls: type, data: Any) -> Any:
@@ -47,7 +39,7 @@ def _ordered(lo: float, hi: float, field: str) -> None:
         raise rule(field, f"must be above {lo:g}, got {hi:g}")
 
 
-class Linspace(_Model):
+class Linspace(Model):
     """``num`` values evenly spaced from ``start`` to ``stop`` (both included)."""
 
     start: Real
@@ -58,7 +50,7 @@ class Linspace(_Model):
         return [float(v) for v in np.linspace(self.start, self.stop, self.num)]
 
 
-class Logspace(_Model):
+class Logspace(Model):
     """``num`` values from ``start`` to ``stop`` (both included, both > 0) evenly spaced in log."""
 
     start: Positive
@@ -69,7 +61,7 @@ class Logspace(_Model):
         return [float(v) for v in np.geomspace(self.start, self.stop, self.num)]
 
 
-class Uniform(_Model):
+class Uniform(Model):
     """Uniform on [low, high) (``uniform: [low, high]`` in a file)."""
 
     low: Real
@@ -86,7 +78,7 @@ class Uniform(_Model):
         return self.low + u * (self.high - self.low)
 
 
-class LogUniform(_Model):
+class LogUniform(Model):
     """log(x) uniform on [log low, log high), low > 0 (``log_uniform: [low, high]`` in a file)."""
 
     low: Positive
@@ -103,7 +95,7 @@ class LogUniform(_Model):
         return np.exp(math.log(self.low) + u * (math.log(self.high) - math.log(self.low)))
 
 
-class Normal(_Model):
+class Normal(Model):
     """Gaussian N(mean, std^2), truncated to [min, max] when they are given."""
 
     mean: Real
@@ -128,7 +120,7 @@ class Normal(_Model):
         return np.clip(x, -math.inf if self.min is None else self.min, math.inf if self.max is None else self.max)
 
 
-class RandomField(_Model):
+class RandomField(Model):
     """One scenario field drawn at random: exactly one of ``uniform``, ``normal``, ``log_uniform``."""
 
     field: str
@@ -148,7 +140,7 @@ class RandomField(_Model):
         return next(d for d in (self.uniform, self.normal, self.log_uniform) if d is not None)
 
 
-class RandomSpec(_Model):
+class RandomSpec(Model):
     """``samples`` draws of every field in ``fields``, by ``method``, from ``seed``."""
 
     samples: Num

@@ -30,10 +30,10 @@ from gantry_twin.sweep.sampling import (
     POINTS_MAX,
     Linspace,
     Logspace,
+    Model,
     Num,
     RandomSpec,
     Seed,
-    _Model,
     grid_values,
 )
 
@@ -63,7 +63,7 @@ def _field_path(value: str, where: str) -> str:
     return value
 
 
-class Axis(_Model):
+class Axis(Model):
     """One grid axis: a field and its values (``values``, ``linspace`` or ``logspace``)."""
 
     field: str
@@ -85,7 +85,7 @@ class Axis(_Model):
         return grid_values(self.values, self.linspace, self.logspace)
 
 
-class Repeats(_Model):
+class Repeats(Model):
     """Run every point ``count`` times, writing seed, seed + 1, ... into the scenario field ``field``."""
 
     count: Num
@@ -98,7 +98,7 @@ class Repeats(_Model):
         return self
 
 
-class SweepSpec(_Model):
+class SweepSpec(Model):
     """A whole sweep file. Points: the grid of ``axes`` x the ``random`` draws x the ``repeats``."""
 
     scenario: str
