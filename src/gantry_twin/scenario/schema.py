@@ -56,7 +56,7 @@ class _Model(BaseModel):
 
 
 class TimingSpec(_Model):
-    """phi(t): constant rate after an optional smooth start (control-spec section 3)."""
+    """phi(t): constant rate after an optional smooth start (docs/equations.md, contour and timing law)."""
 
     rate_rad_s: Range(0.0, 20.0, "rad/s", lo_open=True) | None = None
     start: Literal["on_path", "rest"] = "on_path"
