@@ -1,4 +1,4 @@
-"""Cost of the end-stop and saturation scan (gantry_twin.events, issue 12) over the longest run allowed.
+"""Cost of the end-stop and saturation scan (gantry_twin.events) over the longest run allowed.
 
     PYTHONPATH=src python benchmarks/bench_events.py [--seconds 3600]
 

@@ -1,4 +1,4 @@
-"""The many-seed study behind issue 17's identification acceptance (docs/logs.md).
+"""The many-seed study behind the identification acceptance (docs/logs.md).
 
     PYTHONPATH=src python benchmarks/bench_identify.py [--seeds 10] [--first 100]
 

@@ -1,4 +1,4 @@
-"""The many-seed study behind issue 17's LuGre identification acceptance (docs/logs.md).
+"""The many-seed study behind the LuGre identification acceptance (docs/logs.md).
 
     PYTHONPATH=src python benchmarks/bench_identify_lugre.py [--seeds 10] [--first 100] [--multisine-s 20]
 
@@ -26,7 +26,8 @@ from gantry_twin.sysid.logs import Log
 from gantry_twin.sysid.lugre import identify_lugre
 from gantry_twin.sysid.trajectory import design, random_lugre_plant, run_on_twin, with_plateaus
 
-#: Issue 17's targets, relative: Fc, sigma2, Fs 10 %, vs and sigma0 30 %, the circle's rms contour error 15 %.
+#: The acceptance's targets (docs/logs.md), relative: Fc, sigma2, Fs 10 %, vs and sigma0 30 %, the circle's rms
+#: contour error 15 %.
 TARGETS = {"fc_n": 0.10, "fs_n": 0.10, "sigma2_ns_m": 0.10, "vs_m_s": 0.30, "sigma0_n_m": 0.30, "sigma1_ns_m": None}
 CIRCLE_TARGET = 0.15
 

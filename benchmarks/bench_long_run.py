@@ -1,4 +1,4 @@
-"""Peak memory of a long run with the full trace (issue 12, item 8: a 3600 s run under 1.5 GB).
+"""Peak memory of a long run with the full trace (the target: a 3600 s run under 1.5 GB; docs/performance.md).
 
     PYTHONPATH=src python benchmarks/bench_long_run.py [--duration 3600] [--scenario no_load_circle] [--keep DIR]
 
@@ -19,7 +19,7 @@ import tempfile
 import time
 from pathlib import Path
 
-#: The acceptance bound of issue 12 for a 3600 s run with the full trace.
+#: The acceptance bound for a 3600 s run with the full trace.
 TARGET_RSS_MB = 1500.0
 
 

@@ -1,4 +1,4 @@
-"""Cost of the 0.2 ms loop against MuJoCo's own C loop (issues 6 and 11).
+"""Cost of the 0.2 ms loop against MuJoCo's own C loop (docs/performance.md).
 
     PYTHONPATH=src python benchmarks/bench_loop.py [--seconds 4] [--repeats 5]
 
@@ -103,7 +103,7 @@ def loop(name: str, seconds: float, backend: str = "compiled", friction: str = "
 
 
 def friction_costs(seconds: float, repeats: int, n: int) -> None:
-    """The loop's cost per 0.2 ms sample with the Coulomb and the LuGre plant, side by side (issue 15)."""
+    """The loop's cost per 0.2 ms sample with the Coulomb and the LuGre plant, side by side (docs/friction.md)."""
     keys = ["mj_step C loop", "pd", "diarc"]
     results: dict[tuple[str, str], list[tuple[float, float]]] = {}
     for name in keys[1:]:

@@ -1,4 +1,4 @@
-"""Wall time of the paper's 16 runs of 30 s in parallel processes (issue 6, acceptance 2).
+"""Wall time of the paper's 16 runs of 30 s in parallel processes (target 20 s; docs/performance.md).
 
     PYTHONPATH=src python benchmarks/bench_report.py [--processes 2] [--duration 30] [--cold]
 

@@ -1,4 +1,4 @@
-"""Time to draw a run's figures (plots/*.png, gantry_twin.outputs.plots) beside the time of the run itself (issue 13).
+"""Time to draw a run's figures (plots/*.png, gantry_twin.outputs.plots) beside the time of the run itself.
 
     PYTHONPATH=src python benchmarks/bench_runplots.py [--scenario no_load_circle] [--duration 30] [--repeat 3]
 

@@ -1,4 +1,4 @@
-"""The runs behind the ranges of the estimator and controller settings (issue 12, item 7; docs/scenarios.md).
+"""The runs behind the ranges of the estimator and controller settings (docs/scenarios.md).
 
     PYTHONPATH=src python benchmarks/bench_settings.py [--seconds 10] [--only filter_hz,ks_v_s_m]
 

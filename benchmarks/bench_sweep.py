@@ -1,4 +1,4 @@
-"""Throughput and overhead of the sweep engine (issue 14, acceptance 4).
+"""Throughput and overhead of the sweep engine (docs/performance.md, docs/sweeps.md).
 
     PYTHONPATH=src python benchmarks/bench_sweep.py [--points 16] [--duration 10] [--workers 1 2]
 

@@ -1,10 +1,10 @@
-"""Size and write time of trace.parquet for each storage choice (issue 13, item 5).
+"""Size and write time of trace.parquet for each storage choice (docs/performance.md).
 
     PYTHONPATH=src python benchmarks/bench_trace_write.py [--duration 30] [--scenario no_load_circle] [--repeats 5]
 
 Simulates one run in memory (DIARC on the scenario, full 5 kHz), builds its table as
 :func:`gantry_twin.outputs.tracefile.trace_table` does (float64 time and positions, float32 the rest) and as
-before issue 13 (every column float64), then writes it once per choice below into a temporary
+before the compact trace (every column float64), then writes it once per choice below into a temporary
 file, one row group per 10 s of the run as ``gantry-twin run`` writes it, and prints the file's
 size and the best of ``--repeats`` write times (``pq.write_table`` on the ready table; building
 the table is timed once, apart). The row marked ``*`` is the shipped choice
@@ -29,10 +29,10 @@ from gantry_twin.outputs.files import PARQUET_OPTIONS
 from gantry_twin.outputs.tracefile import TRACE_PARQUET_OPTIONS, trace_table
 
 BSS = {"column_encoding": "BYTE_STREAM_SPLIT"}
-#: (label, all float64?, writer options); the first is the writer before issue 13, the shipped one is marked.
+#: (label, all float64?, writer options); the first is the writer before the compact trace, the shipped one is marked.
 CHOICES: list[tuple[str, bool, dict[str, Any]]] = [
     ("float64, snappy (before)", True, PARQUET_OPTIONS),
-    ("float64, snappy, dictionary pages (before issue 12)", True, {}),
+    ("float64, snappy, dictionary pages (older)", True, {}),
     ("float64, zstd", True, {**PARQUET_OPTIONS, "compression": "zstd"}),
     ("float64, zstd, BYTE_STREAM_SPLIT", True, {**PARQUET_OPTIONS, "compression": "zstd", **BSS}),
     ("mixed, snappy", False, PARQUET_OPTIONS),
@@ -98,7 +98,7 @@ def main() -> None:
     started = time.perf_counter()
     mixed = trace_table(trace)
     build_s = time.perf_counter() - started
-    with mock.patch.object(results, "stored_dtype", lambda column: np.float64):  # the table before issue 13
+    with mock.patch.object(results, "stored_dtype", lambda column: np.float64):  # the table before the compact trace
         float64 = results.trace_table(trace)
     per_s = round(1.0 / trace.sample_period_s)
     rows_10s = 10 * per_s

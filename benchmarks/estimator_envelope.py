@@ -1,6 +1,6 @@
-"""DIARC's estimate errors over the machine's envelope (issue 16): write the sweep, read its results.
+"""DIARC's estimate errors over the machine's envelope (docs/estimator-envelope.md): write the sweep, read its results.
 
-    PYTHONPATH=src python benchmarks/estimator_envelope.py write [--monitor [--corners]] [--issue7] \
+    PYTHONPATH=src python benchmarks/estimator_envelope.py write [--monitor [--corners]] [--earlier-estimator] \
         [--estimator paper|recommended] [--keep-runs]
     gantry-twin sweep estimator_envelope --workers 2
     PYTHONPATH=src python benchmarks/estimator_envelope.py map runs/sweeps/estimator_envelope/results.parquet... \
@@ -10,8 +10,8 @@
 speeds SPEEDS_M_S and sizes SIZES_M (circle radius; ellipse semi-axes r and
 r / 2, the paper's shape), the rates rate = speed / size within the
 scenario's 20 rad/s, both payloads and the estimators of ESTIMATORS. With
-``--issue7`` the estimator axis also holds the recommended estimator as it
-was before issue 16 (ISSUE7_ESTIMATOR). With
+``--earlier-estimator`` the estimator axis also holds the earlier
+recommended estimator (EARLIER_ESTIMATOR). With
 ``--monitor`` it writes sweeps/estimator_envelope_monitor.yaml instead: the
 recommended estimator alone, 60 s, with the health monitor on (its alarms
 column is the false-alarm check). To rerun the map on another plant, add
@@ -49,8 +49,8 @@ CORNER_SPEEDS_M_S = (0.02, 0.05, 0.2, 0.6)
 CORNER_SIZES_M = (0.02, 0.2)
 #: The scenario's largest rate (TimingSpec.rate_rad_s).
 RATE_MAX_RAD_S = 20.0
-#: "issue7": the recommended estimator before issue 16 (50 Hz filters, Sf of the differenced velocity, every row).
-ISSUE7_ESTIMATOR = {"filter_hz": [50.0, 50.0], "least_squares": {"kappa": 0.7}, "gamma_d": [3.0e4, 3.0e4]}
+#: "earlier": the earlier recommended estimator (50 Hz filters, Sf of the differenced velocity, no reversal gate).
+EARLIER_ESTIMATOR = {"filter_hz": [50.0, 50.0], "least_squares": {"kappa": 0.7}, "gamma_d": [3.0e4, 3.0e4]}
 ESTIMATORS = ("paper", "recommended")
 PARAMETERS = ("M1", "M2", "B1", "B2", "Af1", "Af2")
 #: Every point: 30 s (the paper's), the estimates averaged over the last 10 s (several laps of the fast
@@ -86,16 +86,16 @@ def contours(speeds: tuple[float, ...] = SPEEDS_M_S, sizes: tuple[float, ...] = 
 
 
 def write_sweep(
-    monitor: bool, issue7: bool = False, corners: bool = False, estimator: str | None = None, keep_runs: bool = False
+    monitor: bool, earlier: bool = False, corners: bool = False, estimator: str | None = None, keep_runs: bool = False
 ) -> Path:
     name = "estimator_envelope_monitor" if monitor else "estimator_envelope"
     if monitor:
         estimators = ["recommended"]
     else:
-        estimators = [*([estimator] if estimator else ESTIMATORS), *([ISSUE7_ESTIMATOR] if issue7 else [])]
+        estimators = [*([estimator] if estimator else ESTIMATORS), *([EARLIER_ESTIMATOR] if earlier else [])]
     spec = {
         "description": (
-            "Issue 16: DIARC estimates over peak speed 0.02-0.6 m/s and size 0.02-0.2 m, circle and ellipse, "
+            "DIARC estimates over peak speed 0.02-0.6 m/s and size 0.02-0.2 m, circle and ellipse, "
             + ("0 and 5 kg, recommended estimator, 60 s with the health monitor" if monitor else "0 and 5 kg, ")
             + ("" if monitor else f"{estimator or 'paper and recommended'} estimator{'' if estimator else 's'}, 30 s")
         ),
@@ -110,7 +110,8 @@ def write_sweep(
         **({"keep_runs": True} if keep_runs else {}),
     }
     path = ROOT / "sweeps" / f"{name}.yaml"
-    flags = {"--monitor": monitor, "--issue7": issue7, "--corners": corners, f"--estimator {estimator}": estimator}
+    flags = {"--monitor": monitor, "--earlier-estimator": earlier, "--corners": corners}
+    flags[f"--estimator {estimator}"] = estimator
     flags["--keep-runs"] = keep_runs
     given = "".join(f" {flag}" for flag, on in flags.items() if on)
     header = f"# Written by benchmarks/estimator_envelope.py write{given}: edit there.\n"
@@ -149,7 +150,7 @@ def load(results: Path, runs: Path | None = None) -> list[dict]:
         r["size_m"] = c.get("radius_m", c.get("semi_x_m"))
         r["speed_m_s"] = round(r["size_m"] * c["timing"]["rate_rad_s"], 6)
         est = r["controller.options.estimator"]
-        r["estimator"] = est if est in ("paper", "recommended") else "issue7"
+        r["estimator"] = est if est in ("paper", "recommended") else "earlier"
         r["worst_pct"] = max(abs(r[f"error_pct_{p}"]) for p in PARAMETERS)
         flags = [r.get(f"trustworthy_{p}") for p in PARAMETERS]
         r["trusted"] = [bool(f) if f is not None else True for f in flags]
@@ -160,7 +161,7 @@ def load(results: Path, runs: Path | None = None) -> list[dict]:
 
 
 def summarise(rows: list[dict]) -> None:
-    for est in ("paper", "issue7", "recommended"):
+    for est in ("paper", "earlier", "recommended"):
         mine = [r for r in rows if r["estimator"] == est]
         if not mine:
             continue
@@ -197,7 +198,7 @@ def draw(rows: list[dict], figure: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    estimators = [e for e in ("paper", "issue7", "recommended") if any(r["estimator"] == e for r in rows)]
+    estimators = [e for e in ("paper", "earlier", "recommended") if any(r["estimator"] == e for r in rows)]
     panels = [(s, m) for s in ("circle", "ellipse") for m in PAYLOADS_KG]
     fig, axes = plt.subplots(len(estimators), len(panels), figsize=(3.2 * len(panels), 2.6 * len(estimators)))
     axes = np.atleast_2d(axes)
@@ -231,7 +232,7 @@ def main(argv: list[str] | None = None) -> int:
     sub = parser.add_subparsers(dest="command", required=True)
     w = sub.add_parser("write", help="write the sweep file")
     w.add_argument("--monitor", action="store_true", help="the 60 s monitor sweep instead")
-    w.add_argument("--issue7", action="store_true", help="also the recommended estimator before issue 16")
+    w.add_argument("--earlier-estimator", action="store_true", help="also the earlier recommended estimator")
     w.add_argument("--corners", action="store_true", help=f"only speeds {CORNER_SPEEDS_M_S}, sizes {CORNER_SIZES_M}")
     w.add_argument("--estimator", choices=ESTIMATORS, help="this estimator alone (half the map)")
     w.add_argument(
@@ -249,7 +250,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = parser.parse_args(argv)
     if args.command == "write":
-        print(write_sweep(args.monitor, args.issue7, args.corners, args.estimator, args.keep_runs))
+        print(write_sweep(args.monitor, args.earlier_estimator, args.corners, args.estimator, args.keep_runs))
         return 0
     rows = [row for path in args.results for row in load(path, path.parent / "runs" if args.rejudge else None)]
     summarise(rows)

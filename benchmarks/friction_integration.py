@@ -1,4 +1,4 @@
-"""Integrator and physics sub-steps of a LuGre plant: accuracy against a 2 us reference, and cost (issue 15).
+"""Integrator and physics sub-steps of a LuGre plant: accuracy against a 2 us reference, and cost (docs/friction.md).
 
     PYTHONPATH=src python benchmarks/friction_integration.py [--seconds 2] [--scenarios no_load_circle ...]
         [--candidates euler:4 rk4:8 ...] [--set sensing.quantize=false ...]

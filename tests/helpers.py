@@ -1,4 +1,4 @@
-"""Helpers shared by the test modules: paper scenarios, the spec's truth, recordings read back.
+"""Helpers shared by the test modules: paper scenarios, the reference machine's truth, recordings read back.
 
 Imported normally (``from .helpers import run``); fixtures stay in conftest.py.
 """
@@ -18,19 +18,19 @@ CIRCLE_RATE = 2.0  # rad/s: 0.4 m/s on a 0.2 m radius (paper 5.1)
 ELLIPSE_RATE = 3.0  # rad/s (paper 5.2)
 
 # ---------------------------------------------------------------------------
-# The machine of control-spec section 1, typed here once as the tests' known truth (SI units,
+# The reference machine (docs/equations.md, the plant), typed here once as the tests' known truth (SI units,
 # index 0 = X, 1 = Y). The paper's theta is each of them divided by the motor gain.
 
 GEAR_N_PER_V = 69.0
 MASS_NO_LOAD_KG = np.array([8.28, 34.5])
 DAMPING_N_S_PER_M = np.array([34.5, 48.3])
 FRICTION_N = np.array([6.9, 10.35])
-#: The ARC laws' parameter bounds theta_min, theta_max (control-spec section 6, paper eq. 7).
+#: The ARC laws' parameter bounds theta_min, theta_max (paper eq. 7).
 THETA_MIN = np.array([0.05, 0.45, 0.35, 0.5, 0.05, 0.08, -0.5, -1.0])
 THETA_MAX = np.array([0.20, 0.60, 0.55, 0.8, 0.15, 0.25, 0.5, 1.0])
-#: The DS1103's DAC range, volts (control-spec section 1).
+#: The DS1103's DAC range, volts (docs/equations.md, the plant).
 DAC_LIMIT_V = 10.0
-#: The travel: 510 mm per axis about its centre (control-spec section 1), so each end is this far out, m.
+#: The travel: 510 mm per axis about its centre (docs/equations.md, the plant), so each end is this far out, m.
 TRAVEL_END_M = 0.255
 for _constant in (MASS_NO_LOAD_KG, DAMPING_N_S_PER_M, FRICTION_N, THETA_MIN, THETA_MAX):
     _constant.flags.writeable = False  # shared by every test: no test may change them
@@ -49,7 +49,7 @@ def trace_column(table, name: str) -> np.ndarray:
 
 
 def spec_theta(payload_kg: float = 0.0) -> np.ndarray:
-    """The paper's theta [M1, M2, B1, B2, Af1, Af2, dN1, dN2] (volt units) of the spec's machine carrying payload_kg.
+    """The paper's theta [M1, M2, B1, B2, Af1, Af2, dN1, dN2] (volt units) of the reference machine carrying payload_kg.
 
     The payload rides on the X carriage, which the Y carriage carries: it adds to both moving masses.
     """
@@ -60,7 +60,7 @@ def spec_theta(payload_kg: float = 0.0) -> np.ndarray:
 def pushed_from_rest_m(t_s: np.ndarray, axis: int, volts: float, payload_kg: float = 0.0) -> np.ndarray:
     """Displacement (m) of a carriage starting at rest under a constant command, before it meets anything.
 
-    The spec's machine: m x'' = kf u - B x' - Fc sign(x'), with |kf u| > Fc, so the
+    The reference machine: m x'' = kf u - B x' - Fc sign(x'), with |kf u| > Fc, so the
     carriage moves off at once in the direction of u and x' keeps that sign:
     x' = v_inf (1 - exp(-t / tau)), v_inf = (kf |u| - Fc) / B, tau = m / B.
     """

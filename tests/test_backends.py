@@ -1,7 +1,7 @@
 """The compiled loop against its uncompiled reference, and the pieces the compiled loop relies on.
 
 The compiled backend runs the same kernels as the reference backend, so the
-traces are expected to agree to the last bit; the assertions use the issue's
+traces are expected to agree to the last bit; the assertions use a
 1e-9 V bound on u and compare every other trace array exactly.
 """
 

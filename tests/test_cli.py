@@ -294,8 +294,8 @@ def test_run_writes_scenario_summary_trace(tmp_path, capsys):
     rms, peak = _window_rms_max_um(table, (0.05, 0.2))
     assert summary["contour_error_um"]["rms"] == pytest.approx(rms, rel=2 * FLOAT32_REL)
     assert summary["contour_error_um"]["max"] == pytest.approx(peak, rel=2 * FLOAT32_REL)
-    # Estimates: the trace's mean over estimates_window_s, judged against the spec's machine with 5 kg on the
-    # X carriage (M1 = (8.28 + 5) / 69, M2 = (34.5 + 5) / 69, control-spec section 1).
+    # Estimates: the trace's mean over estimates_window_s, judged against the reference machine with 5 kg on
+    # the X carriage (M1 = (8.28 + 5) / 69, M2 = (34.5 + 5) / 69, tests/helpers.py).
     est_t = table.column("t_s").to_numpy()
     sel = (est_t >= 0.1) & (est_t < 0.2)
     for name, true in zip(THETA_NAMES[:6], spec_theta(5.0), strict=False):

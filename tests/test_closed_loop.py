@@ -1,4 +1,4 @@
-"""Closed-loop acceptance of the three paper controllers (issue 3).
+"""Closed-loop acceptance of the three paper controllers.
 
 Numbers are measured against the plant's own true contouring error eps_c
 (shortest distance to the curve), not the controller's eps_n.
@@ -20,7 +20,7 @@ from .helpers import DAC_LIMIT_V, GEAR_N_PER_V, run, step_on_y
 
 
 def test_feedforward_is_exact_with_true_parameters():
-    """Checks the regressor derivation (control-spec section 5).
+    """Checks the regressor derivation (docs/equations.md, the error dynamics).
 
     Ideal sensing, no dry friction in the plant, theta^ fixed at the true
     parameters: Phi theta is then the exact inverse dynamics and DRC must

@@ -1,4 +1,4 @@
-"""Runs that never overwrite, kept and compared through the command line (issue 13, items 1 and 4).
+"""Runs that never overwrite, kept and compared through the command line.
 
 Acceptance: two runs of the same scenario without --out leave two complete run directories, and
 ``gantry-twin compare`` on them exits 0 and writes its table and plots.

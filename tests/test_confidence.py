@@ -1,4 +1,7 @@
-"""summary.json's trustworthy verdicts (gantry_twin.health.confidence, issue 16): what they are judged from."""
+"""summary.json's trustworthy verdicts (gantry_twin.health.confidence): what they are judged from.
+
+The criterion: docs/estimator-envelope.md.
+"""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Desired contours and timing laws against finite differences (issue 2, acceptance 5).
+"""Desired contours and timing laws against finite differences.
 
 Every analytic derivative is compared with a central difference of the
 quantity one order below it, for both contours and both timing laws
@@ -138,7 +138,8 @@ def test_contour_speeds_after_the_ramp(start: str) -> None:
     np.testing.assert_allclose(np.linalg.norm(circle_ref.dq_d, axis=1), 0.4, rtol=1e-12)
     timing = TimingLaw(3.0, start)
     ellipse_ref = reference(paper_ellipse(), timing, t)
-    # The spec's formula is in the time of the on_path law; the rest law lags it by half a ramp.
+    # The formula (docs/equations.md, timing law) is in the time of the on_path law; the rest law lags it by
+    # half a ramp.
     t_on_path = t - (0.5 * timing.ramp_s if start == "rest" else 0.0)
     expected = 0.3 * np.sqrt(1.0 + 3.0 * np.cos(3.0 * t_on_path) ** 2)
     np.testing.assert_allclose(np.linalg.norm(ellipse_ref.dq_d, axis=1), expected, rtol=1e-12)

@@ -1,4 +1,4 @@
-"""The controller plug-in interface and the loop's safety checks (issue 3)."""
+"""The controller plug-in interface and the loop's safety checks."""
 
 from __future__ import annotations
 
@@ -151,7 +151,8 @@ class GammaSampler:
 @pytest.mark.slow
 def test_gamma_stays_spd_and_bounded_through_20_s():
     """The full Gamma, sampled every 0.1 s of a 20 s circle run, is symmetric positive definite and
-    bounded (control-spec section 7); the logged lambda_max and diagonal are those of that matrix."""
+    bounded (docs/equations.md, the estimator's least squares); the logged lambda_max and diagonal are those
+    of that matrix."""
     controller = DIARC()
     sampler = GammaSampler(controller)
     trace, _ = run("diarc", duration_s=20.0, observers=[sampler], controller=controller)

@@ -1,8 +1,8 @@
-"""The travel end stops of models/gantry.xml (issue 12).
+"""The travel end stops of models/gantry.xml.
 
 A carriage driven at the full DAC voltage from rest, near the end or from the
 far end of its travel, with and without a 20 kg payload, must move as the
-spec's machine computes until it meets the end stop, never run more than 1 mm
+reference machine computes until it meets the end stop, never run more than 1 mm
 past the travel end, and stay within 1 mm of it, at rest, while still pushed.
 """
 
@@ -17,7 +17,7 @@ from gantry_twin.plant import AXES
 
 from .helpers import DAC_LIMIT_V, TRAVEL_END_M, pushed_from_rest_m
 
-#: How close to the travel end a stopped carriage must stay, m (issue 12).
+#: How close to the travel end a stopped carriage must stay, m.
 STOP_TOLERANCE_M = 1e-3
 #: Where the carriage starts, measured from the end it is driven to, m: near (a slow arrival) and from the
 #: other end of the travel (the fastest arrival the full voltage allows).
@@ -52,7 +52,7 @@ def test_end_stop_holds_within_1mm_at_full_voltage(axis, direction, distance_m, 
     start = end - direction * distance_m
     volts = direction * DAC_LIMIT_V
 
-    # The free motion of the spec's machine: when it would reach the end.
+    # The free motion of the reference machine: when it would reach the end.
     fine = np.arange(0.0, 2.0, 1e-6)
     arrival_s = fine[np.argmax(direction * (start + pushed_from_rest_m(fine, axis, volts, payload_kg) - end) >= 0)]
     t, q, v = drive(axis, volts, payload_kg, start, arrival_s + HOLD_S)

@@ -1,8 +1,8 @@
-"""DIARC's physical parameter estimates against the model's true values (issue 3, item 3).
+"""DIARC's physical parameter estimates against the model's true values.
 
 Steady-state estimate = mean theta^ over the last period of a 30 s run
-(control-spec section 8), compared with the spec's machine (section 1, typed
-in tests/helpers.py, not read back from the code). Checked on the estimates
+(docs/scenarios.md), compared with the reference machine (typed in
+tests/helpers.py, not read back from the code). Checked on the estimates
 themselves, not only the contour error: a zero-order-hold position filter or
 a wrong regressor keeps the contour error small but pins the estimates at
 their bounds.
@@ -29,7 +29,7 @@ DURATION_S = 30.0
 
 
 def steady_errors(contour_name, payload_kg, sensing, estimator):
-    """% deviation of each physical estimate from the spec's value, and the last period's theta^ (samples x 8)."""
+    """% deviation of each physical estimate from the reference value, and the last period's theta^ (samples x 8)."""
     trace, period = run("diarc", contour_name, DURATION_S, payload_kg, sensing=sensing, estimator=estimator)
     last_period = trace.controller_state["theta_hat"][trace.t_s >= DURATION_S - period]
     errors = deviation_pct(last_period.mean(axis=0)[:6], spec_theta(payload_kg)[:6])
@@ -53,9 +53,9 @@ def test_encoder_with_recommended_estimator_within_5_percent(contour_name, paylo
 
 
 def test_paper_filters_with_encoder_bias_m1_on_the_circle():
-    """Control-spec section 7: quantisation noise in x_f'' (gain ~wn^2, ~0.36 m/s^2 rms with the 250 Hz
-    filter) against the circle's X acceleration (0.8 m/s^2 amplitude, 0.57 rms) shrinks M1 by errors in
-    variables: by ~24 % (spec); 1 - 0.57^2 / (0.57^2 + 0.36^2) = 29 % for a lone regressor. The
+    """Quantisation noise in x_f'' (the estimator's filters, docs/equations.md; gain ~wn^2, ~0.36 m/s^2 rms
+    with the 250 Hz filter) against the circle's X acceleration (0.8 m/s^2 amplitude, 0.57 rms) shrinks M1 by
+    errors in variables: by ~24 % (expected); 1 - 0.57^2 / (0.57^2 + 0.36^2) = 29 % for a lone regressor. The
     twin reproduces it, which is why its recommended estimator uses 10 Hz filters. M1's lower bound
     (0.05 V s^2/m) is -58 %: an estimate pinned there is a different failure and must not pass."""
     errors, last_period = steady_errors("circle", 0.0, SensingConfig(), EstimatorSettings())
@@ -66,10 +66,11 @@ def test_paper_filters_with_encoder_bias_m1_on_the_circle():
         assert abs(errors[name]) < 6.0, f"{name}: {errors[name]:+.2f} %"
 
 
-#: Issue 16's slow circle: r 0.05 m at 1 rad/s (0.05 m/s peak), 30 s. The recommended estimator of issue 7
-#: (50 Hz filters, Sf(v) of the differenced velocity) gave M1 -17.7 %, B1 -21.3 %, B2 -20.2 % there.
+#: The slow circle (docs/estimator-envelope.md): r 0.05 m at 1 rad/s (0.05 m/s peak), 30 s. The earlier
+#: recommended estimator (50 Hz filters, Sf(v) of the differenced velocity) gave M1 -17.7 %, B1 -21.3 %,
+#: B2 -20.2 % there.
 SLOW_CIRCLE = ("contour.radius_m=0.05", "contour.timing.rate_rad_s=1.0")
-ISSUE7_ESTIMATOR = (
+EARLIER_ESTIMATOR = (
     "controller.options.estimator={filter_hz: [50, 50], least_squares: {kappa: 0.7}, gamma_d: [3e4, 3e4]}"
 )
 
@@ -84,15 +85,15 @@ def test_slow_circle_recommended_estimator_within_5_percent():
     estimates = slow_circle_estimates("controller.options.estimator=recommended")
     for name in PHYSICAL:
         assert abs(estimates[name]["error_pct"]) < 5.0, f"{name}: {estimates[name]['error_pct']:+.2f} %"
-        # ... and says so: accurate estimates are not flagged by a too strict criterion (issue 16)
+        # ... and says so: accurate estimates are not flagged by a too strict criterion
         assert estimates[name]["trustworthy"], f"{name}: {estimates[name]}"
 
 
 def test_slow_circle_biased_estimates_are_marked_untrustworthy():
-    """Issue 7's estimator is biased on the slow circle; summary.json must not call those estimates trustworthy."""
-    estimates = slow_circle_estimates(ISSUE7_ESTIMATOR)
+    """The earlier estimator is biased on the slow circle; summary.json must not call those estimates trustworthy."""
+    estimates = slow_circle_estimates(EARLIER_ESTIMATOR)
     biased = [name for name in PHYSICAL if abs(estimates[name]["error_pct"]) > 5.0]
-    assert {"M1", "B1", "B2"} <= set(biased)  # the issue's case, reproduced
+    assert {"M1", "B1", "B2"} <= set(biased)  # the earlier estimator's bias, reproduced
     for name in biased:
         assert estimates[name]["trustworthy"] is False, f"{name}: {estimates[name]}"
         assert estimates[name]["why"]

@@ -1,4 +1,4 @@
-"""End-stop events and command saturation (gantry_twin.events, issue 12 item 6), in simulate and on the command line."""
+"""End-stop events and command saturation (gantry_twin.events), in simulate and on the command line."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from gantry_twin.events import EVENTS_MAX, TravelWatch, travel_summary
 
 from .helpers import DAC_LIMIT_V, TRAVEL_END_M, pushed_from_rest_m, run_main
 
-#: The spec's sample period, s (control-spec section 2).
+#: The controller's sample period, s (docs/equations.md, sensing).
 TS = 2e-4
 #: A short run on the command line: (duration s, --set overrides). 0.2 s = 1000 samples.
 SHORT = ("duration_s=0.2", "window_s=[0.1,0.2]", "estimates_window_s=[0.1,0.2]", "monitor.baseline_window_s=[0.1,0.2]")
@@ -90,7 +90,7 @@ def plugin():
 
 
 def arrival_s(start_m: float, end_m: float, axis: int, volts: float) -> float:
-    """When the spec's machine, pushed from rest at start_m, reaches end_m (s)."""
+    """When the reference machine, pushed from rest at start_m, reaches end_m (s)."""
     fine = np.arange(0.0, 1.0, 1e-6)
     moved = start_m + pushed_from_rest_m(fine, axis, volts)
     return float(fine[np.argmax(np.sign(volts) * (moved - end_m) >= 0)])

@@ -1,4 +1,4 @@
-"""The identification trajectory and ``gantry-twin excite`` (issue 17)."""
+"""The identification trajectory and ``gantry-twin excite`` (docs/logs.md)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The loop applies PlantChanges to MuJoCo as an independently built plant would behave (issue 7)."""
+"""The loop applies PlantChanges to MuJoCo as an independently built plant would behave."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""MuJoCo's dry friction behaves like Coulomb friction (issue 2, acceptance 4).
+"""MuJoCo's dry friction behaves like Coulomb friction.
 
 MuJoCo's friction is a soft constraint; with its default softness a held axis
 creeps (~0.4 mm/s at half the friction level) and the force reaches the
@@ -21,7 +21,7 @@ from gantry_twin import Payload, Plant
 
 from .helpers import GEAR_N_PER_V, spec_theta
 
-# The spec's values (volt units), index 0 = X, 1 = Y.
+# The reference values (volt units), index 0 = X, 1 = Y.
 SPEC_M = {kg: spec_theta(kg)[0:2] for kg in (0.0, 5.0)}
 SPEC_B = spec_theta()[2:4]
 SPEC_AF = spec_theta()[4:6]
@@ -93,7 +93,7 @@ def test_slow_sliding_meets_full_coulomb_force(payload_kg: float, axis: int, sig
 
     1. The constraint force MuJoCo applies on the friction row (efc_force).
     2. From the motion: at constant velocity the input balances damping and
-       friction, so Af_measured = u - B v (volt units, spec B).
+       friction, so Af_measured = u - B v (volt units, the reference B).
     """
     plant = Plant(Payload(payload_kg))
     ts = plant.timestep_s

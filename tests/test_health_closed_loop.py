@@ -1,4 +1,4 @@
-"""Issue 7 acceptance: the health monitor on DIARC's estimates in closed loop, with plant changes.
+"""The health monitor on DIARC's estimates in closed loop, with plant changes: its acceptance (docs/health.md).
 
 Runs the shipped scenarios through gantry_twin.scenario load/build and the CLI's execute, as
 ``gantry-twin monitor`` does (the compiled loop: a 90 s run takes a few seconds).
@@ -73,7 +73,7 @@ def test_paper_scenarios_raise_no_alarm_over_60_s(name):
     assert report.alarms == []
     final = report.final_status()
     # All "ok" at the end, judged; except that the paper's 250 / 150 Hz filters leave encoder noise in x_f''
-    # that biases M (errors in variables, control-spec section 7): excited, but not always trusted (issue 16).
+    # that biases M (errors in variables, docs/estimator-envelope.md): excited, but not always trusted.
     assert all(final[n] == "ok" for n in final if n not in ("M1", "M2"))
     assert final["M1"] in ("ok", "untrustworthy") and final["M2"] in ("ok", "untrustworthy")
     assert report.excited[-1].all()
@@ -103,7 +103,7 @@ def test_step_disturbance_alarms_on_dn2(name):
 @pytest.mark.slow
 def test_cogging_keeps_diarc_within_twice_its_ripple_free_error():
     """The recommended estimator's fast compensation (gamma_d = 3e4) absorbs the ripple;
-    with the paper's 1e4 the same scenario grows 2.3x (see the closing note of issue 7)."""
+    with the paper's 1e4 the same scenario grows 2.3x (docs/health.md)."""
     scenario = "cogging_circle"
     _, ripple, _ = run(scenario)
     built, clean, _ = run(scenario, "changes.cogging=[]")

@@ -1,8 +1,8 @@
-"""Hostile input (issue 12, items 1, 2, 7): each case is refused by a child process with exit 2, quickly, in bounded
+"""Hostile input: each case is refused by a child process with exit 2, quickly, in bounded
 memory, in one line, writing nothing. The table of cases is docs/hostile-input.md.
 
 Each case runs in a child forked from one fresh interpreter that imported the CLI once (the imports take about
-a second: forking keeps the test short); the issue's three reproductions also run end to end in fresh processes.
+a second: forking keeps the test short); the three cases that once ran away also run end to end in fresh processes.
 Peak RSS and CPU time come from ``os.wait4``. "Quickly" is CPU time (user + system), which the neighbours on a
 shared machine do not change; wall time is bounded separately and loosely, to catch a case that blocks (a FIFO
 read uses no CPU). A 4 GiB address-space limit on each child is only a safety net for this machine
@@ -51,7 +51,7 @@ class Case(NamedTuple):
 
 
 def _alias_bomb() -> str:
-    """The issue's nested alias bomb inside a field: nine aliases of nine aliases ... nine levels deep."""
+    """The nested alias bomb inside a field: nine aliases of nine aliases ... nine levels deep."""
     text = "window_s:\n  - &a0 [1, 2, 3, 4, 5, 6, 7, 8, 9]\n"
     for i in range(1, 10):
         text += f"  - &a{i} [" + ", ".join([f"*a{i - 1}"] * 9) + "]\n"
@@ -106,13 +106,13 @@ CASES = [
     Case("string_of_200k_chars", {"s.yaml": "duration_s: " + "x" * 200_000 + "\n"}),
     Case("key_of_200k_chars", {"s.yaml": "k" * 200_000 + ": 1\n"}),
     Case("unknown_key_of_1000_chars", {"s.yaml": "k" * 1000 + ": 1\n"}),
-    # name and outputs.dir are labels, never paths (item 2).
+    # name and outputs.dir are labels, never paths.
     Case("name_parent_dir", {"s.yaml": "name: ../x\n"}, ("run", "s.yaml")),
     Case("name_absolute_path", {"s.yaml": "name: /dev/null/x\n"}, ("run", "s.yaml")),
     Case("name_dot_dot", {"s.yaml": "name: ..\n"}, ("run", "s.yaml")),
     Case("name_too_long", {"s.yaml": f"name: {'n' * 65}\n"}, ("run", "s.yaml")),
     Case("outputs_dir_path", {"s.yaml": "outputs: {dir: ../elsewhere}\n"}, ("run", "s.yaml")),
-    # Pathological settings (item 7).
+    # Pathological settings.
     Case("filter_hz_1.0e-300", {"s.yaml": "controller: {options: {estimator: {filter_hz: [1.0e-300, 50]}}}\n"}),
     Case("forgetting_1.0e300", {"s.yaml": "controller: {options: {estimator: {least_squares: {kappa: 1.0e+300}}}}\n"}),
     Case("ks_1.0e-300", {"s.yaml": "controller: {name: drc, options: {gains: {ks_v_s_m: [1.0e-300, 60]}}}\n"}),
@@ -261,13 +261,13 @@ def test_hostile_input_exit_2_quickly_small_one_line_nothing_written(outcomes, c
     assert_refused(outcomes[case.id], documented_answers()[case.id])
 
 
-#: The issue's reproductions (item 1): /dev/zero through a symlink (10.8 GB in 20 s before), the nested alias
+#: The cases that once ran away: /dev/zero through a symlink (10.8 GB in 20 s before), the nested alias
 #: bomb (6-9 GB, past 60 s) and 50 MB of unknown keys (1.4 GB, past 60 s).
 REPRODUCTIONS = ("dev_zero_symlink", "alias_bomb_in_field", "unknown_keys_50mb")
 
 
 @pytest.mark.parametrize("name", REPRODUCTIONS)
-def test_issue_reproductions_end_quickly_in_a_fresh_process(tmp_path, name):
+def test_runaway_cases_end_quickly_in_a_fresh_process(tmp_path, name):
     """The same cases end to end, start-up included, each alone in a fresh process."""
     case = next(c for c in CASES if c.id == name)
     _make(tmp_path / name, case.files)

@@ -1,4 +1,4 @@
-"""Identification from logs (issue 17): the regression against an independent simulation, the plant file,
+"""Identification from logs (docs/logs.md): the regression against an independent simulation, the plant file,
 the command, and the acceptance on twins with random parameters (slow)."""
 
 from __future__ import annotations
@@ -110,7 +110,7 @@ def _errors(result, truth):
 @pytest.mark.slow
 @pytest.mark.parametrize("seed", [11, 12])
 def test_acceptance_twenty_second_excitation(seed, tmp_path):
-    """Issue 17: a 20 s excitation on a random twin (0.5 um encoder): M within 1 %, B and Af within 3 %."""
+    """The acceptance: a 20 s excitation on a random twin (0.5 um encoder): M within 1 %, B and Af within 3 %."""
     plant = random_plant(np.random.default_rng(seed))
     truth = plant.true_parameters()
     write_log(tmp_path / "log.parquet", *log_of(run_on_twin(design(20.0), plant)))
@@ -121,7 +121,8 @@ def test_acceptance_twenty_second_excitation(seed, tmp_path):
 @pytest.mark.slow
 @pytest.mark.parametrize("seed", [21, 22])
 def test_acceptance_thirty_second_ellipse(seed, tmp_path):
-    """Issue 17: a 30 s log of the paper's ellipse under DIARC on a random twin: M within 2 %, B and Af within 5 %."""
+    """The acceptance: a 30 s log of the paper's ellipse under DIARC on a random twin: M within 2 %, B and Af
+    within 5 %."""
     from gantry_twin.controllers import create
 
     plant = random_plant(np.random.default_rng(seed))

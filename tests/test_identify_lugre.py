@@ -1,4 +1,4 @@
-"""LuGre identification from logs (issue 17): the steady-curve fit against a curve written out here, and the
+"""LuGre identification from logs (docs/logs.md): the steady-curve fit against a curve written out here, and the
 command on a LuGre twin drawn at random (the acceptance, one seed; the many-seed study:
 benchmarks/bench_identify_lugre.py)."""
 
@@ -80,7 +80,7 @@ def _circle_rms_um(plant) -> float:
 @pytest.mark.slow
 @pytest.mark.parametrize("seed", [112])  # a hard twin: Y's vs 2.2 mm/s, pre-sliding 13 um (docs/logs.md)
 def test_acceptance_lugre_twin(seed, tmp_path):
-    """Issue 17 on a random LuGre twin (0.5 um encoder), the shortest excitation measured to suffice (a 10 s
+    """The acceptance on a random LuGre twin (0.5 um encoder), the shortest excitation measured to suffice (a 10 s
     multisine, then the constant-velocity plateaus: docs/logs.md): Fc, sigma2, Fs within 10 %, vs and
     sigma0 within 30 % (the many-seed study, docs/logs.md, says how often), and the identified plant
     (plant.yaml in a scenario) reproduces a held-out circle's rms contour error within 15 %."""

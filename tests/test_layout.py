@@ -240,9 +240,10 @@ def test_no_private_name_is_imported_from_another_module(tree):
     assert found == [], "private names imported from another module:\n" + "\n".join(found)
 
 
-#: A reference a clone cannot follow: a tracker number, or a file beside (outside) the repository.
+#: A reference a clone cannot follow: a tracker number, or a file beside (outside) the repository. A ``#1``
+#: in a code span is literal text (compare's column names), not a tracker number.
 UNFOLLOWABLE = re.compile(
-    r"\b(?:issues?|tasks?)\s*#?\d+\b|#\d{1,3}\b(?![0-9a-fA-F])|\.\./shared/|control[- ]spec(?:\.md)?\b",
+    r"\b(?:issues?|tasks?)\s*#?\d+\b|(?<!`)#\d{1,3}\b(?![0-9a-fA-F])|\.\./shared/|control[- ]spec(?:\.md)?\b",
     re.IGNORECASE,
 )
 
@@ -256,8 +257,8 @@ def unfollowable_references(path: Path) -> list[str]:
 
 
 def test_unfollowable_references_are_found(tmp_path):
-    text = "see issue 15, item 6; the control spec; ../shared/design/x.md; RGB #fff; eq. 25\n"
-    assert [m.group(0) for m in UNFOLLOWABLE.finditer(text)] == ["issue 15", "control spec", "../shared/"]
+    text = "see issue 15, item 6; the control spec; ../shared/design/x.md; RGB #fff; eq. 25; column `#1`; see #12\n"
+    assert [m.group(0) for m in UNFOLLOWABLE.finditer(text)] == ["issue 15", "control spec", "../shared/", "#12"]
 
 
 @pytest.mark.parametrize(

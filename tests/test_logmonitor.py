@@ -1,4 +1,4 @@
-"""``monitor --log``: DIARC's estimator and the health monitor over a recorded log, no plant (issue 17)."""
+"""``monitor --log``: DIARC's estimator and the health monitor over a recorded log, no plant (docs/logs.md)."""
 
 from __future__ import annotations
 

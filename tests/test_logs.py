@@ -1,4 +1,4 @@
-"""The log format (docs/logs.md): a hand-written CSV, the twin's own trace, and bad logs refused fast (issue 17)."""
+"""The log format (docs/logs.md): a hand-written CSV, the twin's own trace, and bad logs refused fast."""
 
 from __future__ import annotations
 
@@ -69,7 +69,7 @@ def test_twin_trace_is_a_log_with_its_encoder_positions(tmp_path):
 
 
 def test_float32_columns_are_read_as_float64(tmp_path):
-    """A compressed trace stores some columns as float32 (issue 13): still a log, times to float32 rounding."""
+    """A compressed trace stores some columns as float32 (docs/cli.md): still a log, times to float32 rounding."""
     table = _twin_trace_table(3000)
     table = table.set_column(0, "t_s", pa.array(table.column("t_s").to_numpy() + 60.0, pa.float32()))
     table = table.set_column(3, "x_meas_m", pa.array(table.column("x_meas_m").to_numpy(), pa.float32()))

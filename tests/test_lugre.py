@@ -1,4 +1,4 @@
-"""LuGre friction in the plant (issue 15): the friction alone against the LuGre equations, computed here.
+"""LuGre friction in the plant (docs/friction.md): the friction alone against the LuGre equations, computed here.
 
 - steady sliding at 16 speeds per direction and axis: the force within 2 % of
   Fc + (Fs - Fc) exp(-(v/vs)^2) + sigma2 v;

@@ -276,8 +276,8 @@ def test_monitor_filters_the_measurements_exactly_as_diarc_estimator():
 
 
 def test_untrustworthy_estimates_are_not_judged():
-    """Issue 16: with the paper's 250 Hz X filter the encoder's quantisation noise in x_f'' biases M1 (errors
-    in variables, control-spec section 7): M1 is excited on the circle but untrustworthy, so its jump raises
+    """With the paper's 250 Hz X filter the encoder's quantisation noise in x_f'' biases M1 (errors
+    in variables, docs/estimator-envelope.md): M1 is excited on the circle but untrustworthy, so its jump raises
     nothing and its status says why; B2, trusted, is still judged and alarms on its own jump."""
 
     def theta(t):

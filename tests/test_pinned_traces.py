@@ -1,7 +1,7 @@
 """Behaviour pinned across refactors: every shipped scenario x every built-in controller, 2 s, both backends.
 
 The digests in ``tests/data/trace_digests.json`` were recorded from main
-before the loop was restructured (issue 11); a run that changes any bit of
+before the loop was restructured; a run that changes any bit of
 any trace array changes its digest. Regenerate them only for an intended
 change of behaviour, and say so in the commit:
 

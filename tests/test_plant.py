@@ -1,4 +1,4 @@
-"""The compiled MJCF gantry against control-spec section 1 (issue 2, acceptance 2 and 7).
+"""The compiled MJCF gantry against the reference machine (docs/equations.md, the plant; tests/helpers.py).
 
 Moving masses are checked two ways: MuJoCo's joint-space inertia (``mj_fullM``,
 what :func:`true_parameters` uses) against the body masses summed over each
@@ -18,7 +18,7 @@ from gantry_twin.plant import PAYLOAD_MAX_KG, PAYLOAD_OFFSET_MAX_M, THETA_NAMES,
 
 from .helpers import DAMPING_N_S_PER_M, FRICTION_N, GEAR_N_PER_V, MASS_NO_LOAD_KG
 
-# Spec theta (volt units) for no load and the 5 kg payload of Set 2.
+# The expected theta (volt units; docs/equations.md, the plant) for no load and the 5 kg payload of Set 2.
 THETA_NO_LOAD = np.array([0.12, 0.50, 0.5, 0.7, 0.10, 0.15, 0.0, 0.0])
 THETA_5KG = np.array([0.1925, 0.5725, 0.5, 0.7, 0.10, 0.15, 0.0, 0.0])
 
@@ -92,7 +92,7 @@ def test_true_parameters_are_the_spec_theta(payload_kg: float, theta: np.ndarray
     plant = Plant(Payload(payload_kg))
     got = plant.true_parameters()
     assert got.shape == (len(THETA_NAMES),)
-    # The spec rounds 13.28 / 69 and 39.5 / 69 to four digits.
+    # The expected theta rounds 13.28 / 69 and 39.5 / 69 to four digits.
     np.testing.assert_allclose(got, theta, atol=5e-5)
     # And exactly the SI quantities divided by the gear.
     si = np.concatenate([chain_masses_kg(plant), DAMPING_N_S_PER_M, FRICTION_N]) / GEAR_N_PER_V
@@ -130,7 +130,7 @@ def test_api_orders_x_first_although_mujoco_orders_y_first() -> None:
     assert plant.dq_m_s[0] > 0.0 and plant.dq_m_s[1] == 0.0
 
 
-# ---- payload validation (acceptance 7) -------------------------------------------------
+# ---- payload validation --------------------------------------------------------------
 
 MASS_RANGE_TEXT = f"[0, {PAYLOAD_MAX_KG}]"
 

@@ -77,7 +77,7 @@ def _row_cells(text: str, row_start: str) -> list[str]:
 
 def test_report_on_a_tiny_matrix(tmp_path, capsys):
     """The report's numbers (results.json, Tables 1 and 3, the runs table) against the same runs done with
-    `run` and computed from their traces, estimates judged against the spec's machine."""
+    `run` and computed from their traces, estimates judged against the reference machine."""
     cases = report.paper_matrix(TINY, sets=(1, 3), contours=("circle",), labels=("C1", "C2", "C2r"))
     assert len(cases) == 5
     res = report.run_matrix(cases, jobs=2)
@@ -110,7 +110,7 @@ def test_report_on_a_tiny_matrix(tmp_path, capsys):
     for what in ("rms", "max"):
         cells = [f"**{expected[key][f'{what}_um']:.2f}**" if key else "**-**" for key in columns]
         assert _row_cells(_section(text, "## Table 1:"), f"| **{what} twin (um)** |") == cells
-    # Table 3 (Set 1): each estimate with its deviation from the spec's value.
+    # Table 3 (Set 1): each estimate with its deviation from the reference value.
     for name, key in (
         ("DIARC paper settings", "set1_circle_C2"),
         ("DIARC recommended", "set1_circle_C2r"),

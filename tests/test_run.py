@@ -43,7 +43,7 @@ def one_line(err: str) -> str:
 
 
 # ---------------------------------------------------------------------------------------------
-# Item 3: one directory, one complete run; written only where it can be, checked before the run.
+# One directory, one complete run; written only where it can be, checked before the run.
 
 
 def test_a_run_without_trace_removes_the_trace_of_an_earlier_run(tmp_path, capsys):
@@ -106,7 +106,7 @@ def test_an_interrupted_run_leaves_the_earlier_run_whole_and_no_temporary_file(t
 
 
 # ---------------------------------------------------------------------------------------------
-# Item 5: a fault at t = 0.2 s keeps the trace up to it, and says where.
+# A fault at t = 0.2 s keeps the trace up to it, and says where.
 
 
 @dataclass
@@ -241,7 +241,7 @@ def test_a_good_run_says_status_ok(tmp_path):
 
 
 # ---------------------------------------------------------------------------------------------
-# Item 8: a run held in pieces writes what a whole run writes; large traces are announced.
+# A run held in pieces writes what a whole run writes; large traces are announced.
 
 
 @pytest.mark.parametrize("stride", [1, 7])

@@ -1,4 +1,4 @@
-"""The scenario schema: defaults from the spec, shipped files, overrides, disturbances, options."""
+"""The scenario schema: defaults, shipped files, overrides, disturbances, options."""
 
 from __future__ import annotations
 
@@ -232,13 +232,13 @@ def test_validate_data_reports_the_first_problem_and_counts_the_rest():
     ],
 )
 def test_set_index_out_of_range_says_so_and_the_valid_range(data, message):
-    """Issue 12: ``--set disturbance.y.99.value_v=1`` answered "input should be a valid list"."""
+    """``--set disturbance.y.99.value_v=1`` once answered "input should be a valid list"."""
     with pytest.raises(ScenarioError) as info:
         apply_overrides(data, ["disturbance.y.99.value_v=1"], "f.yaml")
     assert (info.value.field, info.value.message) == ("--set disturbance.y.99.value_v", message)
 
 
-# Item 2 of issue 12: ``name`` (and ``outputs.dir``) is a label that names one directory under runs/, never a path.
+# ``name`` (and ``outputs.dir``) is a label that names one directory under runs/, never a path.
 NOT_LABELS = ["../x", "/some/dir", "a/b", "..", ".", ".hidden", "-rf", "", "n" * 65, "a b", "a\\b", "caf\u00e9", "x\n"]
 
 

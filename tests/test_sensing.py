@@ -1,4 +1,4 @@
-"""Encoder model of control-spec section 2: 0.5 um counts, velocity by backward difference."""
+"""Encoder model (docs/equations.md, sensing): 0.5 um counts, velocity by backward difference."""
 
 from __future__ import annotations
 
@@ -42,7 +42,7 @@ def slow_circle_run(controller) -> Trace:  # noqa: ANN001
 
 
 def test_resolution_is_half_a_micrometre() -> None:
-    """In a real run the recorded reading is the true position rounded to 0.5 um (control-spec section 2),
+    """In a real run the recorded reading is the true position rounded to 0.5 um (docs/equations.md, sensing),
     and a carriage moving less than a count per sample steps one count at a time."""
     trace = slow_circle_run(create("pd"))
     expected = np.floor(trace.q_m / RES_M + 0.5) * RES_M  # nearest count, written independently of sensing.quantize

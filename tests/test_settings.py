@@ -162,7 +162,7 @@ def test_plugin_options_are_not_typed():
 
 
 # ---------------------------------------------------------------------------
-# Issue 12, item 7: physically meaningful bounds on the estimator and controller settings, each documented.
+# Physically meaningful bounds on the estimator and controller settings, each documented.
 
 DOCS = Path(__file__).resolve().parents[1] / "docs" / "scenarios.md"
 
@@ -219,8 +219,8 @@ def test_settings_have_physical_bounds_stated_and_documented(path, controller, v
     assert any(f"| {allowed} |" in row for row in rows), f"docs/scenarios.md: no row for `{leaf}` with {allowed}"
 
 
-def test_the_issue_filter_frequency_is_refused_from_python_and_from_a_scenario():
-    """Issue 12: ``estimator.filter_hz=[1e-300, 50]`` was accepted and froze the X estimates at theta0."""
+def test_a_vanishing_filter_frequency_is_refused_from_python_and_from_a_scenario():
+    """``estimator.filter_hz=[1e-300, 50]`` was once accepted and froze the X estimates at theta0."""
     with pytest.raises(ValueError, match=r"^estimator\.filter_hz\.x: must be in \[5, 500\] Hz, got 1e-300$"):
         EstimatorSettings(filter_hz=(1e-300, 50.0))
     with pytest.raises(ScenarioError, match=r"filter_hz\[0\]: must be in \[5, 500\] Hz"):
@@ -238,7 +238,7 @@ def test_the_named_estimators_and_default_gains_are_inside_the_ranges():
 
 
 # ---------------------------------------------------------------------------
-# Issue 12, item 1: every value a message quotes is cut short, however big or deep it is.
+# Every value a message quotes is cut short, however big or deep it is.
 
 
 def _bomb(levels: int = 9) -> list:

@@ -1,4 +1,4 @@
-"""SIGTERM and SIGHUP stop ``gantry-twin run`` as Ctrl-C does: no stray file, no stray process (issue 12 item 4).
+"""SIGTERM and SIGHUP stop ``gantry-twin run`` as Ctrl-C does: no stray file, no stray process.
 
 Ten runs in child processes, each stopped at a random point (seeded) of one phase: while the loop compiles,
 while it simulates and writes the trace, anywhere from the start, with --serve-web running, and while

@@ -1,4 +1,4 @@
-"""Sweeps on real multi-process Dask clusters (issue 14): rows equal ``gantry-twin run``, faults, resume.
+"""Sweeps on real multi-process Dask clusters (docs/sweeps.md): rows equal ``gantry-twin run``, faults, resume.
 
 The clusters are real: a LocalCluster of worker processes started by the
 ``sweep`` command, and a ``dask scheduler`` with two ``dask worker``

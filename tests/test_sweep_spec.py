@@ -1,4 +1,4 @@
-"""Sweep files (issue 14): malformed files rejected before any run, sampling, points, keys; no cluster needed."""
+"""Sweep files (docs/sweeps.md): malformed files rejected before any run, sampling, points, keys; no cluster needed."""
 
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ from gantry_twin.sweep.spec import parse_sweep
 
 from .helpers import run_main
 
-#: The issue's minimal sweep, 2 s points (must work as written).
+#: A minimal sweep, 2 s points (must work as written).
 MINIMAL = """\
 scenario: no_load_circle            # shipped name or a path
 set: {duration_s: 2, window_s: [0.5, 2], estimates_window_s: [1, 2]}   # for every point

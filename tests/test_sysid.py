@@ -1,4 +1,4 @@
-"""System identification from the simulation itself (issue 2, acceptance 3).
+"""System identification from the simulation itself.
 
 Both axes are driven open loop through the control motors (volts) with a sum of
 cosines; the carriage positions are recorded every step, and M, B, Af (volt
@@ -25,7 +25,7 @@ from gantry_twin import Payload, Plant
 
 from .helpers import spec_theta
 
-# The spec's values (volt units), index 0 = X, 1 = Y.
+# The reference values (volt units), index 0 = X, 1 = Y.
 SPEC_M = {kg: spec_theta(kg)[0:2] for kg in (0.0, 5.0)}
 SPEC_B = spec_theta()[2:4]
 SPEC_AF = spec_theta()[4:6]

@@ -1,4 +1,4 @@
-"""The task frame (paper eq. 1, 4; control-spec sections 4-5) (issue 2, acceptance 6).
+"""The task frame (paper eq. 1, 4; docs/equations.md, the task frame).
 
 s_c is checked against an independent route: eps = T e is formed along a smooth
 random trajectory, differentiated by central differences, and s = eps' +
@@ -25,7 +25,7 @@ from gantry_twin.taskframe import (
     task_errors,
 )
 
-LAMBDA = np.array([100.0, 30.0])  # 1/s, control-spec section 5
+LAMBDA = np.array([100.0, 30.0])  # 1/s, the controllers' default Lambda
 PATHS = {"circle": (circle(), 2.0), "ellipse": (paper_ellipse(), 3.0)}
 RNG_SEED = 20100402
 H_T = 1e-6  # s

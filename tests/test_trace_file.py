@@ -87,7 +87,7 @@ def test_figures_from_the_written_trace_match_the_run_to_float32_rounding(writte
 
 
 def test_the_trace_is_compressed(written):
-    """zstd and BYTE_STREAM_SPLIT: under 40 % of 8 bytes a value (before issue 13: 93 %; docs/performance.md)."""
+    """zstd and BYTE_STREAM_SPLIT: under 40 % of 8 bytes a value (93 % before; docs/performance.md)."""
     _, table, path = written
     metadata = pq.ParquetFile(path).metadata
     assert metadata.row_group(0).column(0).compression == "ZSTD"

@@ -1,4 +1,4 @@
-"""Calibrate the rig's friction (and force ripple) on circle Set 1 of Table 1 only (issue 15, item 5).
+"""Calibrate the rig's friction (and force ripple) on circle Set 1 of Table 1 only (docs/friction.md).
 
     PYTHONPATH=src python tools/calibrate_friction.py map --grid fs_over_fc=1,1.5,2 --grid vs_mm_s=1,10,40 \
         [--set zeta=0.3] --out runs/friction-map [--workers 2]
@@ -16,8 +16,8 @@ Nelder-Mead are deterministic). The parameters, per axis (suffix ``_x`` /
 - ``fs_over_fc``: Fs / Fc; ``vs_mm_s``: the Stribeck velocity, mm/s,
 
 with Fc and sigma2 the paper's Af kf and B kf (the model's frictionloss and
-damping) as the issue asks, unless ``fc_scale`` (Fc / (Af kf), default 1;
-outside the issue's calibration, docs/friction.md) is set, and ``ripple_v``:
+damping) as the calibration requires, unless ``fc_scale`` (Fc / (Af kf), default 1;
+outside the calibration's constraint, docs/friction.md) is set, and ``ripple_v``:
 the amplitude (V) of a force ripple, the twin's cogging change at 16 mm pitch
 on both axes (Y phase 1 rad).
 
@@ -57,7 +57,7 @@ from gantry_twin.sweep.engine import open_client, prepare_workers, run_tasks
 
 LABELS = ("C1", "C2", "C3")
 AXES = ("x", "y")
-#: Per-axis parameters: name -> (low, high, log scale, default); the box is the issue's physical range.
+#: Per-axis parameters: name -> (low, high, log scale, default); the box is the physical range (docs/friction.md).
 AXIS_BOX = {
     "presliding_um": (0.1, 50.0, True, 10.0),
     "zeta": (0.0, 0.99, False, 0.05),

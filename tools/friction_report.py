@@ -1,4 +1,4 @@
-"""The paper's matrix with the rig's friction beside the Coulomb twin, and the health monitor (issue 15, item 6).
+"""The paper's matrix with the rig's friction beside the Coulomb twin, and the health monitor (docs/friction.md).
 
     PYTHONPATH=src python tools/friction_report.py FIT_JSON [--out runs/friction-report] [--jobs 2] [--monitor-s 60]
 

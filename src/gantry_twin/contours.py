@@ -1,8 +1,8 @@
 """Desired contours: a geometric curve p(phi) and a timing law phi(t).
 
-Control-spec section 3. A path supplies p and its first three derivatives with
-respect to phi; a timing law supplies phi and its first three time
-derivatives. :func:`reference` combines them into everything the controller
+The equations: docs/equations.md, contour and timing law. A path supplies p
+and its first three derivatives with respect to phi; a timing law supplies
+phi and its first three time derivatives. :func:`reference` combines them into everything the controller
 and the task frame need, vectorised over time:
 
     q_d'  = p_phi phi'

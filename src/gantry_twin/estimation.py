@@ -1,6 +1,6 @@
 """DIARC's indirect estimator and the projections (paper eq. 8-9, 16, 25-28).
 
-Control-spec section 7:
+The equations (docs/equations.md, the estimator):
 
 * Each axis is filtered by Hf(s) = wn^2 / (s^2 + 2 z wn s + wn^2). The filters
   are discretised exactly for how each input behaves between samples: the

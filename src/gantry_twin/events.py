@@ -1,4 +1,4 @@
-"""What a run did to the machine beyond its task: end-stop contacts and command saturation (issue 12).
+"""What a run did to the machine beyond its task: end-stop contacts and command saturation.
 
 **End stops.** Each joint's limit in ``models/gantry.xml`` is the travel end;
 MuJoCo's limit constraint acts from ``margin`` inside it (the joint's

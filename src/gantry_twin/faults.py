@@ -1,4 +1,4 @@
-"""Plant changes during a run: what a fault scenario does to the machine (issue 7).
+"""Plant changes during a run: what a fault scenario does to the machine (docs/health.md).
 
 A :class:`PlantChanges` is a declarative, validated description of how the
 machine departs from its model while a run goes on:

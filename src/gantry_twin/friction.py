@@ -153,7 +153,7 @@ def apply_friction(spec: mujoco.MjSpec, friction: Friction, axes: tuple[str, ...
     LuGre: per slide joint (named by ``axes``), its frictionloss to 0 and a
     friction-only dcmotor ``<axis>_friction`` after every other actuator (the
     control and disturbance motors keep their indices and ctrl slots). The
-    spec's timestep stays the control sample: the caller divides it into the
+    model file's timestep stays the control sample: the caller divides it into the
     sub-steps (:class:`gantry_twin.plant.Plant`).
     """
     integrator, _ = friction.integration()

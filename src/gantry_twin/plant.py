@@ -2,7 +2,7 @@
 
 `models/gantry.xml` is the single source of physical truth. The paper's
 parameter vector theta (volt units) is *computed* from the compiled model,
-never typed a second time (control-spec section 1).
+never typed a second time (docs/equations.md, the plant).
 
 Axis convention of the whole package: index 0 = X (axis 1, top), index 1 = Y
 (axis 2, bottom, carries X). MuJoCo orders the DOFs parent first (Y, then X);
@@ -97,7 +97,7 @@ def build_spec(
     payload_body: add the body even for a 0 kg payload (MuJoCo accepts a
     massless welded body), so that a run can change its mass (a pick-up).
     friction: see :mod:`gantry_twin.friction` (None: the file's Coulomb
-    friction, unchanged). The spec's timestep stays the control sample.
+    friction, unchanged). The model file's timestep stays the control sample.
     """
     spec = mujoco.MjSpec.from_file(str(model_path or default_model_path()))
     apply_friction(spec, friction or Friction(), AXES)

@@ -1,9 +1,9 @@
 """What the DS1103 sees: quantised encoder positions and velocity by difference.
 
-Control-spec section 2: linear encoders of 0.5 um resolution, sampled every
-Ts = 0.2 ms; velocity is the backward difference of consecutive quantised
-positions (resolution 0.5 um / 0.2 ms = 2.5 mm/s). Each can be switched off
-for ideal sensing in tests.
+The sensing (docs/equations.md): linear encoders of 0.5 um resolution,
+sampled every Ts = 0.2 ms; velocity is the backward difference of
+consecutive quantised positions (resolution 0.5 um / 0.2 ms = 2.5 mm/s).
+Each can be switched off for ideal sensing in tests.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """The task-coordinate frame attached to the desired contour (paper eq. 1, 4).
 
-Control-spec sections 4 and 5:
+The equations (docs/equations.md, the task frame and the error dynamics):
 
     T(alpha) = [[-sin a, cos a], [cos a, sin a]],   T = T^T = T^-1
     eps = T e = [eps_n, eps_t],  e = q - q_d
@@ -59,7 +59,7 @@ def frame_derivatives(alpha: float, dalpha: float, ddalpha: float) -> tuple[np.n
 
 @kernel
 def error_gains(alpha, dalpha, ddalpha, lam, t=None, big_l=None, big_l_dot=None):
-    """T, L and L' of control-spec section 5 (lam = [lambda_n, lambda_t], 1/s).
+    """T, L and L' of the error dynamics (docs/equations.md; lam = [lambda_n, lambda_t], 1/s).
 
     L = alpha' J + T Lambda T and L' = alpha'' J + T' Lambda T + T Lambda T',
     with T' = alpha' R.

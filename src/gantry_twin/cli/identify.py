@@ -1,4 +1,4 @@
-"""``gantry-twin identify LOG [LOG...] --out DIR [--friction coulomb|lugre]`` (issue 17, docs/logs.md).
+"""``gantry-twin identify LOG [LOG...] --out DIR [--friction coulomb|lugre]`` (docs/logs.md).
 
 coulomb: M, B, Af, dN (:mod:`gantry_twin.sysid.identify`); lugre: those, then each
 axis' LuGre parameters (:mod:`gantry_twin.sysid.lugre`). Writes

@@ -103,16 +103,16 @@ class EstimatorSettings:
     reversal_gate: Range(0.0, 1.0) = 0.0
 
 
-#: The twin's recommended estimator: 10 Hz filters, which keep the encoder's 0.5 um quantisation noise out of
-#: x_f'' (control-spec section 7) also on slow contours; the friction regressor sign(v) of the differenced
-#: velocity (Sf with slope 1e6 s/m), with samples near a velocity reversal left out (reversal_gate 0.99):
-#: the smooth Sf and the dither of a differenced velocity below its 2.5 mm/s step bias B and M on slow
-#: contours; forgetting kappa = 0.7 1/s (paper: 0.1), a memory of about 1.4 s, so that the estimates follow
-#: a changing machine (a payload pick-up, a friction drift) within the health monitor's targets; nu = 0.01 and
-#: rho_M = 1e4 (paper: 0.1, 500), so that B, whose regressor is the small velocity of a slow contour, still
-#: converges within that memory instead of being starved by the normalisation n; and a faster
-#: dc^ rate gamma_d = 3e4 (paper: 1e4), so that dc^ follows cogging ripple. The measurements behind each
-#: choice are in docs/health.md ("The recommended estimator") and docs/estimator-envelope.md.
+#: The twin's recommended estimator: 10 Hz filters, which keep the encoder's 0.5 um quantisation noise out of x_f''
+#: (docs/equations.md, the estimator's filters) also on slow contours; the friction regressor sign(v) of the differenced
+#: velocity (Sf with slope 1e6 s/m), with samples near a velocity reversal left out (reversal_gate 0.99): the smooth Sf
+#: and the dither of a differenced velocity below its 2.5 mm/s step bias B and M on slow contours; forgetting
+#: kappa = 0.7 1/s (paper: 0.1), a memory of about 1.4 s, so that the estimates follow a changing machine (a payload
+#: pick-up, a friction drift) within the health monitor's targets; nu = 0.01 and rho_M = 1e4 (paper: 0.1, 500), so that
+#: B, whose regressor is the small velocity of a slow contour, still converges within that memory instead of being
+#: starved by the normalisation n; and a faster dc^ rate gamma_d = 3e4 (paper: 1e4), so that dc^ follows cogging ripple.
+#: The measurements behind each choice are in docs/health.md ("The recommended estimator") and
+#: docs/estimator-envelope.md.
 RECOMMENDED_ESTIMATOR = EstimatorSettings(
     filter_hz=(10.0, 10.0),
     least_squares=LeastSquaresSettings(kappa=0.7, nu=0.01, rho_max=1.0e4),

@@ -1,4 +1,4 @@
-"""The control law DRC, DARC and DIARC share (control-spec sections 5-6).
+"""The control law DRC, DARC and DIARC share (docs/equations.md, the control laws).
 
     a_r = q_d'' - L' e - L e'                        reference acceleration
     Phi = [[a_r1, 0, x', 0, Sf(x'), 0, -1, 0],       Cartesian regressor (2 x 8)
@@ -130,7 +130,7 @@ def law_work() -> LawWork:
 
 @kernel
 def regressor(a_r, dq_m_s, friction_slope_s_m, out=None):
-    """Cartesian regressor Phi (2 x 8) of control-spec section 5."""
+    """Cartesian regressor Phi (2 x 8) of the error dynamics (docs/equations.md)."""
     if out is None:
         out = np.empty((2, 8))
     out[:, :] = 0.0

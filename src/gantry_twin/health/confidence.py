@@ -1,4 +1,4 @@
-"""Whether each of DIARC's estimates in summary.json can be trusted for this run (issue 16).
+"""Whether each of DIARC's estimates in summary.json can be trusted for this run (docs/estimator-envelope.md).
 
 From what the controller measured and commanded, with the estimator's own
 filters, friction shape and reversal gate (:mod:`gantry_twin.health.excitation`),

@@ -47,12 +47,12 @@ the regressor itself is wrong. Two errors are predicted from what is known:
   axis still slides that way). The force error is Af e_k per sample, and
   least squares moves theta by Af I^-1 m_e, the signed moment
   m_e = sum g_k e_k dt: a signed sum, so that errors of opposite sign
-  cancel as they do in the fit (issue 7's bound Af |I^-1| sum |g| |d| dt
+  cancel as they do in the fit (an unsigned bound, Af |I^-1| sum |g| |d| dt,
   did not let them, and was ten times the actual shift where B and Af are
   correlated). The sign is known only where no reversal is in the filter's
   memory (|Hf[s]| >= SIGN_KNOWN: no stick, no run of zero differences across
   the reversal); rows where it is not (an estimator without a reversal gate)
-  keep issue 7's bound, Af |I^-1| m_d, m_d = sum |g_k| d_k dt,
+  keep that unsigned bound, Af |I^-1| m_d, m_d = sum |g_k| d_k dt,
   d = Hf[1 - |Sf(v)|].
 
 An estimate is **trustworthy** when its parameter is excited
@@ -197,7 +197,7 @@ class FilteredRegressors:
             self.z[axis] = filter_steady_state(disc, q[axis], v[axis], held)
 
     def _regressors(self, q, prev, velocity, held_u) -> tuple[np.ndarray, np.ndarray]:
-        """The one place the estimator's filter functions are used (control-spec section 7)."""
+        """The one place the estimator's filter functions are used (docs/equations.md, the estimator's filters)."""
         n = q.shape[0]
         g = np.empty((n, 2, 4))
         sf = friction_shape(velocity, self.slope)

@@ -1,4 +1,4 @@
-"""The health monitor over a recorded log, no plant: ``gantry-twin monitor --log LOG`` (issue 17).
+"""The health monitor over a recorded log, no plant: ``gantry-twin monitor --log LOG`` (docs/logs.md).
 
 DIARC's indirect estimator (eq. 25-28, :mod:`gantry_twin.controllers.arc`)
 runs over the log's encoder positions and commands exactly as it runs in

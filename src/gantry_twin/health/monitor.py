@@ -1,4 +1,4 @@
-"""Machine health from DIARC's on-line estimates, and the excitation that makes them trustworthy (issue 7).
+"""Machine health from DIARC's on-line estimates, and the excitation that makes them trustworthy (docs/health.md).
 
 Two monitors, run together by :class:`MachineMonitor` (a simulate
 ``Observer``: incremental, chunk by chunk, with bounded working memory) or
@@ -144,7 +144,7 @@ class ExcitationSettings:
     min_moving_fraction: Range(0.0, 1.0) = 0.5
     #: 2 %: a fifth of the health tolerance (10 %), so that a trusted estimate's bias cannot read as a drift.
     max_bias: Range(0.0, 1.0) = 0.02
-    #: 4 %: the issue-16 accuracy (5 %) less a margin for what the bound leaves out (docs/estimator-envelope.md).
+    #: 4 %: the 5 % accuracy target less a margin for what the bound leaves out (docs/estimator-envelope.md).
     max_error: Range(0.0, 1.0) = 0.04
 
     def __post_init__(self) -> None:

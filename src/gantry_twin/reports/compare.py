@@ -42,7 +42,7 @@ class CompareError(Exception):
 
 @dataclass(frozen=True)
 class Run:
-    """One run to compare: its directory, summary.json's content, its column name (#1, #2, ...)."""
+    """One run to compare: its directory, summary.json's content, its column name (``#1``, ``#2``, ...)."""
 
     directory: Path
     summary: RunSummary

@@ -3,11 +3,12 @@
 The matrix: C1 DARC, C2 DIARC (paper estimator), C3 DRC on the circle and the
 ellipse for Set 1 (no load), Set 2 (5 kg) and Set 3 (step disturbance; no C3,
 as in the paper): 16 runs; plus DIARC with the twin's recommended estimator
-(issue 16: 10 Hz filters, sign friction, reversal gate) on Sets 1-2: 4 runs. Each run is a shipped scenario with the
-controller replaced; runs go to a local Dask cluster, the engine of
-``gantry-twin sweep`` (:mod:`gantry_twin.sweep.engine`).
+(10 Hz filters, sign friction, reversal gate; docs/estimator-envelope.md) on
+Sets 1-2: 4 runs. Each run is a shipped scenario with the controller
+replaced; runs go to a local Dask cluster, the engine of ``gantry-twin
+sweep`` (:mod:`gantry_twin.sweep.engine`).
 
-Reading of "after running the gantry for one period" (control-spec section 8):
+Reading of "after running the gantry for one period" (the paper says no more; docs/scenarios.md):
 contour metrics of Sets 1-2 cover the second period [T, 2T] of a run started
 on the path; Set 3's cover [1.5, 6.5] s (both disturbance edges); steady
 estimates are the mean of theta^ over the last period of the 30 s run.
@@ -255,7 +256,7 @@ def _estimate_table(by_key: dict[tuple[int, str, str], CaseResult], set_id: int)
 
 
 def findings(by_key: dict[tuple[int, str, str], CaseResult]) -> list[tuple[bool, str]]:
-    """The paper's findings (issue 4, acceptance 2) checked on the twin's numbers."""
+    """The paper's findings checked on the twin's numbers."""
     out: list[tuple[bool, str]] = []
     for contour in CONTOURS:
         for s in (1, 2):
@@ -407,7 +408,7 @@ def write_report(
         "C2r = DIARC with the twin's recommended estimator (10 Hz filters, sign friction). Set 1: no load; Set 2: 5 kg "
         "payload; Set 3: +0.6 V on the Y input from 1.86 s to 4.86 s.",
         "",
-        '**Reading of "after running the gantry for one period"** (control-spec section 8): every run starts '
+        '**Reading of "after running the gantry for one period"** (the paper says no more): every run starts '
         "on the path (as if already running) and lasts 30 s unless overridden."
         " The contour metrics of Sets 1-2 cover the second "
         "period [T, 2T] (T = pi s circle, 2 pi/3 s ellipse); Set 3's cover [1.5, 6.5] s, holding both "

@@ -1,4 +1,4 @@
-"""The paper's matrix with the rig's friction beside the Coulomb twin, cell by cell (issue 15, item 6).
+"""The paper's matrix with the rig's friction beside the Coulomb twin, cell by cell (docs/friction.md).
 
 ``gantry-twin report --rig FILE`` runs the report's matrix (:mod:`gantry_twin.reports.paper`)
 a second time with the rig plant, the scenario overrides of FILE (the
@@ -6,7 +6,7 @@ a second time with the rig plant, the scenario overrides of FILE (the
 writes), and adds to report.md a section with paper / twin with rig friction
 / twin with Coulomb friction for every cell of Tables 1-2, the rig's error per
 cell (circle Set 1 is the calibration's fit, the other cells validation), the
-issue's acceptance checks on the rig's numbers, and a figure of eps_c +-50 ms
+acceptance checks on the rig's numbers (docs/friction.md), and a figure of eps_c +-50 ms
 around an X reversal of circle Set 1 for C1-C3, rig and Coulomb
 (``rig_reversal_spike.png``), and writes the rig runs' numbers to
 ``rig.json``. ``tools/friction_report.py`` adds the health monitor's alarms
@@ -36,7 +36,8 @@ from gantry_twin.scenario import BuiltRun, ScenarioError, build, load_scenario, 
 LABELS = ("C1", "C2", "C3")
 #: The cells the calibration fitted (contour, set): circle Set 1 (tools/calibrate_friction.py); the rest validate.
 FIT_CELLS = {("circle", 1)}
-#: The issue's acceptance: at least VALIDATION_TARGET of the 26 validation numbers within VALIDATION_PCT of the paper.
+#: The rig's acceptance (docs/friction.md): at least VALIDATION_TARGET of the 26 validation numbers within
+#: VALIDATION_PCT of the paper.
 VALIDATION_PCT = 30.0
 VALIDATION_TARGET = 20
 VALIDATION_NUMBERS = 26
@@ -124,7 +125,7 @@ def matrix_table(rig: dict[Key, CaseResult], coulomb: dict[Key, CaseResult]) -> 
 
 
 def acceptance(rig: dict[Key, CaseResult]) -> list[tuple[bool | None, str]]:
-    """The issue's acceptance on the rig's numbers: (pass, or None for an observation; text)."""
+    """The acceptance checks on the rig's numbers: (pass, or None for an observation; text)."""
     out: list[tuple[bool | None, str]] = []
     misses, total = [], 0
     for (set_id, contour, label), r in sorted(rig.items()):
@@ -239,7 +240,7 @@ def section(
 
     rig_by, coulomb_by = by_key(rig), by_key(coulomb)
     lines = [
-        "## The rig's friction beside the Coulomb twin (issue 15)",
+        "## The rig's friction beside the Coulomb twin",
         "",
         "Rig plant: " + " ".join(f"`{o}`" for o in rig_overrides) + ". Coulomb: the model's own friction. "
         "rms / max of eps_c in um over the same windows as Tables 1-2; circle Set 1 is the calibration's fit, "

@@ -1,9 +1,9 @@
 """Scenario files: one typed schema, files that say only what differs, --set overrides.
 
 A scenario is a YAML mapping validated into :class:`Scenario` (pydantic v2,
-unknown keys rejected). Every field has a default from the control spec, so
-``{}`` is a valid scenario: DIARC on the paper's circle, no load, no
-disturbance, quantised sensing, 30 s. The modules, in the order data flows:
+unknown keys rejected). Every field has a default (the paper's settings,
+docs/equations.md), so ``{}`` is a valid scenario: DIARC on the paper's
+circle, no load, no disturbance, quantised sensing, 30 s. The modules, in the order data flows:
 
 * :mod:`.schema`: the fields. Domain settings (payload, sensing, plant
   changes, the built-in controllers' options) are validated by their own

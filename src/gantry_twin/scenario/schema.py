@@ -48,7 +48,7 @@ Volts = Range(-VOLTS_MAX_V, VOLTS_MAX_V, "V")
 
 
 class TimingSpec(Model):
-    """phi(t): constant rate after an optional smooth start (control-spec section 3)."""
+    """phi(t): constant rate after an optional smooth start (docs/equations.md, contour and timing law)."""
 
     rate_rad_s: Range(0.0, 20.0, "rad/s", lo_open=True) | None = None
     start: Literal["on_path", "rest"] = "on_path"

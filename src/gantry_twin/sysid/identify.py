@@ -1,6 +1,6 @@
-"""Identify the plant from logs: M, B, Af per axis by least squares on filtered signals (issue 17).
+"""Identify the plant from logs: M, B, Af per axis by least squares on filtered signals (docs/logs.md).
 
-The model (control-spec section 1), per axis, in volts:
+The model (docs/equations.md, the plant), per axis, in volts:
 
     M q'' + B q' + Af sign(q') + dN = u           (while the axis slides)
 

@@ -1,4 +1,4 @@
-"""Logs of a real (or simulated) gantry: reading and validating them (docs/logs.md, issue 17).
+"""Logs of a real (or simulated) gantry: reading and validating them (docs/logs.md).
 
 A log is a parquet file or a CSV file with a header line and one row per
 controller sample:

@@ -1,4 +1,4 @@
-"""``identify --friction lugre``: the LuGre parameters of each axis from logs (issue 17, docs/logs.md).
+"""``identify --friction lugre``: the LuGre parameters of each axis from logs (docs/logs.md).
 
 Three stages, each on what the previous one found (friction model:
 :mod:`gantry_twin.friction`):

@@ -1,4 +1,4 @@
-"""How well an identified plant reproduces a log: replay the logged commands through it (issue 17).
+"""How well an identified plant reproduces a log: replay the logged commands through it (docs/logs.md).
 
 The logged u is applied open loop to the identified MJCF model (MuJoCo's
 own dry friction, not the regression's) in windows of ``window_s``, each

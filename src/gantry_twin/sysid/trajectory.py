@@ -1,4 +1,4 @@
-"""An identification trajectory, and running it on the twin: ``gantry-twin excite`` (docs/logs.md, issue 17).
+"""An identification trajectory, and running it on the twin: ``gantry-twin excite`` (docs/logs.md).
 
 The trajectory is a multisine per axis, faded in and out, starting and
 ending at rest at the centre of travel:
@@ -270,13 +270,13 @@ def perturbed_plant(
 
 
 def random_plant(rng: np.random.Generator) -> Plant:
-    """A twin drawn as issue 17's acceptance draws them: payload uniform in 0-10 kg, each axis' B and Af
-    uniform within +-30 % of the model's."""
+    """A twin drawn as the identification acceptance draws them (docs/logs.md): payload uniform in 0-10 kg,
+    each axis' B and Af uniform within +-30 % of the model's."""
     payload = float(rng.uniform(0.0, 10.0))
     return perturbed_plant(payload, tuple(rng.uniform(0.7, 1.3, 2)), tuple(rng.uniform(0.7, 1.3, 2)))
 
 
-#: Issue 17's plausible LuGre draws (within friction.LuGreAxis's ranges): Fs / Fc, vs (m/s, log-uniform), the
+#: The LuGre acceptance's plausible draws (within friction.LuGreAxis's ranges): Fs / Fc, vs (m/s, log-uniform), the
 #: pre-sliding distance Fc / sigma0 (m, log-uniform) and sigma1 / sqrt(sigma0 * 1 kg).
 LUGRE_DRAW = {
     "fs_over_fc": (1.1, 1.6),
@@ -287,8 +287,9 @@ LUGRE_DRAW = {
 
 
 def random_lugre_plant(rng: np.random.Generator) -> Plant:
-    """A LuGre twin drawn for issue 17's acceptance: payload 0-10 kg, each axis' sigma2 and Fc within +-30 % of
-    the model's B kf and Af kf, and Fs / Fc, vs, the pre-sliding distance and sigma1 from :data:`LUGRE_DRAW`."""
+    """A LuGre twin drawn for the LuGre identification acceptance (docs/logs.md): payload 0-10 kg, each
+    axis' sigma2 and Fc within +-30 % of the model's B kf and Af kf, and Fs / Fc, vs, the pre-sliding distance
+    and sigma1 from :data:`LUGRE_DRAW`."""
     from gantry_twin.friction import Friction, LuGreAxis
 
     payload = float(rng.uniform(0.0, 10.0))
