@@ -147,12 +147,19 @@ def box(name: str) -> tuple[float, float]:
     return BOX[name if name in BOX else name.rsplit("_", 1)[0]]
 
 
-def fit_cost(numbers: dict) -> float:
-    """Mean squared log ratio twin / paper of the six circle Set 1 numbers, plus DIARC / DARC rms above 1.05."""
+def fit_cost(numbers: dict, ratio_weight: float = 0.0) -> float:
+    """Mean squared log ratio twin / paper of the six circle Set 1 numbers, plus ``ratio_weight`` times the
+    squared log ratio of DIARC's rms over DARC's, twin / paper (0.98 on circle Set 1), plus a penalty on that
+    ratio above 1.04."""
     keys = [("circle", 1, label) for label in LABELS]
     logs = [math.log(numbers[k][i] / PAPER_CONTOUR_UM[k][i]) for k in keys for i in (0, 1)]
     ratio = numbers[keys[1]][0] / numbers[keys[0]][0]
-    return float(np.mean(np.square(logs))) + 10.0 * max(0.0, ratio - 1.04) ** 2
+    paper_ratio = PAPER_CONTOUR_UM[keys[1]][0] / PAPER_CONTOUR_UM[keys[0]][0]
+    return (
+        float(np.mean(np.square(logs)))
+        + ratio_weight * math.log(ratio / paper_ratio) ** 2
+        + 10.0 * max(0.0, ratio - 1.04) ** 2
+    )
 
 
 def judge(numbers: dict) -> list[str]:
@@ -207,7 +214,7 @@ def fit(start: dict[str, float], free: list[str], pool: ProcessPoolExecutor, arg
     def objective(u: np.ndarray) -> float:
         point = point_of(u)
         numbers = evaluate(overrides(point), (1,), pool, ("circle",))
-        c = fit_cost(numbers)
+        c = fit_cost(numbers, args.ratio_weight)
         history.append((c, point))
         shown = " ".join(f"{k}={point[k if k in point else k + '_x']:.4g}" for k in free)
         cells_ = " ".join(f"{numbers[('circle', 1, label)][i]:.2f}" for label in LABELS for i in (0, 1))
@@ -232,6 +239,8 @@ def main() -> None:
     parser.add_argument("mode", choices=("eval", "overrides", "fit"))
     parser.add_argument("--free", default="", help="fit: comma-separated parameters (a name without _x/_y: both)")
     parser.add_argument("--evaluations", type=int, default=60)
+    parser.add_argument("--ratio-weight", type=float, default=0.0, help="fit: weight of C2 / C1 rms")
+    parser.add_argument("--start", type=Path, help="fit: start from the best point of a .fit.jsonl")
     parser.add_argument("--set", action="append", default=[], metavar="NAME=V")
     parser.add_argument("--plant", choices=("point", "rig", "paper"), default="point")
     parser.add_argument("--jobs", type=int, default=2)
@@ -240,6 +249,12 @@ def main() -> None:
     args = parser.parse_args()
     given = {k.strip(): float(v) for k, _, v in (p.partition("=") for p in args.set)}
     point = full_point(given)
+    if args.start is not None:
+        entries = [json.loads(line) for line in args.start.read_text().splitlines() if line.strip()]
+        point = {
+            **min(entries, key=lambda e: e["cost"])["point"],
+            **{k: v for k, v in full_point(given).items() if k in given or k[:-2] in given},
+        }
     plant_overrides = overrides(point) if args.plant == "point" else [f"plant.model={args.plant}"]
     if args.mode == "overrides":
         print("\n".join(plant_overrides))
