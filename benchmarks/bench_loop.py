@@ -10,7 +10,7 @@ backend; DIARC also on the reference backend); each loop's ratio to the C
 loop, and the plug-in's ratio to the built-in pd; numba's first-use compile
 time (fresh cache) and cache-load time; the peak memory of a 60 s DIARC run
 with full 5 kHz recording; the cost with the Coulomb and the LuGre plant side by
-side (``--friction-only``: that alone). Loops are measured interleaved, best of
+side with the rig plant's (``--friction-only``: that alone). Loops are measured interleaved, best of
 ``--repeats``, in wall time and in this thread's CPU time (less sensitive to
 other processes on the machine): compare ratios, not absolute times.
 """
@@ -80,9 +80,18 @@ def _timed(fn) -> tuple[float, float]:  # noqa: ANN001
     return time.perf_counter() - w0, time.thread_time() - c0
 
 
+#: The plants whose loop cost is compared: the paper's (Coulomb), the same with default LuGre friction, and the
+#: shipped rig plant (models/rig.xml: LuGre, a static input offset and a force ripple; docs/rig-plant.md).
+PLANTS = {
+    "coulomb": lambda: Plant(),
+    "lugre": lambda: Plant(friction=Friction(model="lugre")),
+    "rig": lambda: Plant.shipped("rig"),
+}
+
+
 def bare_steps(n: int, friction: str = "coulomb") -> tuple[float, float]:
     """MuJoCo's C loop on the same model, from rest: n control samples (each plant.substeps physics steps)."""
-    plant = Plant(friction=Friction(model=friction))
+    plant = PLANTS[friction]()
     plant.reset(np.zeros(2), np.zeros(2))
     return _timed(lambda: mujoco.mj_step(plant.model, plant.data, nstep=n * plant.substeps))
 
@@ -98,18 +107,18 @@ def _example_plugin() -> None:
 
 
 def loop(name: str, seconds: float, backend: str = "compiled", friction: str = "coulomb") -> tuple[float, float]:
-    plant, controller = Plant(friction=Friction(model=friction)), create(name)
+    plant, controller = PLANTS[friction](), create(name)
     return _timed(lambda: simulate(plant, circle(), TimingLaw(2.0), controller, seconds, backend=backend))
 
 
 def friction_costs(seconds: float, repeats: int, n: int) -> None:
-    """The loop's cost per 0.2 ms sample with the Coulomb and the LuGre plant, side by side (docs/friction.md)."""
+    """The loop's cost per 0.2 ms sample with the Coulomb, the LuGre and the rig plant, side by side."""
     keys = ["mj_step C loop", "pd", "diarc"]
     results: dict[tuple[str, str], list[tuple[float, float]]] = {}
     for name in keys[1:]:
-        loop(name, 0.01, friction="lugre")
+        loop(name, 0.01, friction="rig")
     for _ in range(repeats):
-        for model in ("coulomb", "lugre"):
+        for model in PLANTS:
             results.setdefault((keys[0], model), []).append(bare_steps(n, model))
             for name in keys[1:]:
                 results.setdefault((name, model), []).append(loop(name, seconds, friction=model))
@@ -119,10 +128,10 @@ def friction_costs(seconds: float, repeats: int, n: int) -> None:
         f"\nfriction models, CPU us per 0.2 ms sample, best of {repeats} (lugre: {lugre.substeps} physics steps "
         f"per sample, integrator {mujoco.mjtIntegrator(lugre.model.opt.integrator).name})"
     )
-    print(f"{'loop':<24}{'coulomb':>10}{'lugre':>10}{'lugre/coulomb':>15}")
+    print(f"{'loop':<24}{'coulomb':>10}{'lugre':>10}{'rig':>10}{'lugre/coulomb':>15}{'rig/coulomb':>13}")
     for name in keys:
-        c, g = best[(name, "coulomb")], best[(name, "lugre")]
-        print(f"{name:<24}{c:10.2f}{g:10.2f}{g / c:15.2f}")
+        c, g, r = best[(name, "coulomb")], best[(name, "lugre")], best[(name, "rig")]
+        print(f"{name:<24}{c:10.2f}{g:10.2f}{r:10.2f}{g / c:15.2f}{r / c:13.2f}")
 
 
 def main() -> None:

@@ -293,12 +293,15 @@ class PlantChanges:
         table, force = self.cogging_table(), reference(cogging_force)
         return np.array([force(table, axis, float(q[axis])) for axis in range(2)])
 
-    def true_parameters_over_time(self, plant: Plant, t: np.ndarray) -> np.ndarray:
+    def true_parameters_over_time(
+        self, plant: Plant, t: np.ndarray, operating_point_m: tuple[float, float] | np.ndarray = (0.0, 0.0)
+    ) -> np.ndarray:
         """The true theta [M1, M2, B1, B2, Af1, Af2, dN1, dN2] at each sample, volt units, (N, 8).
 
         Masses: the model's moving masses without the payload plus the payload
         schedule (a payload on the X carriage adds its mass to both slide
-        joints); B and Af from the drift schedules; dN = 0 (cogging is an
+        joints); B and Af from the drift schedules; dN the plant's static input
+        offset at the operating point (:meth:`Plant.offset_v`; cogging is an
         unmodelled, zero-mean disturbance, not a parameter).
         """
         t = np.asarray(t, dtype=float)
@@ -312,7 +315,8 @@ class PlantChanges:
                 fc = coulomb[:, axis] * gear[axis]
                 af, b = identified_af_b(fc, fc * p.fs_n / p.fc_n, p.vs_m_s, viscous[:, axis] * gear[axis])
                 coulomb[:, axis], viscous[:, axis] = af / gear[axis], b / gear[axis]
-        return np.column_stack([mass_v, viscous, coulomb, np.zeros((t.size, 2))])
+        offset = np.tile(plant.offset_v(operating_point_m), (t.size, 1))
+        return np.column_stack([mass_v, viscous, coulomb, offset])
 
 
 # ---- what the loop applies each sample (both backends) -------------------------------------

@@ -4,6 +4,18 @@
 parameter vector theta (volt units) is *computed* from the compiled model,
 never typed a second time (docs/equations.md, the plant).
 
+Two machines are shipped (``plant.model``, docs/rig-plant.md): ``paper``,
+models/gantry.xml, the paper's model (eq. (1): Coulomb + viscous friction,
+no offset); ``rig``, models/rig.xml, the same machine with the properties
+the paper's rig shows and its model leaves out, read from the file's
+``<custom>`` numerics: LuGre friction per axis (:mod:`gantry_twin.friction`),
+a static input offset dN(q) (:class:`InputOffset`: the paper's dN1, dN2,
+theta 7-8, constant plus a part linear in position) and a position-periodic
+force ripple (:class:`ForceRipple`, up to three harmonics of one pitch).
+The offset and the ripple act through the disturbance motors
+(:func:`plant_input_v`, evaluated by the loop each sample at the true
+position); the controller never sees them.
+
 Axis convention of the whole package: index 0 = X (axis 1, top), index 1 = Y
 (axis 2, bottom, carries X). MuJoCo orders the DOFs parent first (Y, then X);
 :class:`Plant` hides that behind ``qpos_index``/``dof_index``.
@@ -11,15 +23,19 @@ Axis convention of the whole package: index 0 = X (axis 1, top), index 1 = Y
 
 from __future__ import annotations
 
+import math
 from importlib import resources
 from pathlib import Path
-from typing import Literal, get_args
+from typing import Literal, NamedTuple, get_args
 
 import mujoco
 import numpy as np
 
+from gantry_twin._jit import kernel
+from gantry_twin.contours import Contour
 from gantry_twin.friction import (
     Friction,
+    LuGreAxis,
     LuGreParameters,
     apply_friction,
     check_bristle_damping,
@@ -28,7 +44,7 @@ from gantry_twin.friction import (
     lugre_parameters,
     steady_bristle_m,
 )
-from gantry_twin.settings import Range, Vector, validated
+from gantry_twin.settings import Range, Vector, fmt, rule, validated
 
 #: An axis by name; AXES: the names in the package's order (index 0 = X, 1 = Y).
 Axis = Literal["x", "y"]
@@ -51,12 +67,209 @@ PayloadMass = Range(0.0, PAYLOAD_MAX_KG, "kg")
 PayloadOffset = Vector(tuple(Range(-limit, limit, "m") for limit in PAYLOAD_OFFSET_MAX_M), "xyz")
 
 
-def default_model_path() -> Path:
-    """Path of the shipped MJCF file (``models/gantry.xml``)."""
-    packaged = resources.files("gantry_twin") / "models" / "gantry.xml"
+#: The shipped machines (``plant.model``) and their MJCF files in models/.
+PLANT_MODELS: dict[str, str] = {"paper": "gantry.xml", "rig": "rig.xml"}
+PlantModel = Literal["paper", "rig"]
+
+
+def default_model_path(model: PlantModel = "paper") -> Path:
+    """Path of a shipped MJCF file: ``models/gantry.xml`` (paper) or ``models/rig.xml`` (rig)."""
+    name = PLANT_MODELS[model]
+    packaged = resources.files("gantry_twin") / "models" / name
     if packaged.is_file():
         return Path(str(packaged))
-    return Path(__file__).resolve().parents[2] / "models" / "gantry.xml"
+    return Path(__file__).resolve().parents[2] / "models" / name
+
+
+# ---------------------------------------------------------------------------
+# The rig's input offset and force ripple (docs/rig-plant.md).
+
+#: Largest static input offset per axis, V (about 10 N at kf = 69 N/V: a cable carrier's drag, a tilt,
+#: an amplifier offset), and largest change of its linear part over the half travel, V.
+OFFSET_MAX_V = 0.15
+OFFSET_HALF_TRAVEL_MAX_V = 0.1
+#: The half travel, m (the joints' range +-255 mm in models/gantry.xml).
+HALF_TRAVEL_M = 0.255
+#: Largest peak of a force ripple per axis (the sum of its harmonics' amplitudes), V; harmonics per axis.
+RIPPLE_MAX_V = 0.1
+RIPPLE_HARMONICS = 3
+#: Columns of :func:`input_table`: offset V, slope V/m, pitch m, then (amplitude V, phase rad) per harmonic.
+INPUT_COLUMNS = 3 + 2 * RIPPLE_HARMONICS
+
+
+@validated("offset")
+class OffsetAxis:
+    """One axis' static input offset, dN(q) = constant_v + half_travel_v q / HALF_TRAVEL_M, volts.
+
+    The paper's dN (eq. (1), theta 7-8) is a constant; ``half_travel_v`` is
+    the change over the half travel of a part linear in position (a cable
+    carrier's spring), 0 by default. Positive dN pushes the axis forward, as
+    a positive input does.
+    """
+
+    constant_v: Range(-OFFSET_MAX_V, OFFSET_MAX_V, "V") = 0.0
+    half_travel_v: Range(-OFFSET_HALF_TRAVEL_MAX_V, OFFSET_HALF_TRAVEL_MAX_V, "V") = 0.0
+
+    @property
+    def slope_v_m(self) -> float:
+        """d dN / dq, V/m."""
+        return self.half_travel_v / HALF_TRAVEL_M
+
+    def at_v(self, q_m: float) -> float:
+        """dN at position q (m), volts."""
+        return self.constant_v + self.slope_v_m * q_m
+
+
+@validated("offset")
+class InputOffset:
+    """The static input offset of each axis (:class:`OffsetAxis`)."""
+
+    x: OffsetAxis = OffsetAxis()
+    y: OffsetAxis = OffsetAxis()
+
+
+@validated("harmonic")
+class RippleHarmonic:
+    """One harmonic of a force ripple: amplitude_v sin(2 pi k q / pitch + phase_rad), k its order (1, 2, 3)."""
+
+    amplitude_v: Range(0.0, RIPPLE_MAX_V, "V")
+    phase_rad: Range(-2.0 * math.pi, 2.0 * math.pi, "rad") = 0.0
+
+
+@validated("ripple")
+class RippleAxis:
+    """One axis' force ripple: sum over the harmonics k = 1, 2, 3 of a_k sin(2 pi k q / pitch_m + phi_k), volts.
+
+    pitch_m: the period in position of the first harmonic (an iron-core
+    linear motor's magnet pitch). The peak (the sum of the amplitudes) is at
+    most RIPPLE_MAX_V.
+    """
+
+    pitch_m: Range(1.0e-3, 1.0, "m") = 0.016
+    harmonics: tuple[RippleHarmonic, ...] = ()
+
+    def __post_init__(self) -> None:
+        if len(self.harmonics) > RIPPLE_HARMONICS:
+            raise rule("harmonics", f"at most {RIPPLE_HARMONICS} harmonics, got {len(self.harmonics)}")
+        peak = sum(h.amplitude_v for h in self.harmonics)
+        if peak > RIPPLE_MAX_V:
+            raise rule("harmonics", f"the sum of the amplitudes must be at most {fmt(RIPPLE_MAX_V)} V, got {fmt(peak)}")
+
+    def at_v(self, q_m: float) -> float:
+        """The ripple at position q (m), volts."""
+        w = 2.0 * math.pi * q_m / self.pitch_m
+        return sum(h.amplitude_v * math.sin((k + 1) * w + h.phase_rad) for k, h in enumerate(self.harmonics))
+
+
+@validated("ripple")
+class ForceRipple:
+    """The force ripple of each axis (:class:`RippleAxis`)."""
+
+    x: RippleAxis = RippleAxis()
+    y: RippleAxis = RippleAxis()
+
+
+def input_table(offset: InputOffset, ripple: ForceRipple) -> np.ndarray:
+    """(2, INPUT_COLUMNS) per axis X, Y: offset V, slope V/m, pitch m, (amplitude V, phase rad) x 3, for
+    :func:`plant_input_v`."""
+    table = np.zeros((2, INPUT_COLUMNS))
+    for axis, name in enumerate(AXES):
+        o, r = getattr(offset, name), getattr(ripple, name)
+        table[axis, 0:3] = (o.constant_v, o.slope_v_m, r.pitch_m)
+        for k, h in enumerate(r.harmonics):
+            table[axis, 3 + 2 * k : 5 + 2 * k] = (h.amplitude_v, h.phase_rad)
+    return table
+
+
+@kernel(inline=True)
+def plant_input_v(table, axis, q_m):
+    """The plant's own input of one axis at the true position q_m, volts: dN(q) (:class:`OffsetAxis`) plus the
+    force ripple (:class:`RippleAxis`); table from :func:`input_table`."""
+    out = table[axis, 0] + table[axis, 1] * q_m
+    w = 2.0 * math.pi * q_m / table[axis, 2]
+    for k in range(RIPPLE_HARMONICS):
+        amplitude = table[axis, 3 + 2 * k]
+        if amplitude != 0.0:
+            out += amplitude * math.sin((k + 1) * w + table[axis, 4 + 2 * k])
+    return out
+
+
+# ---- the rig's numerics in an MJCF file (models/rig.xml) -----------------------------------
+
+#: Names of the <custom> numerics a model file may carry, per axis (docs/rig-plant.md):
+#: lugre "sigma0 sigma1 Fc Fs vs" (N/m, N s/m, N, N, m/s), viscous "sigma2" (N s/m),
+#: input_offset "constant_v half_travel_v", force_ripple "pitch_m a1 phi1 [a2 phi2 [a3 phi3]]".
+NUMERIC = {
+    "lugre": "{axis}_lugre",
+    "viscous": "{axis}_viscous",
+    "input_offset": "{axis}_input_offset",
+    "force_ripple": "{axis}_force_ripple",
+}
+
+
+class FileProperties(NamedTuple):
+    """The plant properties an MJCF file's numerics give (None: the file has none of that kind)."""
+
+    friction: Friction | None
+    offset: InputOffset | None
+    ripple: ForceRipple | None
+
+
+def file_properties(spec: mujoco.MjSpec) -> FileProperties:
+    """Read the numerics of :data:`NUMERIC` from a spec; each kind is given for both axes or for none.
+
+    Raises ValueError naming the numeric when one is malformed or out of its range.
+    """
+    given = {name: {n.name: list(n.data) for n in spec.numerics}.get(name) for name in _numeric_names()}
+
+    def values(kind: str) -> dict[str, list[float]] | None:
+        found = {a: given[NUMERIC[kind].format(axis=a)] for a in AXES}
+        if all(v is None for v in found.values()):
+            return None
+        missing = [NUMERIC[kind].format(axis=a) for a, v in found.items() if v is None]
+        if missing:
+            raise ValueError(f"numeric {missing[0]}: missing (a plant property is given for both axes or neither)")
+        return found
+
+    friction = offset = ripple = None
+    lugre, viscous = values("lugre"), values("viscous")
+    if lugre is not None:
+        axes = {}
+        for a, p in lugre.items():
+            _count(NUMERIC["lugre"].format(axis=a), p, 5, 5)
+            sigma2 = None if viscous is None else _count(NUMERIC["viscous"].format(axis=a), viscous[a], 1, 1)[0]
+            axes[a] = LuGreAxis(*p, sigma2_ns_m=sigma2)
+        friction = Friction(model="lugre", **axes)
+    elif viscous is not None:
+        raise ValueError(f"numeric {NUMERIC['viscous'].format(axis='x')}: given without {NUMERIC['lugre']}")
+    found = values("input_offset")
+    if found is not None:
+        offset = InputOffset(
+            **{a: OffsetAxis(*_count(NUMERIC["input_offset"].format(axis=a), p, 1, 2)) for a, p in found.items()}
+        )
+    found = values("force_ripple")
+    if found is not None:
+        axes = {}
+        for a, p in found.items():
+            name = NUMERIC["force_ripple"].format(axis=a)
+            _count(name, p, 1, 1 + 2 * RIPPLE_HARMONICS)
+            if len(p) % 2 != 1:
+                raise ValueError(f"numeric {name}: pitch_m then (amplitude_v, phase_rad) pairs, got {len(p)} values")
+            pairs = [RippleHarmonic(p[i], p[i + 1]) for i in range(1, len(p), 2)]
+            axes[a] = RippleAxis(pitch_m=p[0], harmonics=tuple(pairs))
+        ripple = ForceRipple(**axes)
+    return FileProperties(friction, offset, ripple)
+
+
+def _numeric_names() -> list[str]:
+    return [template.format(axis=a) for template in NUMERIC.values() for a in AXES]
+
+
+def _count(name: str, values: list[float], lo: int, hi: int) -> list[float]:
+    if not lo <= len(values) <= hi:
+        want = str(lo) if lo == hi else f"{lo} to {hi}"
+        raise ValueError(f"numeric {name}: {want} values, got {len(values)}")
+    return values
 
 
 @validated("payload")
@@ -74,16 +287,28 @@ class Payload:
 
 @validated("plant")
 class PlantSettings:
-    """How the machine departs from models/gantry.xml's defaults in a scenario.
+    """The machine of a scenario.
 
-    file: an MJCF model in place of models/gantry.xml (e.g. ``gantry-twin
-    identify``'s plant.xml), relative to the scenario file; None: the shipped
-    model. friction: its friction model (:mod:`gantry_twin.friction`), applied
-    to that model.
+    model: the shipped machine, ``paper`` (models/gantry.xml, the paper's
+    model) or ``rig`` (models/rig.xml: LuGre friction, a static input offset
+    and a force ripple; docs/rig-plant.md). file: an MJCF model in place of
+    the shipped one (e.g. ``gantry-twin identify``'s plant.xml), relative to
+    the scenario file. friction, offset, ripple: the friction model
+    (:mod:`gantry_twin.friction`), the static input offset and the force
+    ripple; None: the model file's own (its numerics, :func:`file_properties`;
+    for models/gantry.xml its Coulomb friction, no offset, no ripple). A
+    value given replaces the file's whole property.
     """
 
+    model: PlantModel = "paper"
     file: str | None = None
-    friction: Friction = Friction()
+    friction: Friction | None = None
+    offset: InputOffset | None = None
+    ripple: ForceRipple | None = None
+
+    def __post_init__(self) -> None:
+        if self.file is not None and self.model != "paper":
+            raise rule("file", f"give a model file or model: {self.model}, not both")
 
 
 def build_spec(
@@ -96,11 +321,12 @@ def build_spec(
 
     payload_body: add the body even for a 0 kg payload (MuJoCo accepts a
     massless welded body), so that a run can change its mass (a pick-up).
-    friction: see :mod:`gantry_twin.friction` (None: the file's Coulomb
-    friction, unchanged). The model file's timestep stays the control sample.
+    friction: see :mod:`gantry_twin.friction` (None: the file's own, its
+    LuGre numerics (:func:`file_properties`) or else its Coulomb friction).
+    The model file's timestep stays the control sample.
     """
     spec = mujoco.MjSpec.from_file(str(model_path or default_model_path()))
-    apply_friction(spec, friction or Friction(), AXES)
+    apply_friction(spec, friction or file_properties(spec).friction or Friction(), AXES)
     if payload is None and payload_body:
         payload = Payload()
     if payload is not None and (payload.mass_kg > 0.0 or payload_body):
@@ -134,15 +360,23 @@ class Plant:
         model_path: Path | None = None,
         payload_body: bool = False,
         friction: Friction | None = None,
+        offset: InputOffset | None = None,
+        ripple: ForceRipple | None = None,
     ) -> None:
         """payload_body: always build the payload body (even at 0 kg) so its mass can change during a run.
 
-        friction: the friction model (:mod:`gantry_twin.friction`; None: the
-        file's Coulomb friction). Raises :class:`gantry_twin.friction.FrictionError`
+        friction, offset, ripple: the friction model (:mod:`gantry_twin.friction`),
+        the static input offset and the force ripple; None: the model file's
+        own (:func:`file_properties`; models/gantry.xml: Coulomb friction, no
+        offset, no ripple). Raises :class:`gantry_twin.friction.FrictionError`
         for LuGre parameters outside their physical range.
         """
         self.payload = payload or Payload()
-        self.friction = friction or Friction()
+        own = file_properties(mujoco.MjSpec.from_file(str(model_path or default_model_path())))
+        self.friction = friction or own.friction or Friction()
+        #: The static input offset dN(q) and the force ripple, applied by the loop (:func:`plant_input_v`).
+        self.offset = offset or own.offset or InputOffset()
+        self.ripple = ripple or own.ripple or ForceRipple()
         self.spec = build_spec(self.payload, model_path, payload_body, self.friction)
         #: The control sample period Ts, s (the file's timestep); substeps: physics steps per sample.
         self.timestep_s = float(self.spec.option.timestep)
@@ -205,9 +439,34 @@ class Plant:
             for a, d in zip(self.friction_index, self.dof_index, strict=True)
         ]
 
-    def true_parameters(self) -> np.ndarray:
-        """theta of the current model, volt units; see :func:`true_parameters`."""
-        return true_parameters(self.model, self.dof_index, self.motor_index, self.friction_index)
+    @classmethod
+    def shipped(cls, model: PlantModel, payload: Payload | None = None, payload_body: bool = False) -> Plant:
+        """The shipped machine ``paper`` (models/gantry.xml) or ``rig`` (models/rig.xml) with its own properties."""
+        return cls(payload, default_model_path(model), payload_body)
+
+    def input_table(self) -> np.ndarray:
+        """The offset and ripple table the loop reads (:func:`input_table`)."""
+        return input_table(self.offset, self.ripple)
+
+    def offset_v(self, operating_point_m: np.ndarray | tuple[float, float] = (0.0, 0.0)) -> np.ndarray:
+        """dN (X, Y) at the operating point q (m), volts: the true dN1, dN2 (:class:`OffsetAxis`)."""
+        return np.array([getattr(self.offset, a).at_v(float(q)) for a, q in zip(AXES, operating_point_m, strict=True)])
+
+    def true_parameters(self, operating_point_m: np.ndarray | tuple[float, float] = (0.0, 0.0)) -> np.ndarray:
+        """theta of the current model, volt units; see :func:`true_parameters`.
+
+        operating_point_m: where dN(q) is read (the time-mean position of a
+        run's contour, :func:`operating_point_m`; the travel centre by default).
+        """
+        theta = true_parameters(self.model, self.dof_index, self.motor_index, self.friction_index)
+        theta[6:8] = self.offset_v(operating_point_m)
+        return theta
+
+
+def operating_point_m(path: Contour, points: int = 3600) -> np.ndarray:
+    """The mean position of a contour over one lap at constant rate, m (X, Y): where a linear dN(q) has its mean."""
+    phi = (np.arange(points) + 0.5) * (path.period_rad / points)
+    return np.asarray(path.derivatives(phi)[0], dtype=float).mean(axis=0)
 
 
 def moving_masses_kg(model: mujoco.MjModel, dof_index: np.ndarray) -> np.ndarray:
@@ -229,7 +488,8 @@ def true_parameters(
     each divided by the motor gear (N/V). An axis with LuGre friction
     (friction_index: its actuator, -1 for none) has the B and Af of the
     paper's identification applied to it (:func:`gantry_twin.friction.identified_af_b`).
-    dN is zero: the plant has no nominal disturbance.
+    dN is zero here: a plant's static input offset is added by
+    :meth:`Plant.true_parameters`.
     """
     gear = model.actuator_gear[motor_index, 0]
     mass = moving_masses_kg(model, dof_index) / gear

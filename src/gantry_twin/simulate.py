@@ -69,7 +69,7 @@ from gantry_twin.faults import (
     cogging_force,
     sensor_glitches,
 )
-from gantry_twin.plant import Plant
+from gantry_twin.plant import Plant, operating_point_m, plant_input_v
 from gantry_twin.sensing import Encoder, SensingConfig, encoder_measure
 from gantry_twin.taskframe import normal_errors
 from gantry_twin.trace import Observer, RunInfo, SimulationError, Trace
@@ -117,7 +117,8 @@ mj_step = _load_mj_step()
 
 class PlantIO(NamedTuple):
     """What the loop touches in MuJoCo: raw pointers, views into mjData, indices, the DAC limits (2,) V,
-    physics steps per sample."""
+    physics steps per sample, the plant's own input offset and force ripple (:func:`gantry_twin.plant.input_table`).
+    """
 
     model_address: int
     data_address: int
@@ -130,6 +131,7 @@ class PlantIO(NamedTuple):
     disturbance_index: np.ndarray
     u_max_v: np.ndarray
     substeps: int
+    input_table: np.ndarray
 
 
 class Recording(NamedTuple):
@@ -181,7 +183,7 @@ def _measure(plant, encoder, sample, changes, k):
 @kernel(inline=True)
 def _record_and_step(plant, recording, k, sample, changes):
     """Check the command; record the sample (row k of the recording); hold u (clipped) and the disturbance
-    (+ cogging); mj_step ``plant.substeps`` times.
+    (+ cogging, + the plant's own offset and ripple at the true position); mj_step ``plant.substeps`` times.
 
     Returns False if the command is not finite.
     """
@@ -201,6 +203,7 @@ def _record_and_step(plant, recording, k, sample, changes):
             ctrl[disturbances[i]] = disturbance_v[k, i] + cogging_force(changes.cogging, i, q_true[i])
         else:
             ctrl[disturbances[i]] = disturbance_v[k, i]
+        ctrl[disturbances[i]] += plant_input_v(plant.input_table, i, q_true[i])
     for _ in range(plant.substeps):
         mj_step(plant.model_address, plant.data_address)
     return True
@@ -353,7 +356,8 @@ def simulate(
     references = ReferenceStream(path, timing)
     model = plant.model
     saved = _changed_fields(model)
-    true_theta = plant.true_parameters()
+    operating = operating_point_m(path)
+    true_theta = plant.true_parameters(operating)
     loop: _Loop | None = None
     try:
         for first in range(0, n, piece):
@@ -364,7 +368,7 @@ def simulate(
                 raise ValueError(f"disturbance must give shape ({t.size}, 2) volts, got {dist.shape}")
             trace = Trace.allocate(ref, np.ascontiguousarray(dist), true_theta, first, ts)
             if moving:
-                trace.true_theta_t = _as_before(model, saved, changes.true_parameters_over_time, plant, t)
+                trace.true_theta_t = _as_before(model, saved, changes.true_parameters_over_time, plant, t, operating)
                 if first == 0:
                     true_theta = trace.true_theta_t[0].copy()
                 trace.true_theta = true_theta
@@ -465,6 +469,7 @@ class _Loop:
             ),
             u_max,
             plant.substeps,
+            np.ascontiguousarray(plant.input_table()),
         )
         self.encoder, self.changes, self.compiled = sensor, changes, compiled
         if compiled is not None:

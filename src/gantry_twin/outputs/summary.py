@@ -19,7 +19,7 @@ from pydantic import ValidationError
 from gantry_twin.inputs import InputFileError, read_input_file
 from gantry_twin.metrics import RunMetrics, WholeRunMetrics, estimate_errors_pct
 from gantry_twin.plant import AXES, THETA_NAMES
-from gantry_twin.settings import Model, describe, quote, shorten
+from gantry_twin.settings import Model, describe, shorten
 
 #: Version of the summary.json layout; bumped on any incompatible change.
 SUMMARY_SCHEMA_VERSION = 1

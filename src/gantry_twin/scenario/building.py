@@ -22,7 +22,7 @@ from gantry_twin.friction import FrictionError
 from gantry_twin.health.confidence import EstimateConfidence
 from gantry_twin.health.monitor import Baseline, ExcitationSettings, HealthSettings, MachineMonitor
 from gantry_twin.outputs.summary import RunSummary, SummaryError
-from gantry_twin.plant import AXES, Plant
+from gantry_twin.plant import AXES, Plant, default_model_path
 from gantry_twin.scenario.errors import ScenarioError
 from gantry_twin.scenario.loading import controller_options
 from gantry_twin.scenario.schema import Scenario
@@ -72,18 +72,23 @@ def build(scenario: Scenario, source: str = "<scenario>") -> BuiltRun:
 
 
 def _plant(scenario: Scenario, payload_body: bool, source: str) -> Plant:
-    """The compiled plant: the shipped model, or ``plant.file`` (relative to the scenario file)."""
-    friction = scenario.plant.friction
-    if scenario.plant.file is None:
-        return _with_friction(lambda: Plant(scenario.payload, payload_body=payload_body, friction=friction), source)
-    path = Path(scenario.plant.file)
+    """The compiled plant: the shipped model (``plant.model``), or ``plant.file`` (relative to the scenario file),
+    with the scenario's friction, offset and ripple where given (else the file's own)."""
+    settings = scenario.plant
+    properties = {"friction": settings.friction, "offset": settings.offset, "ripple": settings.ripple}
+    if settings.file is None:
+        path = default_model_path(settings.model)
+        return _with_friction(
+            lambda: Plant(scenario.payload, model_path=path, payload_body=payload_body, **properties), source
+        )
+    path = Path(settings.file)
     if not path.is_absolute() and Path(source).is_file():
         path = Path(source).parent / path
     if not path.is_file():
         raise ScenarioError(source, "plant.file", f"{quote(str(path))}: no such file; give an MJCF model of the gantry")
     try:
         return _with_friction(
-            lambda: Plant(scenario.payload, model_path=path, payload_body=payload_body, friction=friction), source
+            lambda: Plant(scenario.payload, model_path=path, payload_body=payload_body, **properties), source
         )
     except ScenarioError:  # a friction setting this model refuses: already names its field
         raise
