@@ -27,7 +27,7 @@ from gantry_twin.metrics import RunMetrics
 from gantry_twin.outputs.files import atomic_write_text, discard, remove_tree, temporary_file
 from gantry_twin.outputs.signals import SwallowedInterrupt, signals_held
 from gantry_twin.outputs.summary import Failure, RunSummary, run_summary, summary_json
-from gantry_twin.outputs.tracefile import TRACE_COLUMNS, TraceWriter, stored_row_bytes
+from gantry_twin.outputs.tracefile import TRACE_COLUMNS, TRACE_FILE, TraceWriter, stored_row_bytes
 from gantry_twin.plant import THETA_NAMES
 from gantry_twin.scenario import BuiltRun, dump_yaml
 from gantry_twin.scenario.building import estimate_confidence
@@ -37,7 +37,6 @@ from gantry_twin.trace import Observer, SimulationError, Trace
 #: The files :class:`RunWriter` leaves in a run's directory (docs/cli.md); summary.json is written last.
 SUMMARY_FILE = "summary.json"
 SCENARIO_FILE = "scenario.yaml"
-TRACE_FILE = "trace.parquet"
 RUN_INFO_FILE = "run_info.json"
 RUN_FILES = (SUMMARY_FILE, SCENARIO_FILE, TRACE_FILE, RUN_INFO_FILE)
 #: The directory of a run's figures (:mod:`gantry_twin.outputs.plots`), written before summary.json when asked for.

@@ -27,17 +27,18 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, NoReturn
 
+from gantry_twin.cli import compare as compare_command
+from gantry_twin.cli import excite as excite_command
+from gantry_twin.cli import export as export_command
 from gantry_twin.cli import identify as identify_command
 from gantry_twin.cli.printing import format_health, format_summary, touched_end_stop, travel_warnings
+from gantry_twin.cli.telemetry import add_telemetry_arguments, telemetry_observers
 from gantry_twin.compiling import compile_notice
 from gantry_twin.controllers import available
-from gantry_twin.outputs import export
+from gantry_twin.outputs.export import ExportError
 from gantry_twin.outputs.rundirs import LATEST, new_run_dir, point_latest
 from gantry_twin.outputs.signals import stop_signals_interrupt
-from gantry_twin.reports import rig as rig_report
 from gantry_twin.reports.compare import CompareError
-from gantry_twin.reports.compare import add_arguments as add_compare_arguments
-from gantry_twin.reports.compare import command as compare_command
 from gantry_twin.run import LARGE_TRACE_BYTES, RunWriter, trace_size
 from gantry_twin.scenario import (
     Scenario,
@@ -47,11 +48,10 @@ from gantry_twin.scenario import (
     resolve_scenario,
     shipped,
 )
-from gantry_twin.scenario import listing as scenario_listing
+from gantry_twin.scenario.listing import listing
 from gantry_twin.settings import shorten
-from gantry_twin.sysid import trajectory as excite_command
 from gantry_twin.sysid.logs import LogError
-from gantry_twin.telemetry import TelemetryError, add_telemetry_arguments, telemetry_observers
+from gantry_twin.telemetry import TelemetryError
 from gantry_twin.trace import RunInfo, Trace
 
 PROG = "gantry-twin"
@@ -138,6 +138,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
 
     run = sub.add_parser("run", help="run a scenario and write its results")
+    run.set_defaults(func=_run)
     run.add_argument(
         "scenario",
         nargs="?",
@@ -152,6 +153,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_telemetry_arguments(run)
 
     monitor = sub.add_parser("monitor", help="run a scenario with the health monitor and report its alarms")
+    monitor.set_defaults(func=_monitor)
     monitor.add_argument(
         "scenario", nargs="?", help=f"scenario YAML file or shipped scenario name ({PROG} scenarios lists them)"
     )
@@ -169,11 +171,13 @@ def build_parser() -> argparse.ArgumentParser:
     add_telemetry_arguments(monitor)
 
     validate = sub.add_parser("validate", help="check scenario files without running them")
+    validate.set_defaults(func=_validate)
     validate.add_argument("scenario", nargs="+", help="scenario YAML file(s)")
     _add_controller(validate)
     _add_set(validate)
 
     report = sub.add_parser("report", help="run the paper's matrix and write a Markdown report with figures")
+    report.set_defaults(func=_report)
     default_report = RUNS_DIR / "report"
     report.add_argument(
         "--out", metavar="DIR", type=Path, default=default_report, help=f"output directory (default: {default_report}/)"
@@ -182,15 +186,25 @@ def build_parser() -> argparse.ArgumentParser:
         "--jobs", metavar="N", type=int, default=None, help="parallel processes (default: os.cpu_count())"
     )
     _add_set(report, "override a field in every scenario of the matrix, e.g. duration_s=10")
-    rig_report.add_arguments(report)
+    report.add_argument(
+        "--rig",
+        metavar="FILE",
+        type=Path,
+        default=None,
+        help="also run the matrix with a rig plant: FILE's 'overrides' (a list of field=value strings); "
+        "adds paper / rig / ideal per cell and a reversal-spike figure",
+    )
     _add_progress(report)
 
     identify = sub.add_parser("identify", help="identify M, B, Af (and LuGre) from logs; a plant file and a fit report")
     identify_command.add_arguments(identify)
+    identify.set_defaults(func=identify_command.command)
     excite = sub.add_parser("excite", help="write an identification trajectory and run it on the twin")
     excite_command.add_arguments(excite)
+    excite.set_defaults(func=excite_command.command)
 
     sweep = sub.add_parser("sweep", help="run a sweep or Monte Carlo study on a Dask cluster (docs/sweeps.md)")
+    sweep.set_defaults(func=_sweep)
     sweep.add_argument("file", help="sweep YAML file or shipped sweep name (sweeps/)")
     sweep.add_argument("--out", metavar="DIR", type=Path, help=f"output directory (default: {RUNS_DIR}/sweeps/<file>/)")
     where = sweep.add_mutually_exclusive_group()
@@ -201,10 +215,14 @@ def build_parser() -> argparse.ArgumentParser:
     sweep.add_argument("--resume", action="store_true", help="run only the points DIR/results.parquet lacks")
     _add_progress(sweep)
 
-    scenario_listing.add_arguments(sub.add_parser("scenarios", help="list the shipped scenarios, one line each"))
-    export.add_arguments(sub.add_parser("export", help="write a run's trace as CSV (docs/cli.md)"))
+    scenarios = sub.add_parser("scenarios", help="list the shipped scenarios, one line each")
+    scenarios.set_defaults(func=_scenarios)
+    export = sub.add_parser("export", help="write a run's trace as CSV (docs/cli.md)")
+    export_command.add_arguments(export)
+    export.set_defaults(func=export_command.command)
     compare = sub.add_parser("compare", help="the figures of runs side by side, and their plots overlaid")
-    add_compare_arguments(compare, RUNS_DIR)
+    compare_command.add_arguments(compare, RUNS_DIR)
+    compare.set_defaults(func=compare_command.command)
     return parser
 
 
@@ -260,32 +278,24 @@ def main(argv: Sequence[str] | None = None) -> int:
         return int(exc.code or 0)
     try:
         with stop_signals_interrupt():
-            if args.command == "monitor" and args.log is not None:
-                return _monitor_log(args)
-            if args.command in ("run", "monitor"):
-                return _run(args)
-            if args.command == "identify":
-                return identify_command.command(args)
-            if args.command == "excite":
-                return excite_command.command(args)
-            if args.command == "validate":
-                return _validate(args)
-            if args.command == "sweep":
-                return _sweep(args)
-            if args.command == "scenarios":
-                return scenario_listing.command(args)
-            if args.command == "export":
-                return export.command(args)
-            if args.command == "compare":
-                return compare_command(args)
-            return _report(args)
-    except (ScenarioError, BadInput, TelemetryError, export.ExportError, CompareError, LogError) as exc:
+            return args.func(args)
+    except (ScenarioError, BadInput, TelemetryError, ExportError, CompareError, LogError) as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except KeyboardInterrupt as exc:
         signum = getattr(exc, "signum", signal.SIGINT)
         print(f"{PROG}: interrupted ({signal.Signals(signum).name})", file=sys.stderr)
         return EXIT_INTERRUPTED + signum
+
+
+def _scenarios(args: argparse.Namespace) -> int:
+    print("\n".join(listing()))
+    return EXIT_OK
+
+
+def _monitor(args: argparse.Namespace) -> int:
+    """``monitor``: a scenario run with the health monitor, or (``--log``) the monitor over a recorded log."""
+    return _monitor_log(args) if args.log is not None else _run(args)
 
 
 def _scenario_path(arg: str | None) -> Path:
@@ -427,6 +437,7 @@ def _point_latest(out: Path) -> None:
 
 
 def _report(args: argparse.Namespace) -> int:
+    from gantry_twin.reports import rig as rig_report
     from gantry_twin.reports.paper import paper_matrix, run_matrix, write_report
 
     if args.jobs is not None and args.jobs < 1:

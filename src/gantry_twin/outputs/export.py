@@ -11,7 +11,6 @@ at a time (memory does not grow with the run) into a temporary file renamed at t
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 from typing import IO
 
@@ -21,7 +20,7 @@ import pyarrow.parquet as pq
 
 from gantry_twin.outputs.files import atomic_write
 from gantry_twin.outputs.rundirs import resolve_run
-from gantry_twin.run import TRACE_FILE
+from gantry_twin.outputs.tracefile import TRACE_FILE
 
 #: The CSV's name beside the trace when --out is not given.
 CSV_FILE = "trace.csv"
@@ -29,16 +28,6 @@ CSV_FILE = "trace.csv"
 
 class ExportError(Exception):
     """RUN is not a run with a trace, or the CSV cannot be written there (exit code 2, one line)."""
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("run", metavar="RUN", help=f"a run's directory (holding {TRACE_FILE}) or a {TRACE_FILE} file")
-    parser.add_argument(
-        "--csv", action="store_true", required=True, help="write the trace as CSV (the only format so far)"
-    )
-    parser.add_argument(
-        "--out", metavar="FILE", type=Path, help=f"the CSV file to write (default: RUN/{CSV_FILE}, beside the trace)"
-    )
 
 
 def trace_path(run: str | Path) -> Path:
@@ -71,20 +60,3 @@ def write_csv(trace: pq.ParquetFile, out: Path) -> None:
                 writer.write_table(trace.read_row_group(group))
 
     atomic_write(out, write)
-
-
-def command(args: argparse.Namespace) -> int:
-    """Run ``export``: 0 when the CSV is written; ExportError (exit 2) for a bad RUN or --out."""
-    source = trace_path(args.run)
-    trace = open_trace(source)
-    out = args.out if args.out is not None else source.parent / CSV_FILE
-    if out.is_dir():
-        raise ExportError(f"--out {out}: is a directory (give the CSV file's name)")
-    try:
-        write_csv(trace, out)
-    except OSError as exc:
-        raise ExportError(f"--out {out}: cannot write there ({exc.strerror or exc})") from None
-    except pa.ArrowException as exc:  # a damaged row group: nothing is written
-        raise ExportError(f"RUN {source}: not a readable Parquet trace ({str(exc).splitlines()[0]})") from None
-    print(f"{trace.metadata.num_rows} rows x {trace.metadata.num_columns} columns written to {out}")
-    return 0

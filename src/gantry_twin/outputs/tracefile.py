@@ -16,6 +16,9 @@ from gantry_twin.outputs.signals import signals_held
 from gantry_twin.plant import AXES, THETA_NAMES
 from gantry_twin.trace import RunInfo, Trace
 
+#: A run's trace file in its directory (docs/cli.md).
+TRACE_FILE = "trace.parquet"
+
 
 def _columns(name: str, values: np.ndarray) -> dict[str, np.ndarray]:
     """Split an (N,), (N, 2) or (N, 8) series into scalar columns."""

@@ -15,7 +15,6 @@ over long runs (:func:`monitor_alarms`).
 
 from __future__ import annotations
 
-import argparse
 import io
 import json
 from collections.abc import Sequence
@@ -53,17 +52,6 @@ SPIKE_FILE = "rig_reversal_spike.png"
 RIG_JSON = "rig.json"
 
 Key = tuple[int, str, str]
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--rig",
-        metavar="FILE",
-        type=Path,
-        default=None,
-        help="also run the matrix with the rig's friction: FILE's 'overrides' (a fit.json of "
-        "tools/calibrate_friction.py); adds paper / rig / Coulomb per cell and a reversal-spike figure",
-    )
 
 
 def load_rig(path: Path) -> list[str]:

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
 from gantry_twin.scenario.files import shipped_scenarios
@@ -21,13 +20,3 @@ def listing() -> list[str]:
     paths = shipped_scenarios()
     width = max((len(p.stem) for p in paths), default=0)
     return [f"{p.stem:<{width}}  {describe(p)}" for p in paths]
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """The ``scenarios`` command takes no arguments."""
-
-
-def command(args: argparse.Namespace) -> int:
-    """Print the listing; exit code 0."""
-    print("\n".join(listing()))
-    return 0

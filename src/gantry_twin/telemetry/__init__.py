@@ -30,7 +30,6 @@ from gantry_twin.telemetry.observer import (
     theta_entity,
     unit_in_entity,
 )
-from gantry_twin.telemetry.options import TelemetryObservers, add_telemetry_arguments, telemetry_observers
 from gantry_twin.telemetry.sinks import (
     LOCALHOST,
     RealtimePacer,
@@ -57,9 +56,7 @@ __all__ = [
     "RealtimePacer",
     "RerunObserver",
     "TelemetryError",
-    "TelemetryObservers",
     "WebViewerServer",
-    "add_telemetry_arguments",
     "check_grpc_url",
     "dashboard_blueprint",
     "free_port",
@@ -70,7 +67,6 @@ __all__ = [
     "require_display",
     "rerun_binary",
     "spawn_native_viewer",
-    "telemetry_observers",
     "theta_entity",
     "unit_in_entity",
     "wait_for_port",

@@ -1,0 +1,38 @@
+"""``gantry-twin export RUN [--out FILE]``: a run's trace.parquet as CSV (docs/cli.md, "export")."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import pyarrow as pa
+
+from gantry_twin.outputs.export import CSV_FILE, ExportError, open_trace, trace_path, write_csv
+from gantry_twin.outputs.tracefile import TRACE_FILE
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("run", metavar="RUN", help=f"a run's directory (holding {TRACE_FILE}) or a {TRACE_FILE} file")
+    parser.add_argument(
+        "--csv", action="store_true", required=True, help="write the trace as CSV (the only format so far)"
+    )
+    parser.add_argument(
+        "--out", metavar="FILE", type=Path, help=f"the CSV file to write (default: RUN/{CSV_FILE}, beside the trace)"
+    )
+
+
+def command(args: argparse.Namespace) -> int:
+    """Run ``export``: 0 when the CSV is written; ExportError (exit 2) for a bad RUN or --out."""
+    source = trace_path(args.run)
+    trace = open_trace(source)
+    out = args.out if args.out is not None else source.parent / CSV_FILE
+    if out.is_dir():
+        raise ExportError(f"--out {out}: is a directory (give the CSV file's name)")
+    try:
+        write_csv(trace, out)
+    except OSError as exc:
+        raise ExportError(f"--out {out}: cannot write there ({exc.strerror or exc})") from None
+    except pa.ArrowException as exc:  # a damaged row group: nothing is written
+        raise ExportError(f"RUN {source}: not a readable Parquet trace ({str(exc).splitlines()[0]})") from None
+    print(f"{trace.metadata.num_rows} rows x {trace.metadata.num_columns} columns written to {out}")
+    return 0
