@@ -237,6 +237,8 @@ class _Reader:
                 raise self.error(number, body[i:][:12], "expected a word (a letter and a number)")
             match = _NUMBER.match(body, i + 1)
             if match is None:
+                if body[i + 1 : i + 2] in ("#", "["):
+                    raise self.error(number, body[i + 1], "parameters and expressions are not supported")
                 raise self.error(number, letter, "a number must follow the letter")
             value_text = match.group()
             value = float(value_text)
