@@ -302,7 +302,8 @@ def _assemble(program, moves, table, options, kind, v, ramp_a, ramp_j, ramp_s, m
         if ramp_s[k + 1] > 0:
             phases += ramp_phases(v[k + 1], 0.0, ramp_a[k + 1], ramp_j[k + 1])
         first[k] = len(seg)
-        t, u, s, acc = 0.0, 0.0, 0.0, 0.0
+        t, u, acc = 0.0, 0.0, 0.0
+        s = 0.0 if ramp_s[k] > 0 else v[k]  # a pass-through junction: the move starts moving
         for length, j in phases:
             seg.append(k)
             tau0.append(t)
