@@ -65,16 +65,17 @@ class PartError:
 
 def distance_to_program(plan: Plan, move: np.ndarray, q_m: np.ndarray, neighbours: int = 2, rapids: bool = False):
     """Distance of q[i] to the programmed moves move[i] - neighbours .. move[i] + neighbours (feed moves only
-    unless ``rapids``), m; NaN where none of them counts."""
+    unless ``rapids``), m; NaN during a rapid (unless ``rapids``)."""
     table = plan.table
     counted = np.array([rapids or not m.rapid for m in plan.moves])
     q = np.asarray(q_m, dtype=float).reshape(-1, 2)
     best = np.full(len(q), np.inf)
+    own = counted[np.clip(move, 0, table.count - 1)]
     for offset in range(-neighbours, neighbours + 1):
         k = move + offset
         valid = (k >= 0) & (k < table.count)
         kk = np.clip(k, 0, table.count - 1)
-        valid &= counted[kk]
+        valid &= counted[kk] & own
         if valid.any():
             best[valid] = np.minimum(best[valid], table.distance(kk[valid], q[valid]))
     return np.where(np.isfinite(best), best, np.nan)
