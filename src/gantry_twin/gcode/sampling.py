@@ -74,17 +74,33 @@ class Plan:
             alpha=s.alpha_rad, dalpha=s.dalpha_rad_s, ddalpha=s.ddalpha_rad_s2,
         )  # fmt: skip
 
-    def contour_error(self, q_m: np.ndarray, phi_guess: np.ndarray, window_s: float = 0.05, step_s: float = 2e-4):
-        """eps_c against the planned path: distance to the nearest chord of the path sampled every ``step_s``
-        within ``window_s`` of the desired time, signed along the normal [-sin alpha, cos alpha]. Returns
-        (eps_c m, time of the closest point s)."""
+    def contour_error(
+        self,
+        q_m: np.ndarray,
+        phi_guess: np.ndarray,
+        window_s: float = 0.02,
+        coarse_s: float = 2e-3,
+        fine_s: float = 2e-4,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """eps_c against the planned path: the distance to its nearest chord, signed along the normal
+        [-sin alpha, cos alpha] there. The path is searched every ``coarse_s`` within ``window_s`` of the
+        desired time, then every ``fine_s`` about the nearest coarse chord. Returns (eps_c m, time s of the
+        closest point)."""
         q = np.asarray(q_m, dtype=float).reshape(-1, 2)
         guess = np.asarray(phi_guess, dtype=float).reshape(-1)
-        offsets = np.arange(-round(window_s / step_s), round(window_s / step_s) + 1) * step_s
-        times = np.clip(guess[:, None] + offsets[None, :], 0.0, self.duration_s)
+        centre = self._nearest_chord(q, guess, round(window_s / coarse_s), coarse_s)[2]
+        dist, nearest, t_best = self._nearest_chord(q, centre, round(coarse_s / fine_s), fine_s)
+        alpha = self.sample(t_best).alpha_rad
+        d = q - nearest
+        sign = np.where(d[:, 0] * -np.sin(alpha) + d[:, 1] * np.cos(alpha) >= 0.0, 1.0, -1.0)
+        return sign * dist, t_best
+
+    def _nearest_chord(self, q: np.ndarray, centre: np.ndarray, half: int, step_s: float):
+        """Distance, point and time of the nearest point of the chords between path samples centre + i step."""
+        offsets = np.arange(-half, half + 1) * step_s
+        times = np.clip(centre[:, None] + offsets[None, :], 0.0, self.duration_s)
         points = self.sample(times.reshape(-1)).q_m.reshape(len(q), len(offsets), 2)
-        a, b = points[:, :-1], points[:, 1:]
-        chord = b - a
+        a, chord = points[:, :-1], np.diff(points, axis=1)
         length2 = np.einsum("nkj,nkj->nk", chord, chord)
         w = np.clip(np.einsum("nkj,nkj->nk", q[:, None] - a, chord) / np.where(length2 > 0, length2, 1.0), 0, 1)
         nearest = a + w[..., None] * chord
@@ -92,10 +108,7 @@ class Plan:
         best = np.argmin(dist, axis=1)
         rows = np.arange(len(q))
         t_best = times[rows, best] + w[rows, best] * (times[rows, best + 1] - times[rows, best])
-        alpha = self.sample(t_best).alpha_rad
-        d = q - nearest[rows, best]
-        sign = np.where(d[:, 0] * -np.sin(alpha) + d[:, 1] * np.cos(alpha) >= 0.0, 1.0, -1.0)
-        return sign * dist[rows, best], t_best
+        return dist[rows, best], nearest[rows, best], t_best
 
     # ------------------------------------------------------------------ sampling
     def _profile(self, k: np.ndarray, tau: np.ndarray):
