@@ -283,9 +283,12 @@ def _look_ahead(cap: np.ndarray, middle: np.ndarray, accel: np.ndarray, jerk: np
 def _assemble(program, moves, table, options, kind, v, ramp_a, ramp_j, ramp_s, middle, peak, accel, jerk, dwell):
     """Phases of every move and the timeline (starts, overlaps, stops with their pivots)."""
     n = len(moves)
-    seg, tau0, u0, v0, a0, jk = [], [], [], [], [], []
+    table_out = np.empty((6, 13 * n))  # rows: move, tau0, u0, v0, a0, jerk; at most 13 phases a move
     duration = np.zeros(n)
     first = np.zeros(n + 1, dtype=int)
+    v, ramp_a, ramp_j, ramp_s = v.tolist(), ramp_a.tolist(), ramp_j.tolist(), ramp_s.tolist()
+    middle, peak, accel, jerk = middle.tolist(), peak.tolist(), accel.tolist(), jerk.tolist()
+    i = 0
     for k in range(n):
         phases = []
         if ramp_s[k] > 0:
@@ -293,30 +296,26 @@ def _assemble(program, moves, table, options, kind, v, ramp_a, ramp_j, ramp_s, m
         phases += ramp_phases(v[k], peak[k], accel[k], jerk[k])
         cruise = (
             middle[k]
-            - ramp_distance(v[k], peak[k], accel[k], jerk[k])
-            - ramp_distance(peak[k], v[k + 1], accel[k], jerk[k])
+            - float(ramp_distance(v[k], peak[k], accel[k], jerk[k]))
+            - float(ramp_distance(peak[k], v[k + 1], accel[k], jerk[k]))
         )
         if cruise > 0 and peak[k] > 0:
             phases.append((cruise / peak[k], 0.0))
         phases += ramp_phases(peak[k], v[k + 1], accel[k], jerk[k])
         if ramp_s[k + 1] > 0:
             phases += ramp_phases(v[k + 1], 0.0, ramp_a[k + 1], ramp_j[k + 1])
-        first[k] = len(seg)
+        first[k] = i
         t, u, acc = 0.0, 0.0, 0.0
         s = 0.0 if ramp_s[k] > 0 else v[k]  # a pass-through junction: the move starts moving
         for length, j in phases:
-            seg.append(k)
-            tau0.append(t)
-            u0.append(u)
-            v0.append(s)
-            a0.append(acc)
-            jk.append(j)
+            table_out[:, i] = (k, t, u, s, acc, j)
+            i += 1
             u += s * length + acc * length**2 / 2 + j * length**3 / 6
             s += acc * length + j * length**2 / 2
             acc += j * length
             t += length
         duration[k] = t
-    first[n] = len(seg)
+    first[n] = i
     a_start = table.start_tangent_angle()
     alpha_start = np.zeros(n)
     alpha_end = np.zeros(n)
@@ -339,8 +338,10 @@ def _assemble(program, moves, table, options, kind, v, ramp_a, ramp_j, ramp_s, m
         t0[k] = t
         t += duration[k]
     total = t + dwell[n] + options.hold_end_s
-    phases = np.array([seg, tau0, u0, v0, a0, jk], dtype=float)
-    return Plan(program, table, options, t0, duration, first, phases, kind, v, alpha_start, alpha_end, pivot, total)
+    phases = table_out[:, :i]
+    return Plan(
+        program, table, options, t0, duration, first, phases, kind, np.asarray(v), alpha_start, alpha_end, pivot, total
+    )
 
 
 def _wrap(angle: float) -> float:
