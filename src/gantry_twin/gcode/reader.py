@@ -171,7 +171,7 @@ def _check_travel(program: Program, travel_half_m: tuple[float, float]) -> None:
                     extreme = lo[axis] if lo[axis] < -half[axis] else hi[axis]
                     raise GcodeError(
                         program.name, item.line, letter,
-                        f"the move reaches {extreme * 1e3:.3f} mm, outside the travel of +-{half[axis] * 1e3:g} mm",
+                        f"the move reaches {extreme * 1e3:.6g} mm, outside the travel of +-{half[axis] * 1e3:g} mm",
                     )  # fmt: skip
     x, y = program.start_m
     if abs(x) > half[0] or abs(y) > half[1]:
@@ -234,7 +234,7 @@ class _Reader:
             if not letter.isalpha():
                 if letter in "#[":
                     raise self.error(number, letter, "parameters and expressions are not supported")
-                raise self.error(number, body[i:][:12], "expected a word (a letter and a number)")
+                raise self.error(number, "line", f"expected a word (a letter and a number) at {body[i:][:12]!r}")
             match = _NUMBER.match(body, i + 1)
             if match is None:
                 if body[i + 1 : i + 2] in ("#", "["):
@@ -246,7 +246,8 @@ class _Reader:
             if letter in "GM":
                 code = _code(letter, value_text)
                 if code is None:
-                    raise self.error(number, letter + value_text, f"unknown {letter} code")
+                    shown = letter + value_text if len(value_text) <= 12 else f"{letter}{value_text[:12]}..."
+                    raise self.error(number, shown, f"unknown {letter} code")
                 for group, members in _MODAL_GROUPS.items():
                     if code in members and group in codes.setdefault("groups", set()):
                         raise self.error(number, code, f"a second {group} code on the line")
@@ -451,7 +452,7 @@ class _Reader:
 def _code(letter: str, value_text: str) -> str | None:
     """'G' '01' -> 'G1', 'G' '91.1' -> 'G91.1'; None for a malformed code."""
     number = float(value_text)
-    if number < 0:
+    if number < 0 or number >= 1000:
         return None
     if number == int(number):
         return f"{letter}{int(number)}"
