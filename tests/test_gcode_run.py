@@ -63,3 +63,13 @@ def test_the_circle_program_gives_the_papers_contour_error():
     # On the circle the part error is eps_c's magnitude (the planned path is the programmed one).
     part = part_error(plan, trace.t_s[lap], trace.q_m[lap])
     assert part.distance_m == pytest.approx(np.abs(trace.eps_c_m[lap]), abs=1e-8)
+
+
+@pytest.mark.parametrize("name", ["polygon_g61.ngc", "polygon_g64.ngc"])
+def test_sharp_corners_run_in_the_loop(name):
+    """Stops with the task frame turning in place and blends at low speed: the loop stays well behaved."""
+    plan = plan_program(read_program(PROGRAMS / name))
+    trace = simulate(Plant(), plan, TimingLaw(1.0), create("diarc"), plan.duration_s)
+    part = part_error(plan, trace.t_s, trace.q_m)
+    assert np.all(np.isfinite(trace.eps_c_m)) and part.max_m < 100e-6
+    assert np.abs(trace.q_m[-1] - plan.moves[-1].end_m).max() < 10e-6  # it ends at the last point
