@@ -18,8 +18,8 @@ import pytest
 import rerun as rr
 
 from gantry_twin import Payload, Plant, TimingLaw, circle, create, simulate
-from gantry_twin.plant import THETA_NAMES
 from gantry_twin.cli.telemetry import add_telemetry_arguments, telemetry_observers
+from gantry_twin.plant import THETA_NAMES
 from gantry_twin.telemetry import (
     RealtimePacer,
     RerunObserver,

@@ -34,10 +34,10 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
-from gantry_twin.reports.paper import PAPER_CONTOUR_UM, paper_matrix, run_case
 
 from gantry_twin.friction import stribeck_fit
 from gantry_twin.plant import Plant
+from gantry_twin.reports.paper import PAPER_CONTOUR_UM, paper_matrix, run_case
 
 AXES = ("x", "y")
 LABELS = ("C1", "C2", "C3")

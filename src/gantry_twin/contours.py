@@ -11,7 +11,11 @@ and the task frame need, vectorised over time:
     alpha'  = alpha_phi phi'
     alpha'' = alpha_phiphi phi'^2 + alpha_phi phi''
 
-A new path type is one new class implementing :class:`Contour`.
+A new path type is one new class implementing :class:`Contour`. A contour
+planned ahead in time (a part program, :mod:`gantry_twin.gcode`) is a
+:class:`TimedContour`: its parameter is time (run it with
+``TimingLaw(1.0)``, phi = t) and it gives the reference and the contour
+error itself, since its tangent at a standstill is not dp/dphi's.
 """
 
 from __future__ import annotations
@@ -37,6 +41,20 @@ class Contour(Protocol):
     def period_rad(self) -> float:
         """Phi advance of one lap (2 pi for closed curves)."""
         ...
+
+
+class TimedContour(Contour, Protocol):
+    """A contour parametrised by time that supplies its own reference and contour error.
+
+    ``reference(t_s)`` is the :class:`Reference` at times t_s (phi = t,
+    phi' = 1); ``contour_error(q_m, phi_guess)`` returns (eps_c m, phi of
+    the closest point) like :func:`contour_error`. :class:`ReferenceStream`
+    and :func:`contour_error` use them when a contour has them.
+    """
+
+    def reference(self, t_s: np.ndarray) -> Reference: ...
+
+    def contour_error(self, q_m: np.ndarray, phi_guess: np.ndarray) -> tuple[np.ndarray, np.ndarray]: ...
 
 
 @dataclass(frozen=True)
@@ -180,6 +198,9 @@ class ReferenceStream:
     def next(self, t_s: np.ndarray) -> Reference:
         """The reference at the times t_s that follow the previous piece's."""
         path = self.path
+        own = getattr(path, "reference", None)
+        if callable(own):  # a TimedContour: alpha is continuous already
+            return own(np.asarray(t_s, dtype=float))
         phi, dphi, ddphi, _ = self.timing.derivatives(t_s)
         p, dp, ddp, _ = path.derivatives(phi)
         alpha, a_phi, a_phiphi = tangent_angle(path, phi)
@@ -244,6 +265,9 @@ def contour_error(
     """
     q = np.ascontiguousarray(q_m, dtype=float)
     guess = np.ascontiguousarray(phi_guess, dtype=float)
+    own = getattr(path, "contour_error", None)
+    if callable(own):  # a TimedContour
+        return own(q, guess)
     if isinstance(path, Ellipse) and q.ndim == 2:
         eps, phi = np.empty(guess.shape[0]), np.empty(guess.shape[0])
         ellipse_contour_error(

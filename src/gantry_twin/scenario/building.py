@@ -14,18 +14,19 @@ from pathlib import Path
 
 import numpy as np
 
-from gantry_twin.contours import Ellipse, TimingLaw
+from gantry_twin.contours import Contour, Ellipse, TimingLaw
 from gantry_twin.controllers import Controller, EstimatorSettings, create
 from gantry_twin.estimation import FRICTION_SLOPE_S_M
 from gantry_twin.faults import PlantChanges
 from gantry_twin.friction import FrictionError
+from gantry_twin.gcode.reader import GcodeError
 from gantry_twin.health.confidence import EstimateConfidence
 from gantry_twin.health.monitor import Baseline, ExcitationSettings, HealthSettings, MachineMonitor
 from gantry_twin.outputs.summary import RunSummary, SummaryError
 from gantry_twin.plant import AXES, Plant, default_model_path
 from gantry_twin.scenario.errors import ScenarioError
 from gantry_twin.scenario.loading import controller_options
-from gantry_twin.scenario.schema import Scenario
+from gantry_twin.scenario.schema import GcodeSpec, Scenario
 from gantry_twin.sensing import SensingConfig
 from gantry_twin.settings import quote, shorten
 from gantry_twin.simulate import Disturbance
@@ -40,7 +41,7 @@ class BuiltRun:
 
     scenario: Scenario
     plant: Plant
-    path: Ellipse
+    path: Contour
     timing: TimingLaw
     controller: Controller
     sensing: SensingConfig
@@ -48,13 +49,19 @@ class BuiltRun:
     changes: PlantChanges | None = None
     monitor: MachineMonitor | None = None  # a fresh one when monitor.enable
 
+    @property
+    def duration_s(self) -> float:
+        """How long to simulate: a planned program's duration (it follows from the plan), else the scenario's."""
+        planned = getattr(self.path, "duration_s", None)
+        return float(planned) if isinstance(self.scenario.contour, GcodeSpec) else self.scenario.duration_s
+
 
 def build(scenario: Scenario, source: str = "<scenario>") -> BuiltRun:
     """Compile the plant, make the controller and check the contour fits the travel."""
     changes = None if scenario.changes.empty else scenario.changes
     payload_body = changes is not None and bool(changes.payload_change)
     plant = _plant(scenario, payload_body, source)
-    path = scenario.contour.path()
+    path = _contour_path(scenario, source)
     _check_travel(plant, path, source)
     _check_samples(scenario, plant.timestep_s, source)
     kwargs = controller_options(scenario, source)
@@ -69,6 +76,18 @@ def build(scenario: Scenario, source: str = "<scenario>") -> BuiltRun:
     return BuiltRun(
         scenario, plant, path, scenario.timing_law(), controller, scenario.sensing, disturbance, changes, monitor
     )
+
+
+def _contour_path(scenario: Scenario, source: str) -> Contour:
+    """The contour's path; a part program (``type: gcode``) read relative to the scenario file and planned."""
+    contour = scenario.contour
+    if not isinstance(contour, GcodeSpec):
+        return contour.path()
+    base = Path(source).parent if Path(source).is_file() else None
+    try:
+        return contour.plan(base)
+    except GcodeError as exc:
+        raise ScenarioError(source, "contour.file", str(exc)) from None
 
 
 def _plant(scenario: Scenario, payload_body: bool, source: str) -> Plant:

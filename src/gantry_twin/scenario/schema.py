@@ -15,6 +15,7 @@ from __future__ import annotations
 import functools
 import inspect
 import math
+from pathlib import Path
 from typing import Annotated, Any, ClassVar, Literal, get_type_hints
 
 import numpy as np
@@ -25,6 +26,9 @@ from gantry_twin.contours import Ellipse, TimingLaw
 from gantry_twin.controllers import available
 from gantry_twin.estimation import FilterHz
 from gantry_twin.faults import PlantChanges
+from gantry_twin.gcode.planner import AxisLimits, PlanOptions, default_limits, plan_program
+from gantry_twin.gcode.reader import read_program
+from gantry_twin.gcode.sampling import Plan
 from gantry_twin.health.monitor import (
     DecisionIntervalS,
     ExcitationSettings,
@@ -88,7 +92,67 @@ class EllipseSpec(Model):
         return Ellipse(self.semi_x_m, self.semi_y_m, tuple(self.centre_m))
 
 
-ContourSpec = Annotated[CircleSpec | EllipseSpec, Field(discriminator="type")]
+PathSpeed = Range(0.0, 100.0, "m/s", lo_open=True)
+PathAcceleration = Range(0.0, 1e5, "m/s^2", lo_open=True)
+PathJerk = Range(0.0, 1e8, "m/s^3", lo_open=True)
+
+
+class LimitsSpec(_Model):
+    """Per-axis (X, Y) limits of a planned program's reference (gantry_twin.gcode.planner.AxisLimits)."""
+
+    velocity_m_s: tuple[PathSpeed, PathSpeed]
+    acceleration_m_s2: tuple[PathAcceleration, PathAcceleration]
+    jerk_m_s3: tuple[PathJerk, PathJerk]
+
+    def limits(self) -> AxisLimits:
+        return AxisLimits(tuple(self.velocity_m_s), tuple(self.acceleration_m_s2), tuple(self.jerk_m_s3))
+
+
+class GcodeTimingSpec(_Model):
+    """A program's timing is its plan: phi = t (``TimingLaw(1.0)``); nothing to set."""
+
+    rate_rad_s: Literal[1.0] = 1.0
+    start: Literal["on_path"] = "on_path"
+    ramp_s: Literal[0.5] = 0.5
+
+
+class GcodeSpec(_Model):
+    """A part program (docs/gcode.md): ``file`` (relative to the scenario file) read, planned and run.
+
+    limits: the reference's per-axis limits (default: derived from the
+    plant, :func:`gantry_twin.gcode.planner.default_limits`); rapid_limits
+    for G0 (default: limits); pivot_s: how long the task frame takes to turn
+    at a stop; drop_unsupported: drop Z, spindle and tool words instead of
+    refusing the program.
+    """
+
+    type: Literal["gcode"] = "gcode"
+    file: str
+    drop_unsupported: bool = False
+    limits: LimitsSpec | None = None
+    rapid_limits: LimitsSpec | None = None
+    pivot_s: Range(0.0, 1.0, "s", lo_open=True) = 0.02
+    timing: GcodeTimingSpec = GcodeTimingSpec()
+
+    default_rate_rad_s: ClassVar[float] = 1.0
+
+    def plan(self, base_dir: Path | None = None) -> Plan:
+        """Read and plan the program (raises :class:`~gantry_twin.gcode.GcodeError`)."""
+        path = Path(self.file)
+        if base_dir is not None and not path.is_absolute():
+            path = base_dir / path
+        options = PlanOptions(
+            limits=self.limits.limits() if self.limits else default_limits(),
+            rapid_limits=self.rapid_limits.limits() if self.rapid_limits else None,
+            pivot_s=self.pivot_s,
+        )
+        return plan_program(read_program(path, drop_unsupported=self.drop_unsupported), options)
+
+    def path(self) -> Plan:
+        return self.plan()
+
+
+ContourSpec = Annotated[CircleSpec | EllipseSpec | GcodeSpec, Field(discriminator="type")]
 
 
 # ---------------------------------------------------------------------------
@@ -155,7 +219,7 @@ class SineEvent(_Event):
 
 EventSpec = Annotated[StepEvent | RampEvent | SineEvent, Field(discriminator="type")]
 #: The ``type`` tags of the two discriminated unions (pydantic puts them in an error's location).
-CONTOUR_TYPES = tuple(m.model_fields["type"].default for m in (CircleSpec, EllipseSpec))
+CONTOUR_TYPES = tuple(m.model_fields["type"].default for m in (CircleSpec, EllipseSpec, GcodeSpec))
 EVENT_TYPES = tuple(m.model_fields["type"].default for m in (StepEvent, RampEvent, SineEvent))
 
 

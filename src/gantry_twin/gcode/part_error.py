@@ -1,0 +1,150 @@
+"""The part error: how far an actual trajectory is from the programmed lines and arcs.
+
+Unlike eps_c (the distance to the *planned* path, blends included), the
+part error is measured against the program's own geometry, exactly (the
+distance to a line segment or to an arc, :meth:`MoveTable.distance`), so
+it includes the deviation the blends allow (G64 P). A sample is measured
+against the feed moves around the one being run (it and ``neighbours``
+moves each side), so that a pocket's neighbouring passes do not hide its
+error; rapids are left out unless asked for.
+
+Per block: max and rms error, time spent, feed achieved (mean actual speed)
+against the programmed F. Per corner (a junction of two feed moves): max
+error within ``corner_window_s`` of the corner's blend or stop, the actual
+speed when nearest the corner point and when that is. Docs: docs/gcode.md.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from gantry_twin.gcode.sampling import Plan
+
+
+@dataclass(frozen=True)
+class BlockError:
+    """One feed move: source line, max / rms part error m, time spent s, feed achieved and programmed m/s."""
+
+    line: int
+    move: int
+    max_m: float
+    rms_m: float
+    time_s: float
+    feed_achieved_m_s: float
+    feed_programmed_m_s: float
+
+
+@dataclass(frozen=True)
+class CornerError:
+    """The junction after move ``move`` (source line ``line``): its kind, point, turn, max error, speed, time."""
+
+    line: int
+    move: int
+    kind: str
+    point_m: tuple[float, float]
+    turn_rad: float
+    max_m: float
+    speed_m_s: float
+    time_s: float
+
+
+@dataclass(frozen=True)
+class PartError:
+    """The part error of a trajectory: per sample (NaN where not measured), per block, per corner, totals."""
+
+    distance_m: np.ndarray
+    blocks: tuple[BlockError, ...]
+    corners: tuple[CornerError, ...]
+    cycle_time_s: float
+    max_m: float
+    rms_m: float
+    feed_achieved_m_s: float
+
+
+def distance_to_program(plan: Plan, move: np.ndarray, q_m: np.ndarray, neighbours: int = 2, rapids: bool = False):
+    """Distance of q[i] to the programmed moves move[i] - neighbours .. move[i] + neighbours (feed moves only
+    unless ``rapids``), m; NaN during a rapid (unless ``rapids``)."""
+    table = plan.table
+    counted = np.array([rapids or not m.rapid for m in plan.moves])
+    q = np.asarray(q_m, dtype=float).reshape(-1, 2)
+    best = np.full(len(q), np.inf)
+    own = counted[np.clip(move, 0, table.count - 1)]
+    for offset in range(-neighbours, neighbours + 1):
+        k = move + offset
+        valid = (k >= 0) & (k < table.count)
+        kk = np.clip(k, 0, table.count - 1)
+        valid &= counted[kk] & own
+        if valid.any():
+            best[valid] = np.minimum(best[valid], table.distance(kk[valid], q[valid]))
+    return np.where(np.isfinite(best), best, np.nan)
+
+
+def part_error(
+    plan: Plan,
+    t_s: np.ndarray,
+    q_m: np.ndarray,
+    neighbours: int = 2,
+    corner_window_s: float = 0.01,
+    rapids: bool = False,
+) -> PartError:
+    """The part error of positions q_m (n, 2) at times t_s (n,) of a run of ``plan``."""
+    t = np.asarray(t_s, dtype=float).reshape(-1)
+    q = np.asarray(q_m, dtype=float).reshape(-1, 2)
+    move = plan.sample(t).move
+    distance = distance_to_program(plan, move, q, neighbours, rapids)
+    speed = np.zeros(len(t))
+    if len(t) > 1:
+        step = np.linalg.norm(np.diff(q, axis=0), axis=1) / np.diff(t)
+        speed[1:-1] = 0.5 * (step[:-1] + step[1:])
+        speed[0], speed[-1] = step[0], step[-1]
+    blocks = []
+    for k, m in enumerate(plan.moves):
+        if m.rapid and not rapids:
+            continue
+        rows = move == k
+        d = distance[rows]
+        d = d[np.isfinite(d)]
+        time_s = float(rows.sum() * (t[1] - t[0])) if len(t) > 1 else 0.0
+        blocks.append(
+            BlockError(
+                line=m.line, move=k, max_m=float(d.max()) if d.size else 0.0,
+                rms_m=float(np.sqrt(np.mean(d**2))) if d.size else 0.0, time_s=time_s,
+                feed_achieved_m_s=float(speed[rows].mean()) if rows.any() else 0.0,
+                feed_programmed_m_s=float(m.feed_m_s),
+            )
+        )  # fmt: skip
+    corners = []
+    kinds = {0: "stop", 1: "pass", 2: "blend"}
+    for k in range(1, len(plan.moves)):
+        a, b = plan.moves[k - 1], plan.moves[k]
+        if a.rapid or b.rapid:
+            continue
+        start = min(plan.t0_s[k], plan.end_s[k - 1]) - corner_window_s
+        stop = max(plan.t0_s[k], plan.end_s[k - 1]) + corner_window_s
+        rows = np.flatnonzero((t >= start) & (t <= stop))
+        point = plan.table.end[k - 1]
+        if rows.size == 0:
+            continue
+        near = rows[np.argmin(np.linalg.norm(q[rows] - point, axis=1))]
+        d = distance[rows]
+        corners.append(
+            CornerError(
+                line=a.line, move=k - 1, kind=kinds[int(plan.kind[k])], point_m=(float(point[0]), float(point[1])),
+                turn_rad=float(abs(plan.alpha_start[k] - plan.alpha_end[k - 1])),
+                max_m=float(np.nanmax(d)) if np.isfinite(d).any() else 0.0,
+                speed_m_s=float(speed[near]), time_s=float(t[near]),
+            )
+        )  # fmt: skip
+    measured = distance[np.isfinite(distance)]
+    feed_rows = np.isin(move, [b.move for b in blocks])
+    return PartError(
+        distance_m=distance,
+        blocks=tuple(blocks),
+        corners=tuple(corners),
+        cycle_time_s=plan.duration_s,
+        max_m=float(measured.max()) if measured.size else 0.0,
+        rms_m=float(np.sqrt(np.mean(measured**2))) if measured.size else 0.0,
+        feed_achieved_m_s=float(speed[feed_rows].mean()) if feed_rows.any() else 0.0,
+    )
