@@ -97,7 +97,7 @@ PathAcceleration = Range(0.0, 1e5, "m/s^2", lo_open=True)
 PathJerk = Range(0.0, 1e8, "m/s^3", lo_open=True)
 
 
-class LimitsSpec(_Model):
+class LimitsSpec(Model):
     """Per-axis (X, Y) limits of a planned program's reference (gantry_twin.gcode.planner.AxisLimits)."""
 
     velocity_m_s: tuple[PathSpeed, PathSpeed]
@@ -108,7 +108,7 @@ class LimitsSpec(_Model):
         return AxisLimits(tuple(self.velocity_m_s), tuple(self.acceleration_m_s2), tuple(self.jerk_m_s3))
 
 
-class GcodeTimingSpec(_Model):
+class GcodeTimingSpec(Model):
     """A program's timing is its plan: phi = t (``TimingLaw(1.0)``); nothing to set."""
 
     rate_rad_s: Literal[1.0] = 1.0
@@ -116,7 +116,7 @@ class GcodeTimingSpec(_Model):
     ramp_s: Literal[0.5] = 0.5
 
 
-class GcodeSpec(_Model):
+class GcodeSpec(Model):
     """A part program (docs/gcode.md): ``file`` (relative to the scenario file) read, planned and run.
 
     limits: the reference's per-axis limits (default: derived from the
