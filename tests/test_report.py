@@ -184,3 +184,25 @@ def test_figures_share_one_y_scale_and_label_every_axis_with_a_unit():
         lo, hi = ax.get_ylim()
         span = theta[:, j].max() - true[j]
         assert lo <= true[j] - 0.09 * span and theta[:, j].max() + 0.09 * span <= hi, (j, lo, hi)
+
+
+def test_the_matrix_and_a_sweep_share_the_one_batch_runner(monkeypatch):
+    """A two-point matrix runs through sweep.engine.run_batch, the runner `gantry-twin sweep` uses; its results
+    come back in case order and equal run_case's in this process."""
+    from gantry_twin.sweep import driver, engine
+
+    assert driver.run_batch is engine.run_batch  # the sweep's runner
+    calls = []
+    real = engine.run_batch
+
+    def counting(function, arguments, *args, **kwargs):
+        calls.append((function, len(arguments)))
+        yield from real(function, arguments, *args, **kwargs)
+
+    monkeypatch.setattr(engine, "run_batch", counting)
+    cases = report.paper_matrix(TINY, sets=(1,), contours=("circle",), labels=("C1", "C2"))
+    res = report.run_matrix(cases, jobs=1)
+    assert calls == [(report.run_case, 2)]
+    assert [r.case for r in res] == cases
+    for case, got in zip(cases, res, strict=True):
+        assert got.rms_um == report.run_case(case).rms_um

@@ -141,7 +141,7 @@ def paper_matrix(
                 controller, extra, _ = CONTROLLERS[label]
                 path = shipped(f"{SET_SCENARIOS[set_id]}_{contour}")
                 case = Case(set_id, contour, label, str(path), controller, (*extra, *overrides))
-                build(_load(case), case.scenario_path)
+                build(load_case(case), case.scenario_path)
                 cases.append(case)
     return cases
 
@@ -151,13 +151,17 @@ def _in_matrix(set_id: int, label: str) -> bool:
     return set_id != 3 or label in ("C1", "C2")
 
 
-def _load(case: Case) -> Any:
+def load_case(case: Case) -> Any:
+    """The scenario of a case, as ``gantry-twin run`` would load it."""
     return load_scenario(case.scenario_path, case.overrides, case.controller)
 
 
 def run_case(case: Case) -> CaseResult:
-    """Run one case (in a worker process) and keep what the report needs."""
-    scenario = _load(case)
+    """Run one case (in a worker process: its loop compiled or loaded first, once) and keep what the report needs."""
+    from gantry_twin.sweep.engine import warm_up
+
+    scenario = load_case(case)
+    warm_up(scenario, case.scenario_path)
     built = build(scenario, case.scenario_path)
     started = time.perf_counter()
     trace = execute(built)
@@ -183,29 +187,20 @@ def run_case(case: Case) -> CaseResult:
     )
 
 
-def _warm_run_case(case: Case) -> CaseResult:
-    """:func:`run_case` on a worker, its loop compiled or loaded first (once per process, under the cache lock)."""
-    from gantry_twin.sweep.engine import warm_up
-
-    warm_up(_load(case), case.scenario_path)
-    return run_case(case)
-
-
 def run_matrix(cases: Sequence[Case], jobs: int = 1, progress: bool = False) -> list[CaseResult]:
-    """Run every case on a local Dask cluster of ``jobs`` worker processes (the sweep engine); results in case order."""
+    """Run every case, a named point, on the batch runner (a local cluster of ``jobs`` processes, as a sweep
+    runs): results in case order."""
     from gantry_twin.outputs.signals import stop_signals_interrupt
-    from gantry_twin.sweep.engine import open_client, prepare_workers, run_tasks
+    from gantry_twin.sweep.engine import run_all
 
-    scenarios = [_load(case) for case in cases]
-    done: dict[int, CaseResult] = {}
-    with stop_signals_interrupt(), open_client(workers=max(1, min(jobs, len(cases)))) as client:
-        if cases:
-            prepare_workers(client, [s.resolved() for s in scenarios], cases[0].scenario_path)
-        for index, result, error in run_tasks(client, _warm_run_case, [(case,) for case in cases], progress, "report"):
-            if error is not None:
-                raise error
-            done[index] = result
-    return [done[i] for i in range(len(cases))]
+    if not cases:
+        return []
+    resolved = [load_case(case).resolved() for case in cases]
+    with stop_signals_interrupt():
+        workers = max(1, min(jobs, len(cases)))
+        return run_all(
+            run_case, [(case,) for case in cases], resolved, cases[0].scenario_path, workers, None, progress, "report"
+        )
 
 
 # ---------------------------------------------------------------------------

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from gantry_twin.outputs.signals import stop_signals_interrupt
-from gantry_twin.sweep.engine import open_client, prepare_workers, run_tasks
+from gantry_twin.sweep.engine import run_batch
 from gantry_twin.sweep.plots import write_figures, write_summary
 from gantry_twin.sweep.points import STATUS_OK, Plan, failed_row, run_point
 from gantry_twin.sweep.table import RESULTS_FILE, ResultsTable
@@ -68,21 +68,31 @@ def run_sweep(
     try:
         with stop_signals_interrupt():
             if todo:
-                with open_client(workers, scheduler) as client:
-                    prepare_workers(client, [p.resolved for p in todo], plan.scenario_source)
-                    ready = time.perf_counter()
-                    arguments = [(p.resolved, plan.scenario_source, keep) for p in todo]
-                    for index, result, error in run_tasks(
-                        client, run_point, arguments, progress, "sweep", len(plan.points), done_before
-                    ):
-                        point = todo[index]
-                        row = failed_row(error) if error is not None else result.row
-                        failed += row["status"] != STATUS_OK
-                        if result is not None and result.files:
-                            _write_run_files(out / RUNS_DIR / point.key, result.files)
-                        table.add(point, row)
-                        changed = True
-                    finished = time.perf_counter()
+                marks: list[float] = []
+                arguments = [(p.resolved, plan.scenario_source, keep) for p in todo]
+                batch = run_batch(
+                    run_point,
+                    arguments,
+                    [p.resolved for p in todo],
+                    plan.scenario_source,
+                    workers,
+                    scheduler,
+                    progress,
+                    "sweep",
+                    len(plan.points),
+                    done_before,
+                    on_ready=lambda: marks.append(time.perf_counter()),
+                )
+                for index, result, error in batch:
+                    point = todo[index]
+                    row = failed_row(error) if error is not None else result.row
+                    failed += row["status"] != STATUS_OK
+                    if result is not None and result.files:
+                        _write_run_files(out / RUNS_DIR / point.key, result.files)
+                    table.add(point, row)
+                    changed = True
+                ready = marks[0] if marks else started
+                finished = time.perf_counter()
             if not todo or not table.path.exists():  # e.g. --resume dropped rows of points no longer swept
                 table.write()
     finally:

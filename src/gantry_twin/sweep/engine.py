@@ -221,3 +221,51 @@ def run_tasks(
     finally:
         bar.close()
         client.cancel(list(futures))
+
+
+def run_batch(
+    function: Callable[..., Any],
+    arguments: Sequence[tuple[Any, ...]],
+    resolved: Sequence[dict[str, Any]],
+    source: str,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    progress: bool = False,
+    desc: str = "batch",
+    total: int | None = None,
+    initial: int = 0,
+    on_ready: Callable[[], None] | None = None,
+) -> Iterator[tuple[int, Any, Exception | None]]:
+    """The one batch runner: ``function(*args)`` for each args on a Dask cluster, as each finishes.
+
+    A local cluster of ``workers`` processes, or the running one at
+    ``scheduler``; every worker first compiles or loads the loops of the
+    ``resolved`` scenarios (:func:`prepare_workers`), then ``on_ready`` is
+    called and :func:`run_tasks` yields (index, result, error). A sweep, the
+    paper's report matrix and a calibration's evaluations all run through it.
+    """
+    with open_client(workers, scheduler) as client:
+        if arguments:
+            prepare_workers(client, resolved, source)
+        if on_ready is not None:
+            on_ready()
+        yield from run_tasks(client, function, arguments, progress, desc, total, initial)
+
+
+def run_all(
+    function: Callable[..., Any],
+    arguments: Sequence[tuple[Any, ...]],
+    resolved: Sequence[dict[str, Any]],
+    source: str,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    progress: bool = False,
+    desc: str = "batch",
+) -> list[Any]:
+    """:func:`run_batch` to the end: the results in the order of ``arguments``; the first task's error is raised."""
+    done: dict[int, Any] = {}
+    for index, result, error in run_batch(function, arguments, resolved, source, workers, scheduler, progress, desc):
+        if error is not None:
+            raise error
+        done[index] = result
+    return [done[i] for i in range(len(arguments))]
