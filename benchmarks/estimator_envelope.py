@@ -123,7 +123,7 @@ def rejudge(row: dict, runs: Path) -> None:
     """Judge the row's estimates again with this checkout's criterion, from the kept run's summary.json
     (its ``confidence`` statistics: no simulation)."""
     from gantry_twin.health.confidence import judge
-    from gantry_twin.health.monitor import ExcitationSettings
+    from gantry_twin.health.excitation import ExcitationSettings
     from gantry_twin.outputs.summary import RunSummary
     from gantry_twin.plant import THETA_NAMES
 

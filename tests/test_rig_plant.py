@@ -18,14 +18,13 @@ import pytest
 from gantry_twin import Plant, TimingLaw, circle, paper_ellipse, simulate
 from gantry_twin.controllers import PD
 from gantry_twin.friction import lugre_parameters
-from gantry_twin.plant import (
+from gantry_twin.plant import PlantSettings, default_model_path
+from gantry_twin.plant_effects import (
     ForceRipple,
     InputOffset,
     OffsetAxis,
-    PlantSettings,
     RippleAxis,
     RippleHarmonic,
-    default_model_path,
     file_properties,
 )
 from gantry_twin.scenario import ScenarioError, build, load_scenario, shipped

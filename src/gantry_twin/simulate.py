@@ -69,7 +69,8 @@ from gantry_twin.faults import (
     cogging_force,
     sensor_glitches,
 )
-from gantry_twin.plant import Plant, operating_point_m, plant_input_v
+from gantry_twin.plant import Plant, operating_point_m
+from gantry_twin.plant_effects import plant_input_v
 from gantry_twin.sensing import Encoder, SensingConfig, encoder_measure
 from gantry_twin.taskframe import normal_errors
 from gantry_twin.trace import Observer, RunInfo, SimulationError, Trace
@@ -117,7 +118,8 @@ mj_step = _load_mj_step()
 
 class PlantIO(NamedTuple):
     """What the loop touches in MuJoCo: raw pointers, views into mjData, indices, the DAC limits (2,) V,
-    physics steps per sample, the plant's own input offset and force ripple (:func:`gantry_twin.plant.input_table`).
+    physics steps per sample, the plant's own input offset and force ripple
+    (:func:`gantry_twin.plant_effects.input_table`).
     """
 
     model_address: int

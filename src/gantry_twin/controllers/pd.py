@@ -32,6 +32,7 @@ from gantry_twin.controllers.base import (
 from gantry_twin.estimation import clip
 from gantry_twin.plant import AXES
 from gantry_twin.settings import Range, Vector
+from gantry_twin.theta import NOMINAL_THETA, per_axis
 
 # A gain per axis (X, Y); the types of PD's fields are what a scenario's options accept. Upper bounds:
 # kp and kd keep the discrete loop stable on the lightest axis (kd Ts / M1 < 2 with M1 = 0.12 V s^2/m:
@@ -76,8 +77,8 @@ class PD:
 
     kp_v_m: Kp = (10000.0, 10000.0)
     kd_v_s_m: Kd = (100.0, 100.0)
-    kv_v_s_m: Kv = (0.5, 0.7)
-    ka_v_s2_m: Ka = (0.12, 0.5)
+    kv_v_s_m: Kv = per_axis(NOMINAL_THETA, "B")
+    ka_v_s2_m: Ka = per_axis(NOMINAL_THETA, "M")
 
     compiled = CompiledStep(pd_command)
 

@@ -36,6 +36,7 @@ import numpy as np
 from gantry_twin.health.excitation import (
     AXIS_OF,
     COLUMN_OF,
+    ExcitationSettings,
     FilteredRegressors,
     accumulate_information,
     accumulate_moment,
@@ -43,7 +44,6 @@ from gantry_twin.health.excitation import (
     normalised_excitation,
     quantisation_noise,
 )
-from gantry_twin.health.monitor import ExcitationSettings
 from gantry_twin.plant import AXES, THETA_NAMES
 from gantry_twin.trace import Trace
 

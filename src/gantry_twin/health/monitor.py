@@ -56,16 +56,9 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from gantry_twin.estimation import (
-    FRICTION_SLOPE_S_M,
-    PAPER_FILTER_HZ,
-    PAPER_FILTER_ZETA,
-    FilterHz,
-    FilterZeta,
-    FrictionSlope,
-)
 from gantry_twin.health.excitation import (
     AXIS_OF,
+    ExcitationSettings,
     FilteredRegressors,
     accumulate_information,
     accumulate_moment,
@@ -74,17 +67,13 @@ from gantry_twin.health.excitation import (
     quantisation_noise,
 )
 from gantry_twin.plant import THETA_NAMES, THETA_UNITS
-from gantry_twin.sensing import ENCODER_RESOLUTION_M
 from gantry_twin.settings import (
-    VOLTS_MAX_V,
-    NonNegative,
     Positive,
     Range,
     Seconds,
     Vector,
     Window,
     quote,
-    rule,
     validated,
 )
 
@@ -103,53 +92,8 @@ CUSUM_CAP = 2.0
 # ---------------------------------------------------------------------------------------------
 
 
-#: The monitor's settings that a scenario file also sets (its ``monitor`` mapping).
-ExcitationWindowS = Range(0.01, 600.0, "s")
-MinParameterV = Range(0.0, VOLTS_MAX_V, "V")
+#: The monitor's settings that a scenario file also sets (its ``monitor`` mapping; the excitation's in excitation.py).
 DecisionIntervalS = Range(0.0, 100.0, "s", lo_open=True)
-
-
-@validated("excitation")
-class ExcitationSettings:
-    """How the information of eq. (29) is measured.
-
-    window_s: sliding window W, s (2 s holds a velocity reversal of each axis on
-    the paper's circle and ellipse, needed to separate Af from dN).
-    period_s: monitor period, s: outputs (and health decisions) every period.
-    filter_hz, filter_zeta: Hf per axis; use the estimator's (paper: 250/150 Hz).
-    friction_slope_s_m: the 9000 of Sf(v) = (2/pi) atan(9000 v); reversal_gate: the
-    estimator's (samples it leaves out near a velocity reversal carry no information).
-    resolution_m: the encoder's (0: ideal), for the quantisation noise in x_f'', x_f'.
-    sliding_speed_m_s: samples with |x_f'| below this carry no information.
-    scale: nominal parameter values D (volt units; dN: a volt scale), for the
-    normalisation N = D I D / W.
-    min_parameter_v: a parameter is excited when its ``parameter_v`` reaches this.
-    min_moving_fraction: ... and its axis slid in this fraction of the latest period.
-    max_bias: ... and the bound of the relative bias from its regressor errors is at most this
-    (otherwise it is excited but untrustworthy).
-    max_error: an estimate in summary.json is trustworthy when that bound plus its gap to the
-    least-squares fit is at most this (:mod:`gantry_twin.health.confidence`).
-    """
-
-    window_s: ExcitationWindowS = 2.0
-    period_s: Range(0.0, 1.0, "s", lo_open=True) = 0.01
-    filter_hz: FilterHz = PAPER_FILTER_HZ
-    filter_zeta: FilterZeta = PAPER_FILTER_ZETA
-    friction_slope_s_m: FrictionSlope = FRICTION_SLOPE_S_M
-    reversal_gate: Range(0.0, 1.0) = 0.0
-    resolution_m: Range(0.0, 1.0e-3, "m") = ENCODER_RESOLUTION_M
-    sliding_speed_m_s: NonNegative = 1.0e-3
-    scale: Vector(Positive, THETA_NAMES) = (0.12, 0.50, 0.50, 0.70, 0.10, 0.15, 0.10, 0.10)
-    min_parameter_v: MinParameterV = 0.01
-    min_moving_fraction: Range(0.0, 1.0) = 0.5
-    #: 2 %: a fifth of the health tolerance (10 %), so that a trusted estimate's bias cannot read as a drift.
-    max_bias: Range(0.0, 1.0) = 0.02
-    #: 4 %: the 5 % accuracy target less a margin for what the bound leaves out (docs/estimator-envelope.md).
-    max_error: Range(0.0, 1.0) = 0.04
-
-    def __post_init__(self) -> None:
-        if self.window_s < self.period_s:
-            raise rule("window_s", f"must be at least period_s = {self.period_s:g} s, got {self.window_s:g}")
 
 
 @validated("health")

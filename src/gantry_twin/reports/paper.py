@@ -33,6 +33,7 @@ from gantry_twin.outputs.plots import envelope
 from gantry_twin.plant import THETA_NAMES, THETA_UNITS
 from gantry_twin.run import execute
 from gantry_twin.scenario import build, load_scenario, shipped
+from gantry_twin.theta import NOMINAL_THETA
 
 SET_SCENARIOS = {1: "no_load", 2: "load_5kg", 3: "step_disturbance"}
 CONTOURS = ("circle", "ellipse")
@@ -70,7 +71,7 @@ PAPER_CONTOUR_UM: dict[tuple[str, int, str], tuple[float, float]] = {
 #: Paper Tables 3-4 (set -> rows theta_iN, theta_iC, theta_ie, theta_iv %), M1 M2 B1 B2 Af1 Af2.
 PAPER_ESTIMATES: dict[int, dict[str, tuple[float, ...]]] = {
     1: {
-        "nominal": (0.12, 0.5, 0.5, 0.7, 0.1, 0.15),
+        "nominal": NOMINAL_THETA[:6],
         "circle": (0.111, 0.483, 0.522, 0.730, 0.102, 0.150),
         "ellipse": (0.115, 0.505, 0.464, 0.670, 0.104, 0.147),
         "pct": (7.5, 3.4, 7.2, 4.3, 4.0, 2.0),

@@ -29,13 +29,8 @@ from gantry_twin.faults import PlantChanges
 from gantry_twin.gcode.planner import AxisLimits, PlanOptions, default_limits, plan_program
 from gantry_twin.gcode.reader import read_program
 from gantry_twin.gcode.sampling import Plan
-from gantry_twin.health.monitor import (
-    DecisionIntervalS,
-    ExcitationSettings,
-    ExcitationWindowS,
-    HealthSettings,
-    MinParameterV,
-)
+from gantry_twin.health.excitation import ExcitationSettings, ExcitationWindowS, MinParameterV
+from gantry_twin.health.monitor import DecisionIntervalS, HealthSettings
 from gantry_twin.plant import Payload, PlantSettings
 from gantry_twin.sensing import SensingConfig
 from gantry_twin.settings import VOLTS_MAX_V, Frequency, Label, Model, Range, Real, Seconds, Window, quote

@@ -36,6 +36,7 @@ from gantry_twin.sweep.sampling import (
     Seed,
     grid_values,
 )
+from gantry_twin.theta import THETA_NAMES
 
 #: A ``--set`` style field path: names and list indices joined by dots (``disturbance.y.0.value_v``).
 FIELD_PATH = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*(\.([A-Za-z_][A-Za-z0-9_]*|[0-9]+))*$")
@@ -46,9 +47,7 @@ METRIC_GROUPS: dict[str, tuple[str, ...]] = {
     "axial": ("axial_rms_x_um", "axial_rms_y_um"),
     "command": ("max_abs_u_x_v", "max_abs_u_y_v", "saturated_fraction_x", "saturated_fraction_y"),
     "estimates": tuple(
-        f"{what}_{name}"
-        for name in ("M1", "M2", "B1", "B2", "Af1", "Af2", "dN1", "dN2")
-        for what in ("estimate", "true", "error_pct", "trustworthy")
+        f"{what}_{name}" for name in THETA_NAMES for what in ("estimate", "true", "error_pct", "trustworthy")
     ),
     "health": ("alarms",),
 }
