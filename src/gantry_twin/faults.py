@@ -1,28 +1,13 @@
-"""Plant changes during a run: what a fault scenario does to the machine (docs/health.md).
+"""Plant changes during a run: what a fault scenario does to the machine.
 
-A :class:`PlantChanges` is a declarative, validated description of how the
-machine departs from its model while a run goes on:
-
-* :class:`FrictionDrift`: viscous B and/or Coulomb Af of one axis moving
-  linearly from a start value at ``start_s`` to an end value at ``end_s``
-  (paper volt units, e.g. lubricant loss: B2 0.7 -> 0.91 V/(m/s)). On a
-  LuGre axis (:mod:`gantry_twin.friction`) the drift moves sigma2 (the
-  joint damping) and the Coulomb level Fc, with Fs in proportion.
-* :class:`PayloadChange`: the payload mass on the X carriage becomes
-  ``mass_kg`` at ``time_s`` (a pick-up or a drop).
-* :class:`CoggingRipple`: a position-periodic motor force on one axis,
-  ``amplitude_v sin(2 pi q / pitch_m + phase_rad)`` volts.
-* :class:`EncoderGlitch`: a ``spike`` (one reading off by ``offset_m`` on one
-  axis) or a ``hold`` (the readings of both axes frozen for ``samples``).
-* :class:`VelocityNoise`: extra white noise on the measured velocity, seeded.
-
-Each change acts on the MuJoCo model or on the sensor, never on the
-controller. This module only turns the description into per-sample schedules
-over the run's sample times ``t`` (N,); the loop applies them. The true theta
-as the changes move it (:meth:`PlantChanges.true_parameters_over_time`) is what
-estimates are judged against.
-
+A :class:`PlantChanges` is a declarative, validated description (:class:`FrictionDrift`,
+:class:`PayloadChange`, :class:`CoggingRipple`, :class:`EncoderGlitch`, :class:`VelocityNoise`). Each change
+acts on the MuJoCo model or on the sensor, never on the controller. This module only turns the description
+into per-sample schedules over the run's sample times (:func:`change_schedule`); the loop applies them.
+:meth:`PlantChanges.true_parameters_over_time` is the true theta the estimates are judged against.
 Validation errors are one line naming the field and its allowed range.
+
+(docs/health.md, "Plant changes")
 """
 
 from __future__ import annotations

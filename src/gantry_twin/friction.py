@@ -1,35 +1,13 @@
 """The friction of each slide joint: the paper's Coulomb + viscous model, or LuGre (the rig's).
 
-``coulomb`` (the default): the joints' ``frictionloss`` (Af kf, a stiff
-friction constraint) and ``damping`` (B kf) of ``models/gantry.xml``, RK4,
-one physics step per 0.2 ms sample: F = Af kf sign(v) + B kf v.
+``coulomb`` (the default): the joints' ``frictionloss`` (Af kf) and ``damping`` (B kf), RK4, one physics step
+per sample. ``lugre``: a friction-only ``dcmotor`` actuator per slide joint (MuJoCo's ``lugre`` attribute)
+carrying the bristle deflection z (m) as its activation, the joint's ``frictionloss`` set to 0; sigma2 is the
+joint's ``damping`` in both models, so B reads the same model field. The bristle is stiff: a LuGre plant
+integrates with :data:`LUGRE_INTEGRATOR` at :data:`LUGRE_SUBSTEPS` physics steps per control sample. The
+true Af, B of a LuGre axis: :func:`identified_af_b`.
 
-``lugre``: a friction-only ``dcmotor`` actuator per slide joint (MuJoCo 4's
-``lugre`` attribute: no input, zero motor constant, gear 1) carrying the
-bristle deflection z (m) as its activation, with the joint's ``frictionloss``
-set to 0 so that friction does not count twice (Canudas de Wit et al. 1995)::
-
-    z' = v - sigma0 |v| z / g(v),   g(v) = Fc + (Fs - Fc) exp(-(v / vs)^2)
-    F  = sigma0 z + sigma1 z' + sigma2 v           (opposing the motion)
-
-so that sliding at a constant v the force is sign(v) g(v) + sigma2 v
-(:func:`steady_force_n`), and below Fs the carriage deflects by F / sigma0
-before it slides (pre-sliding). The viscous term sigma2 is the joint's
-``damping``, as in the Coulomb model, so B, its drift and the true B read
-the same model field in both models (MuJoCo's Euler integrates joint damping
-implicitly). In the paper's volt units (motor gear kf = 69 N/V): Af = Fc / kf
-when Fc is the Coulomb level of the fit (:func:`gantry_twin.plant.true_parameters`),
-B = sigma2 / kf.
-
-LuGre's bristle is stiff (sigma0 |v| / g h is about 9 for h = 0.2 ms at
-0.3 m/s): explicit RK4 diverges at one step per sample, so a LuGre plant
-integrates with :data:`LUGRE_INTEGRATOR` at :data:`LUGRE_SUBSTEPS` physics
-steps per control sample (the controller still runs once per sample, the
-command held); the choice and its measured accuracy and cost: docs/friction.md.
-
-The ranges below are physical for a linear-motor stage on rolling guides:
-pre-sliding distance Fc / sigma0 in [0.1, 50] um, Fs / Fc in [1, 2], vs in
-[0.1, 50] mm/s, sigma1 at most the bristle's critical damping 2 sqrt(sigma0 M).
+(docs/friction.md, "The two models" and "Integration"; the equations: docs/equations.md, section 3.2)
 """
 
 from __future__ import annotations

@@ -1,47 +1,14 @@
-"""The controller plug-in interface.
+"""The controller plug-in interface: the :class:`Controller` protocol, its compiled form and the registry.
 
-A controller is anything with three methods (a ``typing.Protocol``; no base
-class needed):
+A controller is anything with ``reset(context)``, ``update(measurement, reference) -> volts`` (every sample;
+the loop clips the two commands and holds them over the sample) and ``state_for_logging()`` (same keys and
+shapes every sample); it owns all its state, nothing is global. Register it with :func:`register` or the
+entry-point group ``gantry_twin.controllers``. It may also offer a compiled step (:class:`CompiledStep` as a
+class attribute ``compiled``, plus ``kernel_arguments()``); the loop uses it only if the class offering it
+also defines or inherits ``update`` and ``state_for_logging``. :func:`log_values` gives ``state_for_logging``
+from the log kernel, so the two cannot disagree.
 
-* ``reset(context)``: called once before a run with :class:`RunContext`
-  (sample period, actuator limits, the true initial state is *not* given).
-* ``update(measurement, reference) -> volts``: called every 0.2 ms sample
-  with what the DS1103 measured and the desired motion at that sample;
-  returns the two motor commands (X, Y) in volts. The loop clips them to the
-  actuator range and holds them over the sample (ZOH).
-* ``state_for_logging() -> dict[str, ndarray]``: the internal state to record
-  after each update (e.g. ``theta_hat``, ``dc_hat``); the same keys and
-  shapes every sample. Return ``{}`` for none.
-
-Controllers own all their state; nothing is global. Register a controller
-class or factory under a name with :func:`register`, or from another package
-through the entry-point group ``gantry_twin.controllers``:
-
-    [project.entry-points."gantry_twin.controllers"]
-    my_ctrl = "my_pkg.module:MyController"
-
-A controller runs in the Python loop, ``update()`` every sample. It may also
-offer a compiled step, and then runs in the compiled loop with no Python per
-sample (docs/plugins.md has a worked example); the built-in controllers
-offer theirs through this same door:
-
-* a class attribute ``compiled = CompiledStep(step, log, layout)``: ``step``
-  a numba kernel ``step(params, state, t_s, q_m, dq_m_s, ref, u_v)`` that
-  does what ``update()`` does, writing the two commands (volts) into
-  ``u_v`` (2,); ``ref`` is one row of :meth:`ReferenceSample.row`
-  (columns :data:`REF_Q` ...). ``log(params, state, out)`` (or None) fills
-  ``out`` with the logged values in the order of ``layout``, ((name,
-  shape), ...), the keys and shapes ``state_for_logging`` returns (shape
-  ``()``: one number, logged as (1,)).
-* a method ``kernel_arguments() -> (params, state)``, valid after
-  ``reset``: tuples (NamedTuples) of float64 arrays and numbers that the
-  step reads and updates in place, so that after a compiled run the object
-  is where ``update()`` would have left it.
-
-The loop uses the compiled step only if the class offering it also defines
-``update`` and ``state_for_logging`` or inherits them from its own bases: a
-subclass overriding either runs in the Python loop. :func:`log_values` gives
-``state_for_logging`` from the log kernel, so the two cannot disagree.
+(docs/plugins.md, "The compiled step")
 """
 
 from __future__ import annotations

@@ -1,30 +1,13 @@
-"""Whether each of DIARC's estimates in summary.json can be trusted for this run (docs/estimator-envelope.md).
+"""Whether each of DIARC's estimates in summary.json can be trusted for this run.
 
-From what the controller measured and commanded, with the estimator's own
-filters, friction shape and reversal gate (:mod:`gantry_twin.health.excitation`),
-over the run from its start to the end of the estimates window (the data
-the estimator has seen: a direction the estimates window does not excite,
-e.g. Af against dN on a contour whose axis does not reverse in it, keeps
-what earlier data gave it). An estimate is trustworthy when
+Judged from what the controller measured and commanded, with the estimator's own filters, friction shape
+and reversal gate (:mod:`gantry_twin.health.excitation`), over the run from its start to the end of the
+estimates window. An estimate is trustworthy when its axis slid enough, its regressor errors plus its fit
+gap (to the least-squares fit of eq. 25 over the same data) are within ``max_error``, and its excitation is
+above that fit's rms residual; otherwise ``why`` says which failed. :meth:`EstimateConfidence.statistics`
+holds all the judgement needs (summary.json's ``confidence``), so :func:`judge` can judge a finished run again.
 
-* its axis slid in at least ``min_moving_fraction`` of the estimates window;
-* its regressor errors (encoder quantisation in x_f'', x_f'; the friction
-  column's error against sign(v), signed where its sign is known) bias it by at most ``max_error``
-  together with its **fit gap**: the distance between the estimate and the
-  least-squares fit of the estimator's own regression (eq. 25) over the same
-  data, relative to the nominal value. The recursive estimator forgets
-  (kappa) and normalises its steps; where the data determine a parameter it
-  agrees with the fit, and where they hardly do (M at a few mm/s^2, B on a
-  lap of a minute) it wanders and the gap shows it. An unexcited parameter
-  has no fit: its gap (and bound) is infinite;
-* it is excited above the fit's residual: ``excitation_v`` (eq. 29, the rms
-  signature of a 100 % change that the axis' other parameters cannot mimic)
-  at least the rms residual of that fit (the unmodelled part of u_f).
-
-Otherwise ``why`` says which failed, with the numbers. Everything the
-judgement needs is in :meth:`EstimateConfidence.statistics` (summary.json's
-``confidence``), so :func:`judge` can judge a finished run again, e.g. with
-other thresholds.
+(docs/estimator-envelope.md, "Honest confidence")
 """
 
 from __future__ import annotations

@@ -1,67 +1,14 @@
-"""How well a run excites the parameters of each axis (eq. 29), from what the controller measured.
+"""How well a run excites the parameters of each axis (eq. 29), and how far its regressor errors can bias them.
 
-Per axis i the regressor of eq. (25) is
-g_i = [x_f'', x_f', Sf_f(x'), -1_f] (the axis' columns M_i, B_i, Af_i, dN_i),
-computed from what the controller measured: the encoder positions
-``q_meas_m`` (first-order hold into Hf), the backward-difference velocity
-through Sf, and the constant, with the same exact discretised filters Hf as
-DIARC's estimator (:class:`FilteredRegressors`). The information over the
-last ``window_s`` seconds, I_i = int g_i g_i^T dt (eq. 29), is normalised by
-the nominal parameter values D = diag(scale) and the window length W
-(``window_s``, ``scale``: :class:`gantry_twin.health.monitor.ExcitationSettings`):
+From what the controller measured (``q_meas_m``, its backward difference, the constant) with DIARC's own
+exact discretised filters Hf (:class:`FilteredRegressors`): per axis the information of eq. (25)'s regressor
+over ``window_s``, normalised by the nominal values into volts (``level_v`` per axis, ``parameter_v`` per
+parameter). Only sliding samples count, and none the reversal gate leaves out. :func:`estimate_bias`
+predicts the bias from encoder quantisation (:func:`quantisation_noise`) and from the friction column's
+error against sign(v). An estimate is trustworthy when excited, its axis sliding and that bias within
+``max_bias``; :class:`gantry_twin.health.monitor.MachineMonitor` runs this over a sliding window.
 
-    N_i = D I_i D / W        (volts^2)
-
-so a relative parameter change delta (delta = 1 is +100 %) moves the filtered
-input by sqrt(delta^T N_i delta) volts rms over the window. Reported:
-
-* ``level_v`` (per axis): sqrt(lambda_min(N_i)), the rms signature of a
-  100 % change in the least excited direction (PE condition (29) in volts);
-* ``parameter_v`` (per parameter): sqrt(1 / (N_i^-1)_jj), the rms signature
-  of a 100 % change of parameter j that the axis' other three parameters
-  cannot mimic (its conditional information, the Cramer-Rao view).
-
-Model (25) holds only while the axis slides: in stick, Coulomb friction is
-any force up to Af, not Af Sf(v). Samples with |x_f'| below
-``sliding_speed_m_s`` therefore add nothing to I_i. At standstill every
-parameter, dN included, has zero information. With an estimator that gates
-out samples near a velocity reversal (``reversal_gate``), those samples add
-nothing either: the estimator did not use them.
-
-**Regressor errors** (:func:`estimate_bias`): excitation is not enough when
-the regressor itself is wrong. Two errors are predicted from what is known:
-
-* encoder quantisation (resolution r) is white noise of variance r^2 / 12
-  on the position; through Hf it puts noise of rms ``sigma`` on x_f'' and
-  x_f' (:func:`quantisation_noise`, exact for the discrete filter). Noise
-  in the x_f'', x_f' columns adds W diag(sigma^2) to the information, so
-  least squares moves theta by -I^-1 W diag(sigma_a^2, sigma_v^2, 0, 0) theta
-  (errors in variables; W the seconds used, theta the nominal values): M
-  (B) shrinks by about (scale sigma / parameter_v)^2, and the parameters
-  correlated with it move too (Af2 by up to 2 % with the paper's 150 Hz Y
-  filter);
-* the friction column Sf_f differs from the plant's sign(v) by
-  e = Hf[s (1 - |Sf(v)|)] (the smooth Sf; a differenced velocity of 0 while
-  the axis moves below the encoder's velocity step), s = sign(v): the sign
-  of the last nonzero differenced velocity, for a zero difference too (the
-  axis still slides that way). The force error is Af e_k per sample, and
-  least squares moves theta by Af I^-1 m_e, the signed moment
-  m_e = sum g_k e_k dt: a signed sum, so that errors of opposite sign
-  cancel as they do in the fit (an unsigned bound, Af |I^-1| sum |g| |d| dt,
-  did not let them, and was ten times the actual shift where B and Af are
-  correlated). The sign is known only where no reversal is in the filter's
-  memory (|Hf[s]| >= SIGN_KNOWN: no stick, no run of zero differences across
-  the reversal); rows where it is not (an estimator without a reversal gate)
-  keep that unsigned bound, Af |I^-1| m_d, m_d = sum |g_k| d_k dt,
-  d = Hf[1 - |Sf(v)|].
-
-An estimate is **trustworthy** when its parameter is excited
-(``parameter_v`` >= ``min_parameter_v``), its axis slid in at least
-``min_moving_fraction`` of the time, and that bias bound is at most
-``max_bias``.
-
-:class:`gantry_twin.health.monitor.MachineMonitor` runs this over a sliding window
-and judges the estimates only where it finds enough excitation.
+(docs/health.md, "Excitation monitor" and "Regressor errors"; the equations: docs/equations.md, section 11)
 """
 
 from __future__ import annotations
@@ -280,7 +227,7 @@ def estimate_bias(
     moment: np.ndarray,
     correlated: bool = False,
 ) -> np.ndarray:
-    """The relative bias (..., 8) of each estimate from its regressor errors (module docstring).
+    """The relative bias (..., 8) of each estimate from its regressor errors (docs/health.md, "Regressor errors").
 
     parameter_v (..., 8) V; scale (8,) nominal values; noise (2, 2): rms of
     [x_f'', x_f'] per axis (:func:`quantisation_noise`); information

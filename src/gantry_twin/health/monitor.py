@@ -1,51 +1,8 @@
-"""Machine health from DIARC's on-line estimates, and the excitation that makes them trustworthy (docs/health.md).
+"""Machine health from DIARC's on-line estimates: a two-sided CUSUM per parameter, judged only where excited.
 
-Two monitors, run together by :class:`MachineMonitor` (a simulate
-``Observer``: incremental, chunk by chunk, with bounded working memory) or
-offline on a finished trace by :func:`monitor_trace`; both give the same
-numbers, bit for bit, because every recursion runs sample by sample in the
-same order whatever the chunking.
-
-**Excitation (eq. 29)**, in :mod:`gantry_twin.health.excitation`: per axis, the
-information I_i of the filtered regressor over the last ``window_s``,
-normalised by the nominal parameter values into volts: ``level_v`` (per
-axis, the least excited direction) and ``parameter_v`` (per parameter, what
-the axis' other parameters cannot mimic). Only sliding samples count.
-
-**Health (drift detection).** The test is a two-sided CUSUM (Page 1954) on
-the deviation of each estimate from its baseline, in tolerance units:
-
-    y_j = (theta^_j - b_j) / (tol_j b_j)     M, B, Af (tol relative, 10 %)
-    y_j = (theta^_j - b_j) / tol_j           dN1, dN2 (baseline ~0 V: tol in volts)
-    S+ <- max(0, S+ + (y - 1) dt),   S- <- max(0, S- + (-y - 1) dt)
-    alarm when S+ or S- exceeds h (tolerance-seconds)
-
-Why CUSUM: it is the optimal sequential test for a persistent shift of a
-mean (minimum detection delay for a given false-alarm rate, Lorden 1971),
-and with the reference value k = the tolerance it ignores every deviation
-inside the tolerance, however long, while a deviation d tolerances beyond it
-alarms after h / d seconds: a step is caught fast, a slow ramp at a delay
-sqrt(2 h / slope) after it crosses the tolerance, and noise spikes beyond
-the tolerance must persist to count. A threshold on y alone would trade
-delay against false alarms from the estimator's noise with no memory.
-The statistic runs in time (dt = the monitor period), so h does not depend
-on the sample rate.
-
-A parameter is judged only while it is excited (``parameter_v`` at or above
-``min_parameter_v`` over the window, and its axis sliding in at least
-``min_moving_fraction`` of the latest monitor period); otherwise its CUSUM is
-frozen and its status is ``not excited``: with no information the
-estimator's output says nothing about the machine. Nor is it judged while it
-is excited but untrustworthy: its regressor errors (encoder quantisation in
-x_f'', x_f'; the friction column's gap from sign(v)) can bias it by more than
-``max_bias`` (:func:`gantry_twin.health.excitation.estimate_bias`); status
-``untrustworthy``.
-
-Status per parameter: ``baseline`` (baseline not yet known or before
-``judge_from_s``), ``not excited``, ``untrustworthy``, ``ok`` (S = 0), ``drifting`` (the estimate
-is beyond the tolerance and evidence accumulates, 0 < S <= h), ``alarm``
-(raised; it clears when S returns to 0, i.e. the deviation has stayed inside
-the tolerance long enough to use up the accumulated evidence).
+:class:`MachineMonitor` (a simulate ``Observer``: chunk by chunk, bounded memory) and :func:`monitor_trace` (offline)
+give the same numbers bit for bit. A parameter not excited or untrustworthy (:mod:`gantry_twin.health.excitation`)
+is not judged: its CUSUM is frozen. h is in tolerance-seconds, not samples. (docs/health.md, "Health monitor")
 """
 
 from __future__ import annotations
@@ -180,7 +137,7 @@ class MonitorReport:
     """What the monitor saw, one row per monitor period (``t_s`` = end of the period).
 
     information (M, 2, 4, 4): int gamma_f gamma_f^T dt over the window, per axis, raw units.
-    level_v (M, 2), parameter_v (M, 8): normalised excitation, volts (module docstring).
+    level_v (M, 2), parameter_v (M, 8): normalised excitation, volts (:mod:`gantry_twin.health.excitation`).
     moving (M, 2): fraction of the latest period each axis slid.
     excited (M, 8) bool; bias (M, 8): the bound of each estimate's relative bias from regressor
     errors (excitation.estimate_bias), trusted (M, 8) bool: excited and bias <= max_bias.

@@ -1,38 +1,14 @@
-"""Identify the plant from logs: M, B, Af per axis by least squares on filtered signals (docs/logs.md).
+"""Identify the plant from logs: M, B, Af, dN per axis by least squares on filtered signals.
 
-The model (docs/equations.md, the plant), per axis, in volts:
+The model ``M q'' + B q' + Af sign(q') + dN = u`` (volts, while the axis slides) passes on both sides
+through the estimator's filter Hf, discretised as DIARC's estimator does it
+(:func:`gantry_twin.health.excitation.filter_axis`), which gives eq. (25)'s regression
+``u_f = [x_f'', x_f', Sf_f, -1_f] [M, B, Af, dN]^T``, one row per sample. Offline, Sf is that of a centred
+velocity with a steep slope, and the samples whose filter memory (``stick_memory_s``) holds one slower than
+``sliding_speed_m_s`` are left out (the axis may stick). 95 % intervals: Newey-West (:func:`hac_covariance`).
+The LuGre parameters build on this fit: :mod:`gantry_twin.sysid.lugre`; the command: :mod:`gantry_twin.cli.identify`.
 
-    M q'' + B q' + Af sign(q') + dN = u           (while the axis slides)
-
-Both sides pass through the estimator's filter Hf(s) = wn^2 / (s^2 + 2 z wn s
-+ wn^2), discretised exactly as DIARC's estimator does it
-(:func:`gantry_twin.health.excitation.filter_axis`: the position with a first-order
-hold, u, the friction shape and the constant held), which gives the linear
-regression of eq. (25), one row per sample:
-
-    u_f = [x_f'', x_f', Sf_f, -1_f] [M, B, Af, dN]^T
-
-Offline, two things are done better than on line:
-
-* the friction shape Sf is that of a smoothed, centred velocity (the
-  difference over ``velocity_half_width`` samples each side: the encoder's
-  0.5 um steps then resolve 0.3 mm/s instead of 2.5 mm/s), with a steep slope
-  (MuJoCo's and a machine's dry friction is sign(v), not the controller's
-  atan model);
-* samples whose filter memory (``stick_memory_s``) holds a slow sample
-  (|v| below ``sliding_speed_m_s``: the axis may stick, where friction is any
-  force up to Af) are left out.
-
-dN is estimated with the rest (a constant force: cable carriers, a tilt)
-and reported. The 95 % intervals come from the regression with a
-heteroscedasticity and autocorrelation consistent covariance (Newey-West,
-Bartlett weights over ``hac_lag_s``): the filtered residuals are correlated
-over the filter's memory, and the ordinary formula would claim intervals
-several times too narrow. They cover the noise of the data, not a model
-that does not fit (the fit report's residuals show that).
-
-The LuGre parameters (``--friction lugre``) build on this fit:
-:mod:`gantry_twin.sysid.lugre`; the command: :mod:`gantry_twin.cli.identify`.
+(docs/logs.md, "gantry-twin identify")
 """
 
 from __future__ import annotations

@@ -1,37 +1,15 @@
-"""``identify --friction lugre``: the LuGre parameters of each axis from logs (docs/logs.md).
+"""``identify --friction lugre``: the LuGre parameters of each axis from logs (model: :mod:`gantry_twin.friction`).
 
-Three stages, each on what the previous one found (friction model:
-:mod:`gantry_twin.friction`):
+Three stages, each on what the previous one found:
 
-1. M, B, Af, dN by the linear regression of :func:`gantry_twin.sysid.identify.identify`.
-2. Fc, Fs, vs, sigma2 from the steady friction-velocity relation: the
-   friction force F = kf (u_f - M x_f'' + dN) of the filtered regression,
-   binned by the filtered velocity x_f' (log-spaced bins per direction),
-   fitted with ``scipy.optimize.least_squares`` to sign(v) g(v) + sigma2 v
-   (:func:`gantry_twin.friction.steady_force_n`) within LuGreAxis's ranges.
-   Only samples at steady state count: below ``fast_speed_m_s`` those where
-   the axis has held one speed for ``steady_s`` (:func:`steady_samples`; the
-   constant-velocity plateaus of ``gantry-twin excite --plateaus``), so that
-   the bristle and the filter Hf have settled. Samples of a varying speed
-   (the multisine's) bias Fs low there: the bristle lags the Stribeck rise
-   when decelerating into a reversal, and Hf rounds the peak. Above
-   ``fast_speed_m_s`` the Stribeck term and the bristle's lag vanish, and
-   every sliding sample counts (what pins Fc and sigma2).
-3. sigma0 and sigma1 (the bristle: pre-sliding) from short windows around
-   the velocity reversals, replayed open loop through the LuGre plant of
-   stages 1-2 (``mujoco.rollout``, each window started from the measured
-   state with the bristle at its steady deflection; :func:`gantry_twin.sysid.replay.replay_windows`),
-   by least squares on the position residual, each window's best-fit
-   offset + slope in time removed (:func:`detrend`: the initial velocity
-   from the encoder's steps is a few mm/s off and would dominate), over
-   log10 sigma0 and sigma1 / (2 sqrt(sigma0 M)) (the fraction of the
-   bristle's critical damping).
+1. M, B, Af, dN by the linear regression of :func:`gantry_twin.sysid.identify.identify`;
+2. Fc, Fs, vs, sigma2 from the friction force of the filtered regression, binned by velocity and fitted to
+   :func:`gantry_twin.friction.steady_force_n`; below ``fast_speed_m_s`` only steady samples count
+   (:func:`steady_samples`: the plateaus of ``gantry-twin excite --plateaus``);
+3. sigma0, sigma1 from windows around the velocity reversals replayed open loop through the plant of stages
+   1-2 (:func:`gantry_twin.sysid.replay.replay_windows`), each window's offset + slope removed (:func:`detrend`).
 
-The 95 % intervals of stage 2 come from the Jacobian of the binned fit with a
-heteroscedasticity-consistent covariance (HC1: the bins are averages of many
-samples, nearly independent, but of unequal noise); stage 3's residuals
-are correlated within a window, so its intervals are not given (null, with
-the reason). The accuracy measured on twins: docs/logs.md.
+(docs/logs.md, "--friction lugre")
 """
 
 from __future__ import annotations

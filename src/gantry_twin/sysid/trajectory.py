@@ -1,33 +1,13 @@
-"""An identification trajectory, and running it on the twin: ``gantry-twin excite`` (docs/logs.md).
+"""An identification trajectory, and running it on the twin: ``gantry-twin excite``.
 
-The trajectory is a multisine per axis, faded in and out, starting and
-ending at rest at the centre of travel:
+:class:`Multisine`: per axis a multisine, faded in and out, starting and ending at rest at the centre of
+travel, the two axes on interleaved frequencies, scaled (:func:`design`) to the tightest of the position,
+speed and nominal-command limits below. :func:`with_plateaus` appends the constant-velocity
+:class:`Plateaus` of ``--plateaus`` (for the LuGre fit). The twin runs it in closed loop under the PD
+controller (:func:`run_on_twin`), as a machine's own controller would; the log has the encoder
+positions, the commands and the desired positions.
 
-    x_d(t) = w(t) sum_k A_k sin(2 pi f_k t + phi_k)
-
-with the frequencies of the two axes interleaved (no common frequency, so
-the axes' responses are not correlated), equal velocity amplitudes
-(A_k proportional to 1 / f_k: every speed from zero up is visited, which
-separates viscous from Coulomb friction), Schroeder phases (a low crest
-factor) and w(t) a quintic smoothstep over ``fade_s`` at each end. Each
-axis is then scaled to the tightest of three limits: position within the
-travel less a margin, speed, and the nominal command (a budget below the
-10 V DAC range computed with the heaviest parameters the trajectory must
-cope with, so that the real machine has headroom for its feedback).
-
-For the LuGre fit (``--plateaus``, :func:`with_plateaus`) constant-velocity
-plateaus follow the multisine (:class:`Plateaus`: log-spaced speeds each
-held long enough for the bristle and the identifier's filter to settle, both
-ways): the steady friction-velocity (Stribeck) curve is measured there, as
-rigs measure it.
-
-The twin runs it in closed loop on the PD controller (its feed-forward at
-the nominal parameters, its feedback stiff enough to keep the carriages on
-the trajectory within micrometres): this is how a user runs it on a
-machine, whose controller must stay in charge for safety; an open-loop
-drive would need its own position guard and drifts with any friction
-mismatch. The log it writes has the encoder positions, the commands and
-the desired positions.
+(docs/logs.md, "gantry-twin excite")
 """
 
 from __future__ import annotations

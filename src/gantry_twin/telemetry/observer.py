@@ -1,44 +1,12 @@
 """The rerun observer: logs one run, as it is simulated, to its own recording (rerun-sdk 0.41).
 
-:class:`RerunObserver` is a :class:`gantry_twin.trace.Observer`: it only
-reads the trace and logs it to its own :class:`rerun.RecordingStream` (never
-the global one, so two runs in one process stay apart). Samples are buffered
-and sent as columns (``send_columns``) at most every ``flush_interval_s`` of
-wall time (default 0.2 s: five viewer updates a second), at the end of a
-chunk; rerun's cost is mostly per row and per call, not per value
-(docs/telemetry.md, "Cost"), so one send covers many chunks when the loop is
-fast (and at the end of each piece of a run held in pieces, before its
-samples are gone). Static styling is logged once; the 3D transforms (50 Hz), the XY
-contour (1 kHz), and the parameter estimates and lambda_max(Gamma) (1 kHz) are decimated.
+:class:`RerunObserver` is a :class:`gantry_twin.trace.Observer`: it only reads the trace, and logs to its own
+:class:`rerun.RecordingStream` (never the global one, so two runs in one process stay apart). Samples are
+buffered and sent as columns (``send_columns``) at the end of a chunk, at most every ``flush_interval_s`` of
+wall time; the 3D transforms, the XY contour and the estimates are decimated (the ``*_RATE_HZ`` constants).
+Timeline ``sim_time`` (the trace's sample times); units are in the entity names.
 
-What is logged (timeline ``sim_time``, the trace's own sample times, exact to
-the nanosecond; units in the entity names):
-
-    errors/contour/eps_c_um, eps_n_um      true and approximate contour error, um
-    errors/axial/e_x_um, e_y_um            axial tracking errors q - q_d, um
-    inputs/u_x_V, u_y_V                    control command, volts
-    inputs/disturbance_x_V, ..._y_V        input disturbance, volts
-    estimates/<name>_<unit>/estimate       theta^_i, e.g. estimates/M1_V_s2_per_m/estimate (1 kHz)
-    estimates/<name>_<unit>/true           theta_i of the model (a line: its value at each send's ends)
-    estimates/dc_hat_V                     [dc^_x, dc^_y]
-    estimates/gamma_lambda_max             lambda_max(Gamma) (1 kHz)
-    contour_mm/xy/desired                  the desired contour (static), mm
-    contour_mm/xy/actual_x<K>              the actual contour with its error magnified K times
-    gantry/...                             base, carriages and payload as boxes (metres, 50 Hz)
-    health/excitation_V, health/alarms     with a health monitor (:meth:`RerunObserver.watch`)
-    health/trustworthy                     1 where the monitor trusts an estimate (excited, small bias), else 0
-
-Layout (:func:`~gantry_twin.telemetry.dashboard.dashboard_blueprint`): every
-plot titled with its unit in brackets; the estimate, dc^ and input plots get
-a y range that shows all their data so far (an estimate's true value
-included) with a margin and labelled ticks, sent again, widened, when data
-leaves it; eps_c is drawn wide in orange under eps_n thin in dark blue.
-
-Magnified contour: each actual point q is drawn at p + K (q - p), where p is
-the closest point of the desired curve (``contours.contour_error``), so a contour
-error of 1 um shows as K um; with the default K = 10 000, as 10 mm. (The
-controllers hold eps_c near 1 um on the paper's 200 mm circle: at 1000x that
-is under a pixel.)
+(docs/telemetry.md, "What is recorded" and "Cost"; the layout: "The dashboard")
 """
 
 from __future__ import annotations
@@ -146,7 +114,7 @@ def _scalar_column(values: np.ndarray) -> rr.ComponentColumn:
 
 
 class RerunObserver:
-    """Logs one run to a rerun recording (see the module docstring for what and where).
+    """Logs one run to a rerun recording (docs/telemetry.md, "What is recorded").
 
     recording: a stream with its sinks already set (``rr.RecordingStream(...)``
     then ``.save``/``.spawn``/``.connect_grpc``, or ``set_sinks``); the
