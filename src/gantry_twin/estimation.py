@@ -88,7 +88,7 @@ def discretise_filter(wn_rad_s: float, zeta: float, sample_period_s: float) -> F
     return FilterDiscretisation(e[:2, :2].copy(), e[:2, 2].copy(), e[:2, 3].copy(), wn_rad_s, zeta)
 
 
-@kernel
+@kernel(inline=True)
 def filter_advance(z, column, phi, hold, ramp, w_start, slope):
     """Advance the filter state z[:, column] = [w_f, w_f'] in place over one sample.
 
@@ -334,7 +334,7 @@ def least_squares_work(p: int, m: int, gamma: np.ndarray | None = None) -> Least
     )
 
 
-@kernel(inline=True)
+@kernel
 def least_squares_update(theta, gamma, g, target, nu, kappa, rho_max, lower, upper, sample_period_s, work):
     """One sample of eq. (27)-(28) with projection; updates theta, gamma in place.
 

@@ -48,7 +48,7 @@ def cholesky_substitute(factor, n, b, x):
         x[i] = acc / factor[i, i]
 
 
-@kernel
+@kernel(inline=True)
 def cholesky_solve(a, n, b, x, factor):
     """Solve a[:n, :n] x = b[:n] for symmetric positive definite a (Cholesky).
 
@@ -153,7 +153,7 @@ def largest_eigenvalue_exact(a, upper_bound, t, diag, off):
 EIGENVALUE_TOLERANCE = 1e-10
 
 
-@kernel(inline=True)
+@kernel
 def _orthonormalise(w, v):
     """v = Gram-Schmidt orthonormal basis of the two rows of w (2, p); False if they are dependent."""
     p = w.shape[1]
@@ -185,7 +185,7 @@ def _orthonormalise(w, v):
     return True
 
 
-@kernel(inline=True)
+@kernel
 def largest_eigenvalue(a, v, w, t, diag, off, upper_bound=math.inf, iterations=12):
     """lambda_max of a symmetric positive definite a (p x p), certified to EIGENVALUE_TOLERANCE.
 
