@@ -267,8 +267,11 @@ def chunk_kernel(compiled: CompiledStep) -> Callable[..., tuple[int, int]]:
         log = compiled.log or _no_log
         py = getattr(compiled.step, "py_func", compiled.step)
         name = re.sub(r"\W", "_", f"{py.__module__}_{py.__qualname__}_{source_digest(compiled.step, log)}")
-        # The step and the log are called, not inlined: compiled and cached once each, the chunk only links them.
-        step, log = (f if isinstance(f, CPUDispatcher) else kernel(f) for f in (compiled.step, log))
+        # The step's own code is inlined (it is typed once, in here: a separate compile would be finalised twice,
+        # and each sample would pass every array of its tuples); what it calls (the law, the least squares, ...) and
+        # the log are kernels compiled and cached once, which the chunk links. docs/performance.md, "Compile".
+        step = kernel(py, inline=True)
+        log = log if isinstance(log, CPUDispatcher) else kernel(log)
         bindings = {"controller_step": step, "controller_log": log, "borrowed": borrow}
         found = specialise(_run_chunk, name, bindings, compiled=True)
         _chunk_kernels[compiled] = found

@@ -281,13 +281,13 @@ def _law(params, state, q_m, dq_m_s, ref, u_v):
     u_v[1] = law.u_v[1]
 
 
-@kernel(internal=True)
+@kernel
 def drc_step(params, state, t_s, q_m, dq_m_s, ref, u_v):
     """One 0.2 ms sample of DRC: the law with theta^ fixed; the command (volts) into u_v (2,)."""
     _law(params, state, q_m, dq_m_s, ref, u_v)
 
 
-@kernel(internal=True)
+@kernel
 def darc_step(params, state, t_s, q_m, dq_m_s, ref, u_v):
     """One 0.2 ms sample of DARC: the law, then the gradient step (eq. 8-9) driven by this sample's s_c."""
     _law(params, state, q_m, dq_m_s, ref, u_v)
@@ -299,7 +299,7 @@ def darc_step(params, state, t_s, q_m, dq_m_s, ref, u_v):
     project_box(theta, params.lower, params.upper, theta)
 
 
-@kernel(internal=True)
+@kernel
 def diarc_step(params, state, t_s, q_m, dq_m_s, ref, u_v):
     """One 0.2 ms sample of DIARC: theta^ from the data up to this sample (eq. 25-28), the law, then dc^ (eq. 21-22).
 
