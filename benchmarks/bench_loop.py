@@ -1,18 +1,30 @@
-"""Cost of the 0.2 ms loop against MuJoCo's own C loop (docs/performance.md).
+"""Cost of the 0.2 ms loop against MuJoCo's C rollout of the same physics, and the compile (docs/performance.md).
 
     PYTHONPATH=src python benchmarks/bench_loop.py [--seconds 4] [--repeats 5]
 
-Prints, from one run on one machine: us per step and real-time factor of
-``mujoco.mj_step(m, d, nstep=N)`` (MuJoCo's C loop, the model at rest) and of
-simulate() as a user calls it with the pd, DRC, DARC and DIARC controllers
-and the example compiled plug-in of examples/gantry-example-pd (compiled
-backend; DIARC also on the reference backend); each loop's ratio to the C
-loop, and the plug-in's ratio to the built-in pd; numba's first-use compile
-time (fresh cache) and cache-load time; the peak memory of a 60 s DIARC run
-with full 5 kHz recording; the cost with the Coulomb and the LuGre plant side by
-side with the rig plant's (``--friction-only``: that alone). Loops are measured interleaved, best of
-``--repeats``, in wall time and in this thread's CPU time (less sensitive to
-other processes on the machine): compare ratios, not absolute times.
+Prints, from one run on one machine:
+
+* numba's compile, each in a fresh process with an empty cache: the loops of
+  all four built-in controllers (pd, drc, darc, diarc), and a single DIARC
+  run; then the load of all four from the filled cache. CPU seconds
+  (``time.process_time``, all threads) and wall.
+* The loop's floor: for each controller, the closed loop's own commands
+  (motor volts and disturbance, as recorded) replayed from its initial state
+  with ``mujoco.rollout`` (MuJoCo's C loop, one thread), which steps the same
+  physics through the same states; the replay's positions are checked to
+  equal the trace's. Beside it, for history, ``mj_step(m, d, nstep=N)`` with
+  the model at rest (stuck dry friction, cheaper).
+* simulate() as a user calls it with pd, DRC, DARC, DIARC and the example
+  compiled plug-in of examples/gantry-example-pd (compiled backend; DIARC
+  also on the reference backend): us per step in wall time and in process
+  CPU time (all threads: a BLAS pool woken by the loop would show here), and
+  each loop's ratio to the rollout of its own commands.
+* the peak memory of a 60 s DIARC run with full 5 kHz recording; the cost
+  with the Coulomb, the LuGre and the rig plant side by side
+  (``--friction-only``: that alone).
+
+Loops are measured interleaved, best of ``--repeats``: compare ratios, not
+absolute times (the machine may be shared).
 """
 
 from __future__ import annotations
@@ -27,6 +39,7 @@ import time
 
 import mujoco
 import numpy as np
+from mujoco import rollout
 
 from gantry_twin import Plant, TimingLaw, circle, simulate
 from gantry_twin.controllers import available, create, register
@@ -39,15 +52,14 @@ CONTROLLERS = ("pd", "drc", "darc", "diarc", "example_pd")
 
 _FIRST_USE = """
 import time, json
-t0 = time.perf_counter()
+w0, c0 = time.perf_counter(), time.process_time()
 from gantry_twin import Plant, TimingLaw, circle, simulate
 from gantry_twin.controllers import create
-from gantry_twin.contours import reference
-t1 = time.perf_counter()
+w1, c1 = time.perf_counter(), time.process_time()
 for name in {names!r}:
     simulate(Plant(), circle(), TimingLaw(2.0), create(name), duration_s=0.01)
-t2 = time.perf_counter()
-print(json.dumps({{"import_s": t1 - t0, "first_runs_s": t2 - t1}}))
+w2, c2 = time.perf_counter(), time.process_time()
+print(json.dumps({{"import_s": c1 - c0, "first_runs_cpu_s": c2 - c1, "first_runs_wall_s": w2 - w1}}))
 """
 
 _MEMORY = """
@@ -75,9 +87,58 @@ def _child(code: str, cache_dir: str | None = None) -> dict:
 
 
 def _timed(fn) -> tuple[float, float]:  # noqa: ANN001
-    w0, c0 = time.perf_counter(), time.thread_time()
+    """(wall s, process CPU s: every thread of the process) of ``fn()``."""
+    w0, c0 = time.perf_counter(), time.process_time()
     fn()
-    return time.perf_counter() - w0, time.thread_time() - c0
+    return time.perf_counter() - w0, time.process_time() - c0
+
+
+class _InitialState:
+    """An observer that keeps the plant's full physics state and warm start as the run starts."""
+
+    def __init__(self, plant: Plant) -> None:
+        self.plant = plant
+
+    def on_start(self, run, trace) -> None:  # noqa: ANN001
+        model, data = self.plant.model, self.plant.data
+        spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+        self.state = np.empty(mujoco.mj_stateSize(model, spec))
+        mujoco.mj_getState(model, data, self.state, spec)
+        self.warmstart = data.qacc_warmstart.copy()
+        self.ctrl = data.ctrl.copy()
+
+    def on_chunk(self, trace, start: int, stop: int) -> None: ...  # noqa: ANN001
+
+    def on_end(self, trace) -> None: ...  # noqa: ANN001
+
+
+class Replay:
+    """A closed-loop run's commands, to replay with ``mujoco.rollout`` from the run's initial state."""
+
+    def __init__(self, name: str, seconds: float, friction: str = "coulomb") -> None:
+        self.plant = Plant(friction=Friction(model=friction))
+        start = _InitialState(self.plant)
+        trace = simulate(self.plant, circle(), TimingLaw(2.0), create(name), seconds, observers=[start])
+        ctrl = np.tile(start.ctrl, (trace.t_s.size, 1))
+        ctrl[:, self.plant.motor_index] = trace.u_v
+        ctrl[:, self.plant.disturbance_index] = trace.disturbance_v
+        self.control = np.repeat(ctrl, self.plant.substeps, axis=0)[None]
+        self.initial, self.warmstart, self.q_m = start.state[None], start.warmstart[None], trace.q_m
+        self.data = mujoco.MjData(self.plant.model)
+
+    def run(self) -> np.ndarray:
+        """The rollout's states (1, steps, nstate)."""
+        model, data = self.plant.model, self.data
+        return rollout.rollout(model, data, self.initial, self.control, initial_warmstart=self.warmstart)[0]
+
+    def check(self) -> float:
+        """Largest |q| difference between the replay and the closed loop's true positions, m (0: the same physics)."""
+        states = self.run()[0]
+        qpos = states[self.plant.substeps - 1 :: self.plant.substeps, 1:][:, self.plant.qpos_index]
+        return float(np.max(np.abs(qpos[:-1] - self.q_m[1:])))
+
+    def timed(self) -> tuple[float, float]:
+        return _timed(self.run)
 
 
 #: The plants whose loop cost is compared: the paper's (Coulomb), the same with default LuGre friction, and the
@@ -134,12 +195,31 @@ def friction_costs(seconds: float, repeats: int, n: int) -> None:
         print(f"{name:<24}{c:10.2f}{g:10.2f}{r:10.2f}{g / c:15.2f}{r / c:13.2f}")
 
 
+def compile_costs() -> None:
+    """Cold compiles (fresh cache) of all four built-in loops and of one DIARC run, and the load of all four."""
+    builtin = tuple(name for name in CONTROLLERS if name != "example_pd")
+    with tempfile.TemporaryDirectory() as cache:
+        cold = _child(_FIRST_USE.format(names=builtin), cache)
+        warm = _child(_FIRST_USE.format(names=builtin), cache)
+    with tempfile.TemporaryDirectory() as cache:
+        alone = _child(_FIRST_USE.format(names=("diarc",)), cache)
+    rows = [
+        ("cold compile, all four built-in loops (target 10 s CPU)", cold),
+        ("cold compile, one DIARC run (target 5 s)", alone),
+        ("cache load, all four (target 0.3 s)", warm),
+    ]
+    print(f"numba, each in a fresh process (import {warm['import_s']:.2f} s CPU before it):")
+    for label, result in rows:
+        print(f"  {label:<58}{result['first_runs_cpu_s']:7.2f} s CPU {result['first_runs_wall_s']:7.2f} s wall")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=4.0, help="simulated seconds per loop measurement")
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--skip-memory", action="store_true")
     parser.add_argument("--friction-only", action="store_true", help="only the Coulomb / LuGre comparison")
+    parser.add_argument("--skip-compile", action="store_true", help="leave out the cold-compile measurements")
     args = parser.parse_args()
     ts = 2e-4
     n = int(round(args.seconds / ts))
@@ -147,51 +227,57 @@ def main() -> None:
     if args.friction_only:
         friction_costs(args.seconds, args.repeats, n)
         return
-    builtin = tuple(name for name in CONTROLLERS if name != "example_pd")
-    with tempfile.TemporaryDirectory() as cache:
-        cold = _child(_FIRST_USE.format(names=builtin), cache)
-        warm = _child(_FIRST_USE.format(names=builtin), cache)
-    print(
-        f"numba, first use with an empty cache (compile all kernels): {cold['first_runs_s']:.1f} s "
-        f"(import {cold['import_s']:.2f} s)"
-    )
-    print(
-        f"numba, later processes (load from cache):                  {warm['first_runs_s']:.2f} s "
-        f"(import {warm['import_s']:.2f} s)"
-    )
+    if not args.skip_compile:
+        compile_costs()
 
     _example_plugin()
-    for name in CONTROLLERS:  # load (or compile) every kernel before timing
-        loop(name, 0.01)
-    bare_key = "mj_step C loop"
-    results: dict[str, list[tuple[float, float]]] = {bare_key: []}
-    results.update({name: [] for name in CONTROLLERS})
+    replays = {name: Replay(name, args.seconds) for name in CONTROLLERS}  # also loads (or compiles) every loop
+    mismatch = max(replay.check() for replay in replays.values())
+    at_rest = "mj_step at rest"
+    results: dict[str, list[tuple[float, float]]] = {at_rest: []}
+    for name in CONTROLLERS:
+        results[name], results[f"{name} rollout"] = [], []
     for _ in range(args.repeats):
-        results[bare_key].append(bare_steps(n))
+        results[at_rest].append(bare_steps(n))
         for name in CONTROLLERS:
             results[name].append(loop(name, args.seconds))
+            results[f"{name} rollout"].append(replays[name].timed())
     ref_seconds = min(0.5, args.seconds)
     results["diarc (reference)"] = [loop("diarc", ref_seconds, "reference")]
     steps = {key: (int(round(ref_seconds / ts)) if "reference" in key else n) for key in results}
-
     best = {
         key: (min(w for w, _ in v) / steps[key] * 1e6, min(c for _, c in v) / steps[key] * 1e6)
         for key, v in results.items()
     }
-    bare_wall, bare_cpu = best[bare_key]
+
     print(
-        f"\nloops of {args.seconds:g} s simulated ({n} steps), best of {args.repeats}; "
-        f"simulate() with recording to memory and the derived errors, circle, default sensing"
+        f"\nloops of {args.seconds:g} s simulated ({n} steps), best of {args.repeats}; simulate() with recording to "
+        f"memory and the derived errors, circle, default sensing. Floor: each loop's own commands replayed with "
+        f"mujoco.rollout from its initial state (positions equal to the trace's within {mismatch:.1e} m)."
     )
-    print(f"{'loop':<24}{'us/step':>9}{'x C loop':>10}{'RT factor':>11}{'CPU us/step':>13}{'x C loop':>10}")
-    for key, (wall, cpu) in best.items():
-        label = key if key == bare_key or "reference" in key else f"{key} (compiled)"
-        print(f"{label:<24}{wall:9.2f}{wall / bare_wall:10.2f}{200.0 / wall:11.1f}{cpu:13.2f}{cpu / bare_cpu:10.2f}")
+    print(
+        f"{'loop':<22}{'wall us/step':>13}{'x rollout':>10}{'CPU us/step':>13}{'x rollout':>10}"
+        f"{'rollout wall':>14}{'rollout CPU':>13}{'x at rest':>11}"
+    )
+    rest_wall, rest_cpu = best[at_rest]
+    print(f"{at_rest:<22}{rest_wall:13.2f}{'':>10}{rest_cpu:13.2f}")
+    for key in [*CONTROLLERS, "diarc (reference)"]:
+        wall, cpu = best[key]
+        floor_wall, floor_cpu = best[f"{key.split()[0]} rollout"]
+        label = key if "reference" in key else f"{key} (compiled)"
+        print(
+            f"{label:<22}{wall:13.2f}{wall / floor_wall:10.2f}{cpu:13.2f}{cpu / floor_cpu:10.2f}"
+            f"{floor_wall:14.2f}{floor_cpu:13.2f}{floor_cpu / rest_cpu:11.2f}"
+        )
+
+    def ratio(name: str) -> str:
+        (wall, cpu), (floor_wall, floor_cpu) = best[name], best[f"{name} rollout"]
+        return f"{cpu / floor_cpu:.2f}x CPU, {wall / floor_wall:.2f}x wall"
+
     (pd_wall, pd_cpu), (ex_wall, ex_cpu) = best["pd"], best["example_pd"]
     print(
-        f"\nDIARC / C loop: {best['diarc'][0] / bare_wall:.2f}x wall, {best['diarc'][1] / bare_cpu:.2f}x CPU "
-        f"(target 1.4x); example plug-in / built-in pd: {ex_wall / pd_wall:.2f}x wall, {ex_cpu / pd_cpu:.2f}x CPU "
-        f"(target 1.15x)"
+        f"\nDIARC / its rollout: {ratio('diarc')} (target 1.25x); pd / its rollout: {ratio('pd')} (target 1.10x); "
+        f"example plug-in / built-in pd: {ex_cpu / pd_cpu:.2f}x CPU, {ex_wall / pd_wall:.2f}x wall"
     )
 
     friction_costs(args.seconds, args.repeats, n)

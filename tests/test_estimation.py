@@ -133,3 +133,43 @@ def test_least_squares_keeps_gamma_spd_and_recovers_parameters():
     assert eig.min() > 0 and np.allclose(gamma, gamma.T)
     assert lam == pytest.approx(eig.max())
     np.testing.assert_allclose(theta, true, rtol=0.02, atol=2e-3)
+
+
+def _pool_sizes(libraries) -> list[int]:  # noqa: ANN001
+    names = ("scipy_openblas_get_num_threads", "scipy_openblas_get_num_threads64_", "openblas_get_num_threads")
+    return [int(getattr(lib, next(n for n in names if hasattr(lib, n)))()) for lib in libraries]
+
+
+def test_one_blas_thread_holds_each_openblas_to_one_thread_and_restores_it():
+    from gantry_twin import linalg
+
+    with linalg.one_blas_thread():
+        libraries = linalg._OPENBLAS
+        inside = _pool_sizes(libraries)
+    if not libraries:
+        pytest.skip("no OpenBLAS library with a thread-local thread count next to numpy / scipy")
+    assert inside == [1] * len(libraries)
+    before = _pool_sizes(libraries)
+    with linalg.one_blas_thread():
+        pass
+    assert _pool_sizes(libraries) == before
+
+
+def test_filter_discretisation_runs_lapack_on_one_thread(monkeypatch):
+    """scipy's expm (LAPACK) at a DIARC reset would leave OpenBLAS threads spinning beside the loop."""
+    import contextlib
+
+    from gantry_twin import estimation
+
+    entered = []
+
+    @contextlib.contextmanager
+    def recording():
+        entered.append(True)
+        yield
+
+    monkeypatch.setattr(estimation, "one_blas_thread", recording)
+    disc = discretise_filter(2 * np.pi * 250.0, 0.7, 2e-4)
+    assert entered == [True]
+    monkeypatch.undo()
+    assert np.array_equal(discretise_filter(2 * np.pi * 250.0, 0.7, 2e-4).phi, disc.phi)

@@ -82,19 +82,31 @@ def cache_dir() -> str:
 _CACHE_DIR = cache_dir()
 
 
-def kernel(function: F | None = None, *, inline: bool = False) -> Any:
+def kernel(function: F | None = None, *, inline: bool = False, internal: bool = False) -> Any:
     """Compile ``function`` in nopython mode, cached on disk under :func:`cache_dir`.
 
-    ``@kernel(inline=True)``: numba inlines the function into its callers
-    (for per-sample kernels called once per sample that take large tuples:
-    a call would pass each of their arrays as separate arguments).
+    Each kernel compiles once per argument types and is cached on its own,
+    so the loops of several controllers share what they call (the plant's
+    half of the loop, the law, the linear algebra) instead of compiling it
+    into each. ``@kernel(inline=True)``: numba inlines the function's code
+    into each caller, re-typing it there; only for small glue and leaf kernels
+    (a few lines), where a compile of its own (and a call with every array of
+    the tuples as separate arguments) costs more. ``internal=True``: no
+    Python entry point (numba's CPython wrapper, which unboxes every array of
+    the nested tuples): for kernels that only other kernels call.
+    docs/performance.md ("Compile") has the measurements behind this split.
+    No kernel gets numba's C-callable wrapper (only first-class function
+    values need it).
     """
     if function is None:
-        return lambda f: kernel(f, inline=inline)
+        return lambda f: kernel(f, inline=inline, internal=internal)
     saved = numba.config.CACHE_DIR
     numba.config.CACHE_DIR = _CACHE_DIR  # read once, when the dispatcher's cache is created
     try:
-        return numba.njit(cache=True, inline="always" if inline else "never")(function)
+        options = {"no_cpython_wrapper": True} if internal else {}
+        return numba.njit(cache=True, inline="always" if inline else "never", no_cfunc_wrapper=True, **options)(
+            function
+        )
     finally:
         numba.config.CACHE_DIR = saved
 
@@ -226,6 +238,11 @@ def _borrow(typingctx: Any, value: Any) -> Any:
         return out
 
     return value(value), codegen
+
+
+#: The compiled form of :func:`borrowed`, for a template whose ``borrowed`` :func:`specialise` binds to it: an
+#: intrinsic, so no overload of the loop's nested tuple types compiles.
+borrow = _borrow
 
 
 @overload(borrowed)

@@ -33,7 +33,13 @@ import numpy as np
 from scipy.linalg import expm
 
 from gantry_twin._jit import kernel
-from gantry_twin.linalg import cholesky_factor, cholesky_solve, cholesky_substitute, largest_eigenvalue
+from gantry_twin.linalg import (
+    cholesky_factor,
+    cholesky_solve,
+    cholesky_substitute,
+    largest_eigenvalue,
+    one_blas_thread,
+)
 from gantry_twin.plant import AXES, THETA_NAMES
 from gantry_twin.settings import Range, Vector, validated
 
@@ -84,11 +90,12 @@ def discretise_filter(wn_rad_s: float, zeta: float, sample_period_s: float) -> F
     aug[:2, :2] = a
     aug[:2, 2] = b
     aug[2, 3] = 1.0  # the input w grows at its slope, which is held
-    e = expm(aug * sample_period_s)
+    with one_blas_thread():  # no OpenBLAS thread left spinning beside the loop that follows
+        e = expm(aug * sample_period_s)
     return FilterDiscretisation(e[:2, :2].copy(), e[:2, 2].copy(), e[:2, 3].copy(), wn_rad_s, zeta)
 
 
-@kernel
+@kernel(inline=True)
 def filter_advance(z, column, phi, hold, ramp, w_start, slope):
     """Advance the filter state z[:, column] = [w_f, w_f'] in place over one sample.
 
@@ -334,7 +341,7 @@ def least_squares_work(p: int, m: int, gamma: np.ndarray | None = None) -> Least
     )
 
 
-@kernel(inline=True)
+@kernel
 def least_squares_update(theta, gamma, g, target, nu, kappa, rho_max, lower, upper, sample_period_s, work):
     """One sample of eq. (27)-(28) with projection; updates theta, gamma in place.
 

@@ -4,16 +4,64 @@ Numba kernels (:mod:`gantry_twin._jit`) on float64 arrays, no LAPACK: the
 matrices are 2 x 2 to 8 x 8 and change a little every 0.2 ms sample, so a
 warm-started iteration beats a full decomposition (docs/performance.md), and
 an OpenBLAS call would leave its threads spinning on the other core while the
-loop runs.
+loop runs. :func:`one_blas_thread` holds OpenBLAS to one thread around the
+LAPACK calls made before a run (a filter's matrix exponential).
 """
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
+import glob
 import math
+import os
+from collections.abc import Iterator
 
 import numpy as np
 
 from gantry_twin._jit import kernel
+
+
+def _openblas_libraries() -> list[ctypes.CDLL]:
+    """The OpenBLAS libraries numpy's and scipy's wheels ship (``numpy.libs``, ``scipy.libs``) that can hold
+    their pool to one thread for the calling thread only (``openblas_set_num_threads_local``); none elsewhere."""
+    import scipy
+
+    site = os.path.dirname(os.path.dirname(scipy.__file__))
+    found = []
+    for path in sorted(glob.glob(os.path.join(site, "*.libs", "*openblas*"))):
+        try:
+            library = ctypes.CDLL(path)
+            library.openblas_set_num_threads_local.restype = ctypes.c_int
+        except (OSError, AttributeError):
+            continue
+        found.append(library)
+    return found
+
+
+_OPENBLAS: list[ctypes.CDLL] | None = None
+
+
+@contextlib.contextmanager
+def one_blas_thread() -> Iterator[None]:
+    """Hold OpenBLAS to the calling thread for the calls inside (this thread only; restored after).
+
+    For the few LAPACK calls a run makes outside the loop (scipy's ``expm`` of
+    a filter at a controller's reset): a call on several threads leaves
+    OpenBLAS's other threads spinning on the other cores for about 0.1 s after
+    it returns, which a loop measured in process CPU time pays
+    (docs/performance.md, "BLAS threads"). One thread gives the same numbers
+    for these 4 x 4 matrices.
+    """
+    global _OPENBLAS
+    if _OPENBLAS is None:
+        _OPENBLAS = _openblas_libraries()
+    previous = [library.openblas_set_num_threads_local(1) for library in _OPENBLAS]
+    try:
+        yield
+    finally:
+        for library, count in zip(_OPENBLAS, previous, strict=True):
+            library.openblas_set_num_threads_local(count)
 
 
 @kernel(inline=True)
@@ -48,7 +96,7 @@ def cholesky_substitute(factor, n, b, x):
         x[i] = acc / factor[i, i]
 
 
-@kernel
+@kernel(inline=True)
 def cholesky_solve(a, n, b, x, factor):
     """Solve a[:n, :n] x = b[:n] for symmetric positive definite a (Cholesky).
 
@@ -153,7 +201,7 @@ def largest_eigenvalue_exact(a, upper_bound, t, diag, off):
 EIGENVALUE_TOLERANCE = 1e-10
 
 
-@kernel(inline=True)
+@kernel
 def _orthonormalise(w, v):
     """v = Gram-Schmidt orthonormal basis of the two rows of w (2, p); False if they are dependent."""
     p = w.shape[1]
@@ -185,7 +233,7 @@ def _orthonormalise(w, v):
     return True
 
 
-@kernel(inline=True)
+@kernel
 def largest_eigenvalue(a, v, w, t, diag, off, upper_bound=math.inf, iterations=12):
     """lambda_max of a symmetric positive definite a (p x p), certified to EIGENVALUE_TOLERANCE.
 

@@ -48,8 +48,9 @@ from typing import Literal, NamedTuple, TypeVar
 import mujoco
 import numpy as np
 from numba import types
+from numba.core.registry import CPUDispatcher
 
-from gantry_twin._jit import borrowed, is_cached, kernel, source_digest, specialise
+from gantry_twin._jit import borrow, borrowed, is_cached, kernel, source_digest, specialise
 from gantry_twin._jit import reference as uncompiled
 from gantry_twin.contours import Contour, Reference, ReferenceStream, TimingLaw, contour_error
 from gantry_twin.controllers.base import (
@@ -171,7 +172,7 @@ class SampleWork(NamedTuple):
 STATUS_OK, STATUS_BAD_MEASUREMENT, STATUS_BAD_COMMAND = 0, 1, 2
 
 
-@kernel(inline=True)
+@kernel(internal=True)
 def _measure(plant, encoder, sample, changes, k):
     """The encoder's reading of sample k, glitches included; False if not finite."""
     q_true, dq_true = sample.q_true, sample.dq_true
@@ -182,7 +183,7 @@ def _measure(plant, encoder, sample, changes, k):
     return encoder_measure(encoder, q_true, dq_true, offset, hold, noise, sample.position, sample.velocity)
 
 
-@kernel(inline=True)
+@kernel(internal=True)
 def _record_and_step(plant, recording, k, sample, changes):
     """Check the command; record the sample (row k of the recording); hold u (clipped) and the disturbance
     (+ cogging, + the plant's own offset and ripple at the true position); mj_step ``plant.substeps`` times.
@@ -211,12 +212,12 @@ def _record_and_step(plant, recording, k, sample, changes):
     return True
 
 
-@kernel
+@kernel(internal=True)
 def _no_log(params, state, out):
     """The log of a controller that logs nothing."""
 
 
-@kernel(inline=True)
+@kernel(internal=True)
 def _record_log(recording, k, row):
     """Store the log row of the recording's row k into the log buffer (see :meth:`Trace.allocate_log`)."""
     log, sizes = recording.log, recording.log_sizes
@@ -271,8 +272,13 @@ def chunk_kernel(compiled: CompiledStep) -> Callable[..., tuple[int, int]]:
         log = compiled.log or _no_log
         py = getattr(compiled.step, "py_func", compiled.step)
         name = re.sub(r"\W", "_", f"{py.__module__}_{py.__qualname__}_{source_digest(compiled.step, log)}")
-        step = kernel(py, inline=True)  # inlined: no per-sample call passing every array of the tuples
-        found = specialise(_run_chunk, name, {"controller_step": step, "controller_log": log}, compiled=True)
+        # The step's own code is inlined (it is typed once, in here: a separate compile would be finalised twice,
+        # and each sample would pass every array of its tuples); what it calls (the law, the least squares, ...) and
+        # the log are kernels compiled and cached once, which the chunk links. docs/performance.md, "Compile".
+        step = kernel(py, inline=True)
+        log = log if isinstance(log, CPUDispatcher) else kernel(log)
+        bindings = {"controller_step": step, "controller_log": log, "borrowed": borrow}
+        found = specialise(_run_chunk, name, bindings, compiled=True)
         _chunk_kernels[compiled] = found
     return found
 

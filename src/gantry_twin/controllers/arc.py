@@ -199,7 +199,7 @@ class ArcState(NamedTuple):
     law: LawWork
 
 
-@kernel
+@kernel(internal=True)
 def estimator_start(params, est, q_m, dq_m_s, u_v):
     """Put each filter in steady state for the first sample's inputs."""
     wn, zeta = params.estimator.filter_wn_rad_s, params.estimator.filter_zeta
@@ -214,7 +214,7 @@ def estimator_start(params, est, q_m, dq_m_s, u_v):
     clock[CLOCK_STARTED] = 1.0
 
 
-@kernel(inline=True)
+@kernel(inline=True, internal=True)
 def estimator_regression(params, est, q_m, dq_m_s, u_previous_v):
     """Advance the filters to this sample (eq. 25); fill est.regression (gamma_f) and est.u_f.
 
@@ -246,7 +246,7 @@ def estimator_regression(params, est, q_m, dq_m_s, u_previous_v):
             u_f[axis] = 0.0
 
 
-@kernel(inline=True)
+@kernel(inline=True, internal=True)
 def estimator_update(params, theta, est, q_m, dq_m_s, u_previous_v):
     """One sample of the indirect estimator: filter, then least squares on theta (in place)."""
     estimator_regression(params, est, q_m, dq_m_s, u_previous_v)
@@ -270,7 +270,7 @@ def estimator_update(params, theta, est, q_m, dq_m_s, u_previous_v):
     )
 
 
-@kernel(inline=True)
+@kernel(inline=True, internal=True)
 def _law(params, state, q_m, dq_m_s, ref, u_v):
     """The shared law (eq. 13-14, 17, 21) with this controller's theta^ and dc^; the command into u_v (2,) V."""
     law = state.law
@@ -318,7 +318,7 @@ def diarc_step(params, state, t_s, q_m, dq_m_s, ref, u_v):
         dc[i] = clip(dc[i] + ts * gamma_d[i] * s_c[i], -dc_max[i], dc_max[i])
 
 
-@kernel
+@kernel(internal=True)
 def log_theta(params, state, out):
     """DARC's log: theta_hat (8,)."""
     theta = state.theta
@@ -326,7 +326,7 @@ def log_theta(params, state, out):
         out[j] = theta[j]
 
 
-@kernel
+@kernel(internal=True)
 def log_diarc(params, state, out):
     """DIARC's log: theta_hat (8,), dc_hat (2,), gamma_diag (8,), gamma_lambda_max."""
     theta, dc, gamma = state.theta, state.dc, state.estimator.gamma
