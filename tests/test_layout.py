@@ -172,15 +172,18 @@ def test_no_module_over_the_line_limit(name):
 
 
 LOOP = f"{PACKAGE}.simulate"
+#: The loop's modules: the driver and the one sample it runs.
+LOOP_MODULES = (LOOP, f"{PACKAGE}.sample_loop")
 #: The loop runs any controller through the plug-in protocol; these belong to particular controllers.
 CONTROLLER_WORDS = ("DRC", "DARC", "DIARC", "PD", "drc", "darc", "diarc", "theta_hat", "dc_hat", "gamma_diag")
 
 
-def test_the_loop_names_no_controller(graph):
+@pytest.mark.parametrize("loop", LOOP_MODULES)
+def test_the_loop_names_no_controller(graph, loop):
     controllers = {name for name in module_names() if name.startswith(f"{PACKAGE}.controllers.")}
-    assert graph[LOOP] & controllers <= {f"{PACKAGE}.controllers.base"}
+    assert graph[loop] & controllers <= {f"{PACKAGE}.controllers.base"}
     words = set()
-    for node in ast.walk(ast.parse(module_names()[LOOP].read_text(encoding="utf-8"))):
+    for node in ast.walk(ast.parse(module_names()[loop].read_text(encoding="utf-8"))):
         if isinstance(node, ast.Name | ast.alias | ast.Attribute):
             words.add(getattr(node, "id", None) or getattr(node, "attr", None) or node.asname or node.name)
         elif isinstance(node, ast.Constant) and isinstance(node.value, str):
@@ -279,10 +282,11 @@ def test_no_reference_a_clone_cannot_follow(path):
     assert found == [], "cite the paper's equations or the repository's docs:\n" + "\n".join(found)
 
 
-def test_the_loop_names_no_path_type(graph):
+@pytest.mark.parametrize("loop", LOOP_MODULES)
+def test_the_loop_names_no_path_type(graph, loop):
     """The loop runs any contour through the Contour protocol: it names no particular curve."""
     words = set()
-    for node in ast.walk(ast.parse(module_names()[LOOP].read_text(encoding="utf-8"))):
+    for node in ast.walk(ast.parse(module_names()[loop].read_text(encoding="utf-8"))):
         if isinstance(node, ast.Name | ast.Attribute):
             words.add(getattr(node, "id", None) or getattr(node, "attr", None))
     assert not words & {"Circle", "Ellipse", "circle", "paper_ellipse", "Polyline", "GcodeProgram"}

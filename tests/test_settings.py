@@ -230,7 +230,7 @@ def test_a_vanishing_filter_frequency_is_refused_from_python_and_from_a_scenario
 def test_the_named_estimators_and_default_gains_are_inside_the_ranges():
     from dataclasses import asdict
 
-    from gantry_twin.controllers.arc import NAMED_ESTIMATORS
+    from gantry_twin.controllers.estimator import NAMED_ESTIMATORS
 
     for named in NAMED_ESTIMATORS.values():
         assert EstimatorSettings(**asdict(named)) == named

@@ -1,38 +1,25 @@
 """DIARC's indirect estimator and the projections (paper eq. 8-9, 16, 25-28).
 
-The equations (docs/equations.md, the estimator):
-
-* Each axis is filtered by Hf(s) = wn^2 / (s^2 + 2 z wn s + wn^2). The filters
-  are discretised exactly for how each input behaves between samples: the
-  position moves continuously, so it is treated as piecewise linear
-  (first-order hold); the input u, Sf(q') and the constant are held
-  (zero-order hold). A zero-order hold on the position would turn each
-  sample's jump into a saw-tooth in x_f''.
-* Least squares with covariance limiting (eq. 27-28), rho_M capping only the
-  growth from forgetting.
-* The discrete projection in the Gamma^-1 metric (the discrete form of
-  eq. 16) and the element-wise projection for a diagonal gain (eq. 9).
-
-The small dense linear algebra they need (Cholesky, lambda_max) is in
-:mod:`gantry_twin.linalg`.
-
-The per-sample functions are numba kernels (:mod:`gantry_twin._jit`) on
-float64 arrays that work in place or into preallocated workspaces; the
-functions taking settings objects (:func:`least_squares_step`,
-:func:`project_metric`) are the convenient public forms; :func:`filter_run`
-runs a filter over a whole signal (the health monitor's use).
+Owns the filters Hf of eq. (25), discretised exactly (the position with a
+first-order hold, the held inputs with a zero-order hold), their steady-state
+start, the least squares of eq. (27-28) and the projections (eq. 9, 16): the
+equations are in docs/equations.md ("The estimator"). The per-sample kernels
+serve DIARC's step; :func:`filter_run` and :func:`filter_axis` run the same
+filters over whole signals (excitation, identification). Cholesky and
+lambda_max are in :mod:`gantry_twin.linalg`.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
 from scipy.linalg import expm
 
-from gantry_twin._jit import kernel
+from gantry_twin._jit import kernel, reference
 from gantry_twin.linalg import (
     cholesky_factor,
     cholesky_solve,
@@ -125,6 +112,47 @@ def filter_run(z, column, phi, hold, ramp, w_start, slope, out):
 def filtered_acceleration(w_f, dw_f, wn_rad_s, zeta, w_now):
     """w_f'' = wn^2 (w - w_f) - 2 z wn w_f' at the sample time."""
     return wn_rad_s * wn_rad_s * (w_now - w_f) - 2.0 * zeta * wn_rad_s * dw_f
+
+
+@kernel(inline=True)
+def filter_start(z, wn_rad_s, zeta, q_m, v_m_s):
+    """Hf (eq. 25) in steady state for a position moving at v: column 0 of z (2, k) becomes (w_f, w_f') =
+    (q - (2 zeta / wn) v, v). A held input's column is (value, 0), set by the caller. The estimator's start
+    and the offline filters (:func:`filter_steady_state`) both use it."""
+    lag = 2.0 * zeta / wn_rad_s
+    z[0, 0] = q_m - lag * v_m_s
+    z[1, 0] = v_m_s
+
+
+def filter_steady_state(disc: FilterDiscretisation, q_m: float, v_m_s: float, held: Sequence[float]) -> np.ndarray:
+    """Filter states (2, 1 + k) of one axis in steady state: the position moving at v, the k inputs held.
+
+    Columns as :func:`filter_axis` keeps them: [q, held...]; rows [w_f, w_f'].
+    """
+    z = np.zeros((2, 1 + len(held)))
+    reference(filter_start)(z, disc.wn_rad_s, disc.zeta, q_m, v_m_s)
+    z[0, 1:] = held
+    return z
+
+
+def filter_axis(
+    z: np.ndarray, disc: FilterDiscretisation, q: np.ndarray, prev: np.ndarray, held: np.ndarray, ts: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Advance one axis' filter states z (2, 1 + k) in place through n samples, as DIARC's estimator does.
+
+    Sample j: the position rises linearly from prev[j] to q[j] (first-order
+    hold), the k inputs held[j] (n, k) are held (zero-order hold). Returns
+    x_f'' (n,) at the sample time, x_f' (n,) and the filtered inputs (n, k).
+    """
+    n = q.shape[0]
+    zq, scratch = np.empty((n, 2)), np.empty((n, 2))
+    filtered = np.empty((n, held.shape[1]))
+    zero = np.zeros(n)
+    filter_run(z, 0, disc.phi, disc.hold, disc.ramp, np.ascontiguousarray(prev), (q - prev) / ts, zq)
+    for j in range(held.shape[1]):
+        filter_run(z, 1 + j, disc.phi, disc.hold, disc.ramp, np.ascontiguousarray(held[:, j]), zero, scratch)
+        filtered[:, j] = scratch[:, 0]
+    return filtered_acceleration(zq[:, 0], zq[:, 1], disc.wn_rad_s, disc.zeta, q), zq[:, 1].copy(), filtered
 
 
 def filter_acceleration(z: np.ndarray, disc: FilterDiscretisation, w_now: float) -> float:

@@ -20,7 +20,7 @@ controller) stops the run with a :class:`SimulationError` that names the
 time and the sample; the samples before it are recorded, shown to the
 observers and kept in the error's ``trace``.
 
-One sample is written once, in :func:`_run_chunk`: plant changes
+One sample is written once, in :func:`run_chunk`: plant changes
 (:mod:`gantry_twin.faults`), the encoder (:mod:`gantry_twin.sensing`), the
 controller, clipping and recording, MuJoCo's step. Two backends run it
 (docs/performance.md):
@@ -38,19 +38,14 @@ controller, clipping and recording, MuJoCo's step. Two backends run it
 
 from __future__ import annotations
 
-import glob
 import math
-import os
-import re
 from collections.abc import Callable, Sequence
-from typing import Literal, NamedTuple, TypeVar
+from typing import Literal, TypeVar
 
 import mujoco
 import numpy as np
-from numba import types
-from numba.core.registry import CPUDispatcher
 
-from gantry_twin._jit import borrow, borrowed, is_cached, kernel, source_digest, specialise
+from gantry_twin._jit import is_cached, specialise
 from gantry_twin._jit import reference as uncompiled
 from gantry_twin.contours import Contour, Reference, ReferenceStream, TimingLaw, contour_error
 from gantry_twin.controllers.base import (
@@ -61,17 +56,24 @@ from gantry_twin.controllers.base import (
     RunContext,
     compiled_step_of,
 )
-from gantry_twin.estimation import clip
 from gantry_twin.faults import (
     ChangeSchedule,
     PlantChanges,
-    apply_plant_changes,
     change_schedule,
-    cogging_force,
     sensor_glitches,
 )
 from gantry_twin.plant import Plant, operating_point_m
-from gantry_twin.plant_effects import plant_input_v
+from gantry_twin.sample_loop import (
+    STATUS_BAD_COMMAND,
+    STATUS_BAD_MEASUREMENT,
+    PlantIO,
+    Recording,
+    SampleWork,
+    chunk_kernel,
+    mj_step,
+    record_and_step,
+    run_chunk,
+)
 from gantry_twin.sensing import Encoder, SensingConfig, encoder_measure
 from gantry_twin.taskframe import normal_errors
 from gantry_twin.trace import Observer, RunInfo, SimulationError, Trace
@@ -91,196 +93,6 @@ def _finish_chunk(trace: Trace, ref: Reference, path: Contour, start: int, stop:
 
 
 Backend = Literal["auto", "compiled", "reference"]
-
-
-def _load_mj_step() -> types.ExternalFunction | None:
-    """MuJoCo's C ``mj_step(const mjModel*, mjData*)`` for numba, or None if the library is not found.
-
-    The mujoco wheel ships ``libmujoco.so.*`` (``libmujoco*.dylib`` on macOS)
-    next to its Python module, which has already loaded it; making its
-    symbols visible to LLVM lets compiled code call ``mj_step`` by name.
-    The pointers are passed as integers (MjModel._address, MjData._address).
-    """
-    import llvmlite.binding as llvm
-
-    here = os.path.dirname(mujoco.__file__)
-    for pattern in ("libmujoco.so*", "libmujoco*.dylib"):
-        for path in sorted(glob.glob(os.path.join(here, pattern))):
-            try:
-                llvm.load_library_permanently(path)
-            except RuntimeError:
-                continue
-            return types.ExternalFunction("mj_step", types.void(types.intp, types.intp))
-    return None
-
-
-mj_step = _load_mj_step()
-
-
-class PlantIO(NamedTuple):
-    """What the loop touches in MuJoCo: raw pointers, views into mjData, indices, the DAC limits (2,) V,
-    physics steps per sample, the plant's own input offset and force ripple
-    (:func:`gantry_twin.plant_effects.input_table`).
-    """
-
-    model_address: int
-    data_address: int
-    qpos: np.ndarray
-    qvel: np.ndarray
-    ctrl: np.ndarray
-    qpos_index: np.ndarray
-    dof_index: np.ndarray
-    motor_index: np.ndarray
-    disturbance_index: np.ndarray
-    u_max_v: np.ndarray
-    substeps: int
-    input_table: np.ndarray
-
-
-class Recording(NamedTuple):
-    """The loop's inputs (sample times, reference rows, disturbance) and the trace arrays it writes.
-
-    Row j holds sample first + j of the run. log: a compiled controller's log
-    buffer (:meth:`Trace.allocate_log`; empty for none), log_sizes (keys,)
-    the size of each logged value.
-    """
-
-    first: int
-    t_s: np.ndarray
-    rows: np.ndarray
-    disturbance_v: np.ndarray
-    q_m: np.ndarray
-    q_meas_m: np.ndarray
-    u_v: np.ndarray
-    log: np.ndarray
-    log_sizes: np.ndarray
-
-
-class SampleWork(NamedTuple):
-    """One sample: true position m and velocity m/s, measured position m and velocity m/s, command V,
-    the controller's log row."""
-
-    q_true: np.ndarray
-    dq_true: np.ndarray
-    position: np.ndarray
-    velocity: np.ndarray
-    command: np.ndarray
-    log_row: np.ndarray
-
-
-#: Status codes of the chunk function.
-STATUS_OK, STATUS_BAD_MEASUREMENT, STATUS_BAD_COMMAND = 0, 1, 2
-
-
-@kernel(internal=True)
-def _measure(plant, encoder, sample, changes, k):
-    """The encoder's reading of sample k, glitches included; False if not finite."""
-    q_true, dq_true = sample.q_true, sample.dq_true
-    for i in range(2):
-        q_true[i] = plant.qpos[plant.qpos_index[i]]
-        dq_true[i] = plant.qvel[plant.dof_index[i]]
-    offset, hold, noise = sensor_glitches(changes, k)
-    return encoder_measure(encoder, q_true, dq_true, offset, hold, noise, sample.position, sample.velocity)
-
-
-@kernel(internal=True)
-def _record_and_step(plant, recording, k, sample, changes):
-    """Check the command; record the sample (row k of the recording); hold u (clipped) and the disturbance
-    (+ cogging, + the plant's own offset and ripple at the true position); mj_step ``plant.substeps`` times.
-
-    Returns False if the command is not finite.
-    """
-    command = sample.command
-    for i in range(2):
-        if not math.isfinite(command[i]):
-            return False
-    ctrl, u_max_v, motors, disturbances = plant.ctrl, plant.u_max_v, plant.motor_index, plant.disturbance_index
-    q_true, position, disturbance_v = sample.q_true, sample.position, recording.disturbance_v
-    for i in range(2):
-        u = clip(command[i], -u_max_v[i], u_max_v[i])
-        recording.q_m[k, i] = q_true[i]
-        recording.q_meas_m[k, i] = position[i]
-        recording.u_v[k, i] = u
-        ctrl[motors[i]] = u
-        if changes.cogging[i, 0] != 0.0:
-            ctrl[disturbances[i]] = disturbance_v[k, i] + cogging_force(changes.cogging, i, q_true[i])
-        else:
-            ctrl[disturbances[i]] = disturbance_v[k, i]
-        ctrl[disturbances[i]] += plant_input_v(plant.input_table, i, q_true[i])
-    for _ in range(plant.substeps):
-        mj_step(plant.model_address, plant.data_address)
-    return True
-
-
-@kernel(internal=True)
-def _no_log(params, state, out):
-    """The log of a controller that logs nothing."""
-
-
-@kernel(internal=True)
-def _record_log(recording, k, row):
-    """Store the log row of the recording's row k into the log buffer (see :meth:`Trace.allocate_log`)."""
-    log, sizes = recording.log, recording.log_sizes
-    if log.shape[0] == 0:
-        return
-    n = recording.t_s.shape[0]
-    block, at = 0, 0
-    for j in range(sizes.shape[0]):
-        size = sizes[j]
-        for i in range(size):
-            log[block + k * size + i] = row[at + i]
-        block += n * size
-        at += size
-
-
-@kernel
-def _run_chunk(start, stop, plant, encoder, recording, sample, changes, params, state):
-    """Samples [start, stop) of the run: changes -> measure -> control -> record -> mj_step; returns (status,
-    sample index): (STATUS_OK, stop) or the failed status and the sample it failed at, nothing of it recorded.
-
-    ``controller_step`` and ``controller_log`` are the controller's kernels,
-    bound per controller by :func:`chunk_kernel` (compiled) or :func:`_python_chunk`.
-    """
-    plant, encoder, recording, sample, changes, params, state = borrowed(
-        (plant, encoder, recording, sample, changes, params, state)
-    )
-    t_s, rows, position, velocity = recording.t_s, recording.rows, sample.position, sample.velocity
-    for k in range(start, stop):
-        j = k - recording.first
-        apply_plant_changes(plant.dof_index, changes, k)
-        if not _measure(plant, encoder, sample, changes, k):
-            return STATUS_BAD_MEASUREMENT, k
-        controller_step(params, state, t_s[j], position, velocity, rows[j], sample.command)  # noqa: F821
-        if not _record_and_step(plant, recording, j, sample, changes):
-            return STATUS_BAD_COMMAND, k
-        controller_log(params, state, sample.log_row)  # noqa: F821
-        _record_log(recording, j, sample.log_row)
-    return STATUS_OK, stop
-
-
-_chunk_kernels: dict[CompiledStep, Callable[..., tuple[int, int]]] = {}
-
-
-def chunk_kernel(compiled: CompiledStep) -> Callable[..., tuple[int, int]]:
-    """The compiled chunk function for a controller's compiled step (created once, compiled on first call).
-
-    Its name carries a digest of the step's and log's source files, so an
-    edited plug-in compiles anew; numba caches it on disk like every kernel.
-    """
-    found = _chunk_kernels.get(compiled)
-    if found is None:
-        log = compiled.log or _no_log
-        py = getattr(compiled.step, "py_func", compiled.step)
-        name = re.sub(r"\W", "_", f"{py.__module__}_{py.__qualname__}_{source_digest(compiled.step, log)}")
-        # The step's own code is inlined (it is typed once, in here: a separate compile would be finalised twice,
-        # and each sample would pass every array of its tuples); what it calls (the law, the least squares, ...) and
-        # the log are kernels compiled and cached once, which the chunk links. docs/performance.md, "Compile".
-        step = kernel(py, inline=True)
-        log = log if isinstance(log, CPUDispatcher) else kernel(log)
-        bindings = {"controller_step": step, "controller_log": log, "borrowed": borrow}
-        found = specialise(_run_chunk, name, bindings, compiled=True)
-        _chunk_kernels[compiled] = found
-    return found
 
 
 def loop_needs_compiling(controller: Controller) -> bool:
@@ -545,11 +357,11 @@ def _python_chunk(plant: Plant, controller: Controller, loop: _Loop) -> Callable
     def python_mj_step(model_address: int, data_address: int) -> None:
         mujoco.mj_step(plant.model, plant.data)  # called plant.substeps times per sample, as the compiled loop
 
-    record_and_step = specialise(_record_and_step, "python", {"mj_step": python_mj_step}, compiled=False)
+    python_step = specialise(record_and_step, "python", {"mj_step": python_mj_step}, compiled=False)
     bindings = {
         "controller_step": step,
         "controller_log": lambda params, state, out: None,
-        "_record_log": record_log,
-        "_record_and_step": record_and_step,
+        "record_log": record_log,
+        "record_and_step": python_step,
     }
-    return specialise(_run_chunk, "python", bindings, compiled=False)
+    return specialise(run_chunk, "python", bindings, compiled=False)

@@ -1,6 +1,6 @@
 """Controllers and their plug-in registry (see :mod:`.base` for the protocol)."""
 
-from gantry_twin.controllers.arc import DARC, DIARC, DRC, RECOMMENDED_ESTIMATOR, EstimatorSettings
+from gantry_twin.controllers.arc import DARC, DIARC, DRC
 from gantry_twin.controllers.base import (
     Controller,
     Measurement,
@@ -11,6 +11,7 @@ from gantry_twin.controllers.base import (
     register,
     unregister,
 )
+from gantry_twin.controllers.estimator import RECOMMENDED_ESTIMATOR, EstimatorSettings
 from gantry_twin.controllers.law import ArcGains
 from gantry_twin.controllers.pd import PD
 

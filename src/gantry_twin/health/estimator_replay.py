@@ -8,7 +8,7 @@ only the estimator's kernels.
 from __future__ import annotations
 
 from gantry_twin._jit import kernel
-from gantry_twin.controllers.arc import estimator_start, estimator_update
+from gantry_twin.controllers.estimator import estimator_start, estimator_update
 
 
 @kernel

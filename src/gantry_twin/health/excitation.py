@@ -13,7 +13,6 @@ error against sign(v). An estimate is trustworthy when excited, its axis sliding
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from typing import Protocol
 
 import numpy as np
@@ -23,13 +22,12 @@ from gantry_twin.estimation import (
     FRICTION_SLOPE_S_M,
     PAPER_FILTER_HZ,
     PAPER_FILTER_ZETA,
-    FilterDiscretisation,
     FilterHz,
     FilterZeta,
     FrictionSlope,
     discretise_filter,
-    filter_run,
-    filtered_acceleration,
+    filter_axis,
+    filter_steady_state,
     friction_shape,
 )
 from gantry_twin.sensing import ENCODER_RESOLUTION_M
@@ -276,38 +274,6 @@ def accumulate_moment(g, error, size, weight, first_index, period, acc, blocks):
             acc[:] = 0.0
             m += 1
     return m
-
-
-def filter_steady_state(disc: FilterDiscretisation, q_m: float, v_m_s: float, held: Sequence[float]) -> np.ndarray:
-    """Filter states (2, 1 + k) of one axis in steady state: the position moving at v, the k inputs held.
-
-    Columns as :func:`filter_axis` keeps them: [q, held...]; rows [w_f, w_f'].
-    """
-    lag = 2.0 * disc.zeta / disc.wn_rad_s
-    z = np.zeros((2, 1 + len(held)))
-    z[:, 0] = (q_m - lag * v_m_s, v_m_s)
-    z[0, 1:] = held
-    return z
-
-
-def filter_axis(
-    z: np.ndarray, disc: FilterDiscretisation, q: np.ndarray, prev: np.ndarray, held: np.ndarray, ts: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Advance one axis' filter states z (2, 1 + k) in place through n samples, as DIARC's estimator does.
-
-    Sample j: the position rises linearly from prev[j] to q[j] (first-order
-    hold), the k inputs held[j] (n, k) are held (zero-order hold). Returns
-    x_f'' (n,) at the sample time, x_f' (n,) and the filtered inputs (n, k).
-    """
-    n = q.shape[0]
-    zq, scratch = np.empty((n, 2)), np.empty((n, 2))
-    filtered = np.empty((n, held.shape[1]))
-    zero = np.zeros(n)
-    filter_run(z, 0, disc.phi, disc.hold, disc.ramp, np.ascontiguousarray(prev), (q - prev) / ts, zq)
-    for j in range(held.shape[1]):
-        filter_run(z, 1 + j, disc.phi, disc.hold, disc.ramp, np.ascontiguousarray(held[:, j]), zero, scratch)
-        filtered[:, j] = scratch[:, 0]
-    return filtered_acceleration(zq[:, 0], zq[:, 1], disc.wn_rad_s, disc.zeta, q), zq[:, 1].copy(), filtered
 
 
 def normalised_excitation(info: np.ndarray, scale: np.ndarray, window_s: float) -> tuple[np.ndarray, np.ndarray]:
