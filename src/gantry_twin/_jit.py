@@ -160,11 +160,6 @@ def _globals_for(module_globals: dict[str, Any]) -> dict[str, Any]:
     return env
 
 
-def reference_globals(module_globals: dict[str, Any]) -> dict[str, Any]:
-    """A copy of a module's globals in which every kernel is its uncompiled reference version."""
-    return _globals_for(module_globals)
-
-
 def specialise(template: Callable[..., Any], name: str, bindings: dict[str, Any], compiled: bool) -> Callable[..., Any]:
     """A copy of kernel ``template`` whose globals ``bindings`` (name -> kernel or value) are replaced.
 
