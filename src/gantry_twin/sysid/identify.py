@@ -19,8 +19,17 @@ from pathlib import Path
 
 import numpy as np
 
-from gantry_twin.estimation import discretise_filter, filter_axis, filter_steady_state, friction_shape
+from gantry_twin.estimation import (
+    FilterHz,
+    FilterZeta,
+    FrictionSlope,
+    discretise_filter,
+    filter_axis,
+    filter_steady_state,
+    friction_shape,
+)
 from gantry_twin.plant import AXES, THETA_NAMES, THETA_UNITS, build_spec, moving_masses_kg
+from gantry_twin.settings import Count, Range, validated
 from gantry_twin.sysid.logs import Log, centred_velocity
 
 #: Columns of one axis' regression, in THETA_NAMES' per-axis order.
@@ -29,7 +38,7 @@ COLUMNS = ("M", "B", "Af", "dN")
 Z95 = 1.959963984540054
 
 
-@dataclass(frozen=True)
+@validated("identify")
 class IdentifySettings:
     """How :func:`identify` filters and selects the samples (module docstring).
 
@@ -41,13 +50,13 @@ class IdentifySettings:
     hac_lag_s: the lag over which the residuals are taken as correlated, s.
     """
 
-    filter_hz: tuple[float, float] = (50.0, 50.0)
-    filter_zeta: float = 0.7
-    friction_slope_s_m: float = 1.0e6
-    velocity_half_width: int = 5
-    sliding_speed_m_s: float = 2.0e-3
-    stick_memory_s: float = 0.03
-    hac_lag_s: float = 0.05
+    filter_hz: FilterHz = (50.0, 50.0)
+    filter_zeta: FilterZeta = 0.7
+    friction_slope_s_m: FrictionSlope = 1.0e6
+    velocity_half_width: Count(1, 500) = 5
+    sliding_speed_m_s: Range(0.0, 1.0, "m/s", lo_open=True) = 2.0e-3
+    stick_memory_s: Range(0.0, 10.0, "s") = 0.03
+    hac_lag_s: Range(0.0, 60.0, "s") = 0.05
 
 
 @dataclass(frozen=True)

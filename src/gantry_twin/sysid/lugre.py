@@ -32,6 +32,7 @@ from gantry_twin.friction import (
     steady_force_n,
 )
 from gantry_twin.plant import AXES, Plant, moving_masses_kg
+from gantry_twin.settings import Count, Frequency, Range, validated
 from gantry_twin.sysid.identify import Identified, axis_regressions, plant_xml
 from gantry_twin.sysid.logs import Log, centred_velocity
 from gantry_twin.sysid.replay import VELOCITY_FIT_S, replay_windows
@@ -43,7 +44,7 @@ MIN_STEADY_BINS = 4
 LUGRE_NAMES = ("fc_n", "fs_n", "vs_m_s", "sigma2_ns_m", "sigma0_n_m", "sigma1_ns_m")
 
 
-@dataclass(frozen=True)
+@validated("lugre")
 class LuGreSettings:
     """How the LuGre stages select and fit (module docstring).
 
@@ -57,20 +58,20 @@ class LuGreSettings:
     max_windows: at most this many windows per log (evenly chosen).
     """
 
-    sliding_speed_m_s: float = 0.3e-3
-    stick_memory_s: float = 0.03
-    filter_hz: float = 50.0
-    steady_s: float = 0.2
-    steady_segment_s: float = 0.05
-    steady_rel: float = 0.05
-    steady_abs_m_s: float = 2.0e-5
-    fast_speed_m_s: float = 0.1
-    bins_per_decade: int = 8
-    min_bin_samples: int = 20
-    reversal_before_s: float = 0.01
-    reversal_after_s: float = 0.03
-    reversal_speed_m_s: float = 0.02
-    max_windows: int = 200
+    sliding_speed_m_s: Range(0.0, 1.0, "m/s", lo_open=True) = 0.3e-3
+    stick_memory_s: Range(0.0, 10.0, "s") = 0.03
+    filter_hz: Frequency = 50.0
+    steady_s: Range(0.0, 10.0, "s", lo_open=True) = 0.2
+    steady_segment_s: Range(0.0, 10.0, "s", lo_open=True) = 0.05
+    steady_rel: Range(0.0, 1.0) = 0.05
+    steady_abs_m_s: Range(0.0, 1.0, "m/s") = 2.0e-5
+    fast_speed_m_s: Range(0.0, 10.0, "m/s", lo_open=True) = 0.1
+    bins_per_decade: Count(1, 100) = 8
+    min_bin_samples: Count(1, 10**6) = 20
+    reversal_before_s: Range(0.0, 10.0, "s") = 0.01
+    reversal_after_s: Range(0.0, 10.0, "s", lo_open=True) = 0.03
+    reversal_speed_m_s: Range(0.0, 10.0, "m/s", lo_open=True) = 0.02
+    max_windows: Count(1, 10**5) = 200
 
 
 @dataclass(frozen=True)
