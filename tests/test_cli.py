@@ -62,7 +62,7 @@ MALFORMED = [
     ("offset_out_of_plate", "payload: {offset_m: [0, 0, 1.0]}\n", "payload.offset_m[2]", "[-0.2, 0.2] m"),
     ("window_outside_duration", "window_s: [5, 40]\n", "window_s", "inside [0, duration_s = 30] s"),
     ("window_reversed", "window_s: [4, 2]\n", "window_s", "end must be after start"),
-    ("default_window_too_long", "duration_s: 1\n", "window_s", "set window_s inside [0, 1] s"),
+    ("window_past_a_short_run", "duration_s: 1\nwindow_s: [0.5, 2]\n", "window_s", "inside [0, duration_s = 1] s"),
     ("estimates_window_outside", "estimates_window_s: [29, 31]\n", "estimates_window_s", "inside [0, duration_s"),
     ("window_between_samples", "window_s: [0.10001, 0.10011]\n", "window_s", "holds no sample"),
     (

@@ -283,3 +283,18 @@ def test_exponent_without_a_decimal_point_is_a_number():
     from gantry_twin.scenario.loading import load_yaml
 
     assert load_yaml("a: 1e-300\nb: [5e7, -2E-3, +1e2]\nc: e5") == {"a": 1e-300, "b": [5e7, -2e-3, 1e2], "c": "e5"}
+
+
+@pytest.mark.parametrize(
+    ("duration_s", "start", "metric", "estimates"),
+    [
+        (30.0, "on_path", (math.pi, 2 * math.pi), (30.0 - math.pi, 30.0)),  # the paper's windows
+        (5.0, "on_path", (5.0 - math.pi, 5.0), (5.0 - math.pi, 5.0)),  # [T, 2T] past the end: the last period
+        (2.0, "rest", (0.5, 2.0), (0.5, 2.0)),  # shorter than T: the run after the ramp
+    ],
+)
+def test_default_windows_follow_a_short_run(duration_s, start, metric, estimates):
+    """A quick `--set duration_s=5` runs without window overrides; the rule is the documented one."""
+    scenario = load_scenario(shipped("no_load_circle"), [f"duration_s={duration_s}", f"contour.timing.start={start}"])
+    assert scenario.metric_window_s == pytest.approx(metric)
+    assert scenario.estimate_window_s == pytest.approx(estimates)

@@ -345,18 +345,29 @@ class Scenario(Model):
 
     @property
     def metric_window_s(self) -> tuple[float, float]:
-        """window_s, or the second period [t0 + T, t0 + 2T] (t0: end of the start ramp)."""
+        """window_s, or by default the paper's second period [t0 + T, t0 + 2T] (t0: end of the start ramp)
+        when the run holds it; in a shorter run the last whole period [d - T, d] after t0, else the run after
+        the ramp [t0, d] (docs/scenarios.md, "Windows")."""
         if self.window_s is not None:
             return (float(self.window_s[0]), float(self.window_s[1]))
-        t0 = self.timing_law().settled_s
-        return (t0 + self.period_s, t0 + 2.0 * self.period_s)
+        t0, period, d = self.timing_law().settled_s, self.period_s, self.duration_s
+        if t0 + 2.0 * period <= d + 1e-9:
+            return (t0 + period, t0 + 2.0 * period)
+        if d - period >= t0:
+            return (d - period, d)
+        return (t0, d) if d > t0 else (0.0, d)
 
     @property
     def estimate_window_s(self) -> tuple[float, float]:
-        """estimates_window_s, or the last period [duration - T, duration]."""
+        """estimates_window_s, or the last period [d - T, d]; in a run shorter than that, the run after the
+        start ramp [t0, d] (else the whole run)."""
         if self.estimates_window_s is not None:
             return (float(self.estimates_window_s[0]), float(self.estimates_window_s[1]))
-        return (self.duration_s - self.period_s, self.duration_s)
+        d, period = self.duration_s, self.period_s
+        if d - period >= 0.0:
+            return (d - period, d)
+        t0 = self.timing_law().settled_s
+        return (t0, d) if d > t0 else (0.0, d)
 
     def resolved(self) -> dict[str, Any]:
         """Every field with its value (defaults and windows filled in), JSON-compatible."""
