@@ -539,3 +539,38 @@ def test_every_long_command_takes_progress_flags(command, monkeypatch):
     args = parser.parse_args(command)
     monkeypatch.setattr(cli.sys.stderr, "isatty", lambda: False)
     assert args.progress is None and cli._progress_wanted(args) is False
+
+
+def test_version_everywhere(capsys):
+    """`gantry-twin --version`, `python -m gantry_twin --version` and gantry_twin.__version__ agree."""
+    import subprocess
+    import sys
+
+    import gantry_twin
+    from gantry_twin.run import package_version
+
+    assert gantry_twin.__version__ == package_version()
+    with pytest.raises(SystemExit) as stopped:
+        cli.build_parser().parse_args(["--version"])
+    assert stopped.value.code == 0
+    assert capsys.readouterr().out.strip() == f"gantry-twin {package_version()}"
+    child = subprocess.run([sys.executable, "-m", "gantry_twin", "--version"], capture_output=True, text=True)
+    assert child.returncode == 0 and child.stdout.strip() == f"gantry-twin {package_version()}", child.stderr
+
+
+def test_run_scenario_from_python_is_the_command_s_run(tmp_path):
+    """gantry_twin.run_scenario gives the summary `gantry-twin run` writes for the same scenario and --set."""
+    import gantry_twin
+    from gantry_twin.outputs.summary import RunSummary
+
+    overrides = ["duration_s=0.6", "window_s=[0.1, 0.6]", "estimates_window_s=[0.1, 0.6]"]
+    result = gantry_twin.run_scenario("no_load_circle", overrides, "darc", out=tmp_path / "py")
+    assert result.trace.filled == 3000
+    code = cli.main(
+        ["run", "no_load_circle", "--controller", "darc", "--no-plots", "--out", str(tmp_path / "cli")]
+        + [a for o in overrides for a in ("--set", o)]
+    )
+    assert code == 0
+    from_cli = RunSummary.read(tmp_path / "cli" / "summary.json")
+    assert from_cli.contour_error_um == result.summary.contour_error_um
+    assert RunSummary.read(tmp_path / "py" / "summary.json").contour_error_um == result.summary.contour_error_um

@@ -7,6 +7,20 @@ from gantry_twin.sensing import SensingConfig
 from gantry_twin.simulate import simulate
 from gantry_twin.trace import Trace
 
+
+def __getattr__(name: str) -> object:
+    """``__version__`` and :func:`run_scenario`, loaded on first use (they sit above the core's floors)."""
+    if name == "__version__":
+        from gantry_twin.run import package_version
+
+        return package_version()
+    if name in ("run_scenario", "ScenarioRun"):
+        from gantry_twin import run
+
+        return getattr(run, name)
+    raise AttributeError(f"module 'gantry_twin' has no attribute {name!r}")
+
+
 __all__ = [
     "Payload",
     "Plant",
@@ -18,6 +32,7 @@ __all__ = [
     "create",
     "paper_ellipse",
     "register",
+    "run_scenario",
     "simulate",
     "true_parameters",
 ]

@@ -317,6 +317,37 @@ def summarise(built: BuiltRun, trace: Trace) -> RunSummary:
     return _summary(built, trace, metrics, travel)
 
 
+class ScenarioRun(NamedTuple):
+    """What :func:`run_scenario` gives: summary.json's content (typed) and the whole trace."""
+
+    summary: RunSummary
+    trace: Trace
+
+
+def run_scenario(
+    scenario: str | Path,
+    overrides: Sequence[str] = (),
+    controller: str | None = None,
+    out: str | Path | None = None,
+) -> ScenarioRun:
+    """Run a scenario file (or a shipped scenario's name) from Python, as ``gantry-twin run`` does.
+
+    ``overrides`` are ``--set`` strings (``"duration_s=5"``), ``controller``
+    is ``--controller``; with ``out`` the run's directory is written there
+    (summary.json, scenario.yaml, trace.parquet, run_info.json). Raises
+    ScenarioError (one line) for bad input, SimulationError for a fault.
+    """
+    from gantry_twin.scenario import build, load_scenario, resolve_scenario
+
+    path = resolve_scenario(str(scenario))
+    built = build(load_scenario(path, list(overrides), controller), str(path))
+    started = time.perf_counter()
+    trace = execute(built)
+    if out is not None:
+        return ScenarioRun(write_run(Path(out), built, trace, time.perf_counter() - started), trace)
+    return ScenarioRun(summarise(built, trace), trace)
+
+
 def package_version() -> str:
     """The installed gantry-twin's version ("unknown" when run from a source tree that is not installed)."""
     from importlib.metadata import PackageNotFoundError, version

@@ -39,7 +39,7 @@ from gantry_twin.outputs.export import ExportError
 from gantry_twin.outputs.rundirs import LATEST, new_run_dir, point_latest
 from gantry_twin.outputs.signals import stop_signals_interrupt
 from gantry_twin.reports.compare import CompareError
-from gantry_twin.run import LARGE_TRACE_BYTES, RunWriter, trace_size
+from gantry_twin.run import LARGE_TRACE_BYTES, RunWriter, package_version, trace_size
 from gantry_twin.scenario import (
     Scenario,
     ScenarioError,
@@ -55,6 +55,18 @@ from gantry_twin.telemetry import TelemetryError
 from gantry_twin.trace import RunInfo, Trace
 
 PROG = "gantry-twin"
+#: The examples under ``gantry-twin --help`` (docs/cli.md has every command).
+EXAMPLES = """examples:
+  gantry-twin run                                   the paper's no-load circle with DIARC (30 s)
+  gantry-twin run load_5kg_ellipse --controller darc --set duration_s=10
+  gantry-twin run --set plant.model=rig             the same circle on the rig plant
+  gantry-twin scenarios                             the shipped scenarios
+  gantry-twin compare runs/no_load_circle/<time>-<id> runs/no_load_circle/latest
+  gantry-twin report --out runs/report              the paper's Tables 1-4 and figures
+  gantry-twin monitor friction_drift_circle --fail-on-alarm
+  gantry-twin sweep payload_0_20kg --workers 2
+
+docs: docs/cli.md (every command, exit codes), docs/scenarios.md (every field)."""
 #: The scenario ``run`` uses when none is given.
 DEFAULT_SCENARIO = "no_load_circle"
 #: Where outputs go by default: RUNS_DIR/<scenario name>/, RUNS_DIR/report/.
@@ -129,7 +141,13 @@ def _progress(args: argparse.Namespace) -> ProgressBar:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog=PROG, description="MuJoCo digital twin of a biaxial linear-motor gantry.")
+    parser = _Parser(
+        prog=PROG,
+        description="MuJoCo digital twin of a biaxial linear-motor gantry (Hu, Yao, Wang, Automatica 2010).",
+        epilog=EXAMPLES,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("--version", action="version", version=f"{PROG} {package_version()}")
     sub = parser.add_subparsers(
         dest="command",
         required=True,
