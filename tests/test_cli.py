@@ -574,3 +574,24 @@ def test_run_scenario_from_python_is_the_command_s_run(tmp_path):
     from_cli = RunSummary.read(tmp_path / "cli" / "summary.json")
     assert from_cli.contour_error_um == result.summary.contour_error_um
     assert RunSummary.read(tmp_path / "py" / "summary.json").contour_error_um == result.summary.contour_error_um
+
+
+def test_a_monitor_that_judged_nothing_says_so_and_exits_5(tmp_path, capsys):
+    """A run whose every parameter stays in the baseline window is not a healthy verdict: exit 5, stderr, and
+    summary.json's health.judged is empty."""
+    code = cli.main(
+        [
+            "monitor",
+            "no_load_circle",
+            "--set",
+            "duration_s=1",
+            "--no-plots",
+            "--out",
+            str(tmp_path / "m"),
+            "--set",
+            "monitor.baseline_window_s=[0.2, 1]",
+        ]
+    )
+    assert code == cli.EXIT_NOT_JUDGED == 5
+    assert "monitor judged nothing" in capsys.readouterr().err
+    assert json.loads((tmp_path / "m" / "summary.json").read_text())["health"]["judged"] == []

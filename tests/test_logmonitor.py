@@ -51,9 +51,14 @@ def test_monitor_log_with_a_baseline_from_an_earlier_log(tmp_path, capsys):
     log = str(tmp_path / "log.parquet")
     first, second = tmp_path / "first", tmp_path / "second"
     judged = ["--set", "monitor.judge_from_s=0.5"]
-    assert main(["monitor", "--log", log, "--out", str(first), *judged]) == 0
+    # A 2 s log never leaves the default 20-30 s baseline window: refused, not a silent "0 alarms".
+    assert main(["monitor", "--log", log, "--out", str(tmp_path / "refused"), *judged]) == 2
+    assert "inside the monitor's baseline window [20, 30] s" in capsys.readouterr().err
+    assert not (tmp_path / "refused").exists()
+    inside = ["--set", "monitor.baseline_window_s=[0.5, 1]"]
+    assert main(["monitor", "--log", log, "--out", str(first), *judged, *inside]) == 0
     commissioning = json.loads((first / "summary.json").read_text())
-    assert commissioning["health"]["status"]["M1"] == "baseline"  # a 2 s log never reaches the 20-30 s window
+    assert commissioning["health"]["judged"]  # it judged something this time
     assert (
         main(["monitor", "--log", log, "--baseline", str(first / "summary.json"), "--out", str(second), *judged]) == 0
     )

@@ -77,6 +77,7 @@ EXIT_RUN_FAILED = 1
 EXIT_BAD_INPUT = 2
 EXIT_ALARM = 3
 EXIT_END_STOP = 4
+EXIT_NOT_JUDGED = 5  # monitor: no parameter was ever judged (all in the baseline window or not excited)
 EXIT_INTERRUPTED = 128  # + the signal's number, as shells report it: 130 SIGINT, 143 SIGTERM, 129 SIGHUP
 
 
@@ -398,7 +399,18 @@ def _monitor_log(args: argparse.Namespace) -> int:
     if args.out is None:
         point_latest(out)
     print("\n".join([*format_health(data.health), f"results in {out}/ (summary.json)"]), flush=True)
+    if not data.health.judged:
+        return _judged_nothing(out)
     return EXIT_ALARM if args.fail_on_alarm and data.health.alarms else EXIT_OK
+
+
+def _judged_nothing(out: Path) -> int:
+    print(
+        f"{PROG}: monitor judged nothing: every parameter stayed in its baseline window or was never excited "
+        f"enough to judge (health.judged is empty in {out}/summary.json); not a healthy verdict",
+        file=sys.stderr,
+    )
+    return EXIT_NOT_JUDGED
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -441,7 +453,10 @@ def _run(args: argparse.Namespace) -> int:
         print(f"{PROG}: warning: {line}", file=sys.stderr)
     if args.strict and touched_end_stop(outcome.summary):
         return EXIT_END_STOP
-    if getattr(args, "fail_on_alarm", False) and outcome.summary.health is not None and outcome.summary.health.alarms:
+    health = outcome.summary.health
+    if args.command == "monitor" and health is not None and not health.judged:
+        return _judged_nothing(out)
+    if getattr(args, "fail_on_alarm", False) and health is not None and health.alarms:
         return EXIT_ALARM
     return EXIT_OK
 

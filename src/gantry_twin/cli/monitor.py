@@ -39,8 +39,15 @@ def monitor_log_command(args: argparse.Namespace, scenario_path: Path | None, ou
         )
     monitor = make_monitor(scenario, controller, source)
     log = read_log(args.log)
-    report = monitor_log(log, controller, monitor)
     end = float(log.t_s[-1])
+    lo, hi = scenario.monitor.baseline_window_s
+    if scenario.monitor.baseline_summary is None and hi > end + 1e-9:
+        raise ValueError(
+            f"--log {args.log}: the log ends at {end:.4g} s, inside the monitor's baseline window [{lo:g}, {hi:g}] s, "
+            "so nothing would be judged; give a longer log, --set monitor.baseline_window_s=[a,b] inside it, "
+            "or --baseline SUMMARY (a healthy run's summary.json)"
+        )
+    report = monitor_log(log, controller, monitor)
     summary = log_summary(log, report, (end - min(ESTIMATE_WINDOW_S, 0.5 * log.duration_s), end))
     out.mkdir(parents=True, exist_ok=True)
     atomic_write_text(out / "summary.json", summary_json(summary))

@@ -160,6 +160,13 @@ class MonitorReport:
     alarms: list[Alarm] = field(default_factory=list)
     baseline: Baseline | None = None
 
+    def judged(self) -> list[str]:
+        """The parameters the monitor judged at least once (status ok, drifting or alarm), in theta's order."""
+        if self.status is None or not len(self.status):
+            return []
+        seen = np.isin(self.status, (OK, DRIFTING, ALARM)).any(axis=0)
+        return [n for n, s in zip(THETA_NAMES, seen, strict=True) if s]
+
     def final_status(self) -> dict[str, str]:
         """The status of each parameter at the end of the run."""
         if self.status is None or not len(self.status):

@@ -106,6 +106,8 @@ class Health(Model):
     """The health monitor's verdict (docs/health.md)."""
 
     alarms: list[AlarmRecord]
+    #: The parameters judged at least once (ok, drifting or alarm); empty: the monitor judged nothing.
+    judged: list[str] | None = None
     status: dict[str, str]
     time_in_status_s: dict[str, dict[str, float]]
     excitation: dict[str, AxisExcitation]
@@ -312,6 +314,7 @@ def health_summary(report: Any) -> dict[str, Any]:
         }
     out: dict[str, Any] = {
         "alarms": alarms,
+        "judged": report.judged(),
         "status": report.final_status(),
         "time_in_status_s": report.time_in_status_s(period),
         "excitation": excitation,
