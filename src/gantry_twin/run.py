@@ -23,6 +23,8 @@ from typing import Any, NamedTuple
 
 from gantry_twin.controllers.base import compiled_step_of
 from gantry_twin.events import TravelWatch
+from gantry_twin.gcode.part_error import PartErrorWatch
+from gantry_twin.gcode.sampling import Plan
 from gantry_twin.metrics import RunMetrics
 from gantry_twin.outputs.files import atomic_write_text, discard, remove_tree, temporary_file
 from gantry_twin.outputs.signals import SwallowedInterrupt, signals_held
@@ -150,6 +152,7 @@ class RunWriter:
         scenario = built.scenario
         self.metrics = RunMetrics.for_scenario(scenario, estimate_confidence(built))
         self.travel = TravelWatch(built.plant)  # events, end_stop_contacts, saturation (gantry_twin.events)
+        self.part = part_watch(built)  # a part program's error (gantry_twin.gcode), None for other contours
         self.trace: TraceWriter | None = None
         self._made = [p for p in (self.out, *self.out.parents) if not p.exists()]  # deepest first
         try:
@@ -169,7 +172,8 @@ class RunWriter:
 
     def observers(self) -> list[Observer]:
         """The observers to run with: a stop signal a compile swallowed, the summary's metrics, the trace writer."""
-        return [SwallowedInterrupt(), self.metrics, self.travel] + ([self.trace] if self.trace is not None else [])
+        extra = [w for w in (self.part, self.trace) if w is not None]
+        return [SwallowedInterrupt(), self.metrics, self.travel, *extra]
 
     def run(self, observers: Sequence[Observer] = (), hold_s: float | None = HOLD_S) -> RunOutcome:
         """Simulate the scenario holding ``hold_s`` of it in memory, writing it as it goes, and :meth:`finish`.
@@ -195,7 +199,9 @@ class RunWriter:
         sample): summary.json, the trace, scenario.yaml, run_info.json, and plots/ when asked for."""
         built, out = self.built, self.out
         scenario = built.scenario
-        data = _summary(built, trace, self.metrics, self.travel, failure, self.overrides, self.controller_option)
+        data = _summary(
+            built, trace, self.metrics, self.travel, failure, self.overrides, self.controller_option, self.part
+        )
         written: list[str] = []
         try:
             (out / SUMMARY_FILE).unlink(missing_ok=True)  # from here the directory shows an incomplete run
@@ -287,6 +293,7 @@ def _summary(
     failure: Failure | None = None,
     overrides: Sequence[str] = (),
     controller_option: str | None = None,
+    part: PartErrorWatch | None = None,
 ) -> RunSummary:
     """summary.json's content from what a run's observers gathered (``trace``: its last piece, or None)."""
     scenario = built.scenario
@@ -304,6 +311,7 @@ def _summary(
         overrides,
         controller_option,
         travel.summary(),
+        part.summary() if part is not None else None,
     )
 
 
@@ -312,9 +320,16 @@ def summarise(built: BuiltRun, trace: Trace) -> RunSummary:
     scenario = built.scenario
     metrics = RunMetrics.for_scenario(scenario, estimate_confidence(built))
     travel = TravelWatch(built.plant)
-    for observer in (metrics, travel):
-        observer.on_chunk(trace, trace.first, trace.filled)
-    return _summary(built, trace, metrics, travel)
+    part = part_watch(built)
+    for observer in (metrics, travel, part):
+        if observer is not None:
+            observer.on_chunk(trace, trace.first, trace.filled)
+    return _summary(built, trace, metrics, travel, part=part)
+
+
+def part_watch(built: BuiltRun) -> PartErrorWatch | None:
+    """The part-error observer of a run of a G-code program (its contour is a planned program)."""
+    return PartErrorWatch(built.path) if isinstance(built.path, Plan) else None
 
 
 class ScenarioRun(NamedTuple):

@@ -20,6 +20,7 @@ finished run, one of them stops it (exit status of the run).
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import signal
 import sys
@@ -49,7 +50,7 @@ from gantry_twin.scenario import (
     shipped,
 )
 from gantry_twin.scenario.listing import listing
-from gantry_twin.settings import shorten
+from gantry_twin.settings import label_from, shorten
 from gantry_twin.sysid.logs import LogError
 from gantry_twin.telemetry import TelemetryError
 from gantry_twin.trace import RunInfo, Trace
@@ -67,6 +68,8 @@ EXAMPLES = """examples:
   gantry-twin sweep payload_0_20kg --workers 2
 
 docs: docs/cli.md (every command, exit codes), docs/scenarios.md (every field)."""
+#: File names ``run`` takes as a G-code part program rather than a scenario.
+PROGRAM_SUFFIXES = (".ngc", ".nc", ".gcode")
 #: The scenario ``run`` uses when none is given.
 DEFAULT_SCENARIO = "no_load_circle"
 #: Where outputs go by default: RUNS_DIR/<scenario name>/, RUNS_DIR/report/.
@@ -420,10 +423,22 @@ def _run(args: argparse.Namespace) -> int:
         raise BadInput("--baseline: only with --log (a scenario names its baseline in monitor.baseline_summary)")
     path = _scenario_path(args.scenario)
     overrides = list(args.overrides)
+    program = None
+    if path.suffix.lower() in PROGRAM_SUFFIXES:  # a part program runs in the default scenario (docs/gcode.md)
+        program, path = path.resolve(), shipped(DEFAULT_SCENARIO)
+        overrides[:0] = [
+            f"contour={{type: gcode, file: {json.dumps(str(program))}}}",
+            f"name={label_from(program.stem)}",
+        ]
     if args.command == "monitor":
         overrides.insert(0, "monitor.enable=true")
     scenario = load_scenario(path, overrides, args.controller)
-    built = build(scenario, str(path))
+    try:
+        built = build(scenario, str(path))
+    except ScenarioError as exc:
+        if program is not None and exc.field == "contour.file":
+            raise BadInput(exc.message) from None  # FILE:LINE: WORD: what is wrong
+        raise
     out = _out_dir(args, scenario)
     with _writer(out, built, args) as writer:
         telemetry = telemetry_observers(args)  # checks every option before anything runs

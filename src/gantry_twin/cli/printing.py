@@ -30,11 +30,30 @@ def format_summary(summary: RunSummary, wall_time_s: float, out: Path | None = N
         lines.append(f"estimates (mean over [{w[0]:.3f}, {w[1]:.3f}] s)  estimate     true    error")
         for name, e in summary.estimates.items():
             lines.append(f"  {name:<4} {e.estimate:12.5f} {_true(e)}  {_pct(e)}{trust_mark(e)}")
+    if summary.part_error is not None:
+        lines.extend(format_part(summary))
     if summary.health is not None:
         lines.extend(format_health(summary.health))
     if out is not None:
         lines.append(f"results in {out}/" + (f" ({', '.join(files)})" if files else ""))
     return "\n".join(lines)
+
+
+def format_part(summary: RunSummary) -> list[str]:
+    """A part program's error to its programmed lines and arcs, and its worst corner."""
+    p = summary.part_error
+    lines = [
+        f"part error (to the programmed lines and arcs): max {p.max_um:.3f} um, rms {p.rms_um:.3f} um over "
+        f"{p.blocks} blocks and {p.corners} corners; cycle time {p.cycle_time_s:.3f} s, "
+        f"feed achieved {1e3 * p.feed_achieved_m_s:.1f} mm/s"
+    ]
+    if p.worst_corners:
+        c = p.worst_corners[0]
+        lines.append(
+            f"  worst corner: line {c.line} ({c.kind}, turn {c.turn_rad * 57.29577951308232:.0f} deg) "
+            f"max {c.max_um:.3f} um at {1e3 * c.speed_m_s:.1f} mm/s, t = {c.time_s:.3f} s"
+        )
+    return lines
 
 
 def _true(e: Estimate) -> str:

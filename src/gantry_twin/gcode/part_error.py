@@ -148,3 +148,53 @@ def part_error(
         rms_m=float(np.sqrt(np.mean(measured**2))) if measured.size else 0.0,
         feed_achieved_m_s=float(speed[feed_rows].mean()) if feed_rows.any() else 0.0,
     )
+
+
+#: Blocks and corners listed in summary.json's ``part_error`` (the worst first); the totals count all of them.
+LISTED_MAX = 50
+
+
+class PartErrorWatch:
+    """An Observer that keeps a run's true positions and gives its :func:`part_error` as summary.json's
+    ``part_error`` section (:meth:`summary`): totals in um, the worst blocks and corners."""
+
+    def __init__(self, plan: Plan) -> None:
+        self.plan = plan
+        self._t: list[np.ndarray] = []
+        self._q: list[np.ndarray] = []
+
+    def on_start(self, run: object, trace: object) -> None:
+        pass
+
+    def on_chunk(self, trace: object, start: int, stop: int) -> None:
+        rows = slice(start - trace.first, stop - trace.first)
+        self._t.append(trace.t_s[rows].copy())
+        self._q.append(trace.q_m[rows].copy())
+
+    def on_end(self, trace: object) -> None:
+        pass
+
+    def summary(self) -> dict | None:
+        if not self._t:
+            return None
+        result = part_error(self.plan, np.concatenate(self._t), np.concatenate(self._q))
+        blocks = sorted(result.blocks, key=lambda b: -b.max_m)[:LISTED_MAX]
+        corners = sorted(result.corners, key=lambda c: -c.max_m)[:LISTED_MAX]
+        return {
+            "max_um": 1e6 * result.max_m,
+            "rms_um": 1e6 * result.rms_m,
+            "cycle_time_s": result.cycle_time_s,
+            "feed_achieved_m_s": result.feed_achieved_m_s,
+            "blocks": len(result.blocks),
+            "corners": len(result.corners),
+            "worst_blocks": [
+                {"line": b.line, "max_um": 1e6 * b.max_m, "rms_um": 1e6 * b.rms_m, "time_s": b.time_s,
+                 "feed_achieved_m_s": b.feed_achieved_m_s, "feed_programmed_m_s": b.feed_programmed_m_s}
+                for b in blocks
+            ],
+            "worst_corners": [
+                {"line": c.line, "kind": c.kind, "point_m": list(c.point_m), "turn_rad": c.turn_rad,
+                 "max_um": 1e6 * c.max_m, "speed_m_s": c.speed_m_s, "time_s": c.time_s}
+                for c in corners
+            ],
+        }  # fmt: skip

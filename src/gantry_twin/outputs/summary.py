@@ -134,6 +134,39 @@ class Saturation(Model):
     limit_v: Window
 
 
+class PartBlock(Model):
+    line: int
+    max_um: float
+    rms_um: float
+    time_s: float
+    feed_achieved_m_s: float
+    feed_programmed_m_s: float
+
+
+class PartCorner(Model):
+    line: int
+    kind: str
+    point_m: Window
+    turn_rad: float
+    max_um: float
+    speed_m_s: float
+    time_s: float
+
+
+class PartErrorRecord(Model):
+    """A part program's error: the distance of the actual position to the programmed lines and arcs
+    (docs/gcode.md): totals, and the worst blocks and corners (at most 50 of each)."""
+
+    max_um: float
+    rms_um: float
+    cycle_time_s: float
+    feed_achieved_m_s: float
+    blocks: int
+    corners: int
+    worst_blocks: list[PartBlock]
+    worst_corners: list[PartCorner]
+
+
 class RunSummary(Model):
     """summary.json: the one type every producer writes and every consumer reads (docs/cli.md, "summary.json").
 
@@ -164,6 +197,7 @@ class RunSummary(Model):
     events: list[EndStopEvent] | None = None
     end_stop_contacts: dict[str, int] | None = None
     saturation: dict[str, Saturation] | None = None
+    part_error: PartErrorRecord | None = None
 
     @property
     def failed(self) -> bool:
@@ -224,6 +258,7 @@ def run_summary(
     overrides: Sequence[str] = (),
     controller_option: str | None = None,
     travel: dict[str, Any] | None = None,
+    part: dict[str, Any] | None = None,
 ) -> RunSummary:
     """summary.json of a run of ``scenario`` (a :class:`gantry_twin.scenario.Scenario`) from what the run's
     observers gathered; ``failure``: the run stopped early (status failed,
@@ -264,6 +299,8 @@ def run_summary(
     if health is not None:
         out["health"] = health_summary(health)
     out.update(travel or {})  # events, end_stop_contacts, saturation (gantry_twin.events.TravelWatch.summary)
+    if part is not None and failure is None:
+        out["part_error"] = part
     return RunSummary.model_validate(out)
 
 

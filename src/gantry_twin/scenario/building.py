@@ -8,6 +8,7 @@ its options (an exception from a plug-in's factory is reported against
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -52,8 +53,7 @@ class BuiltRun:
     @property
     def duration_s(self) -> float:
         """How long to simulate: a planned program's duration (it follows from the plan), else the scenario's."""
-        planned = getattr(self.path, "duration_s", None)
-        return float(planned) if isinstance(self.scenario.contour, GcodeSpec) else self.scenario.duration_s
+        return self.scenario.duration_s  # a part program's: its plan's (build sets it)
 
 
 def build(scenario: Scenario, source: str = "<scenario>") -> BuiltRun:
@@ -62,6 +62,7 @@ def build(scenario: Scenario, source: str = "<scenario>") -> BuiltRun:
     payload_body = changes is not None and bool(changes.payload_change)
     plant = _plant(scenario, payload_body, source)
     path = _contour_path(scenario, source)
+    scenario = _follow_the_plan(scenario, path, plant.timestep_s)
     _check_travel(plant, path, source)
     _check_samples(scenario, plant.timestep_s, source)
     kwargs = controller_options(scenario, source)
@@ -76,6 +77,20 @@ def build(scenario: Scenario, source: str = "<scenario>") -> BuiltRun:
     return BuiltRun(
         scenario, plant, path, scenario.timing_law(), controller, scenario.sensing, disturbance, changes, monitor
     )
+
+
+def _follow_the_plan(scenario: Scenario, path: Contour, timestep_s: float) -> Scenario:
+    """A part program's run lasts its plan (whole samples); its default windows are the whole program (contour
+    error) and its second half (estimates). Other contours keep the scenario as it is."""
+    if not isinstance(scenario.contour, GcodeSpec):
+        return scenario
+    d = max(math.ceil(float(path.duration_s) / timestep_s), 2) * timestep_s
+    update: dict[str, object] = {"duration_s": d}
+    if scenario.window_s is None:
+        update["window_s"] = (0.0, d)
+    if scenario.estimates_window_s is None:
+        update["estimates_window_s"] = (0.5 * d, d)
+    return scenario.model_copy(update=update)
 
 
 def _contour_path(scenario: Scenario, source: str) -> Contour:
