@@ -538,7 +538,7 @@ def test_every_long_command_takes_progress_flags(command, monkeypatch):
     assert parser.parse_args([*command, "--progress"]).progress is True
     args = parser.parse_args(command)
     monkeypatch.setattr(cli.sys.stderr, "isatty", lambda: False)
-    assert args.progress is None and cli._progress_wanted(args) is False
+    assert args.progress is None and cli.progress_wanted(args) is False
 
 
 def test_version_everywhere(capsys):

@@ -193,11 +193,12 @@ def cli_args(command, controller, out, *extra):
 
 @pytest.mark.parametrize("command", ["run", "monitor"])
 def test_cli_reports_an_end_stop_and_strict_makes_it_an_error(tmp_path, capsys, plugin, command):
-    from gantry_twin.cli.app import EXIT_END_STOP, EXIT_OK
+    from gantry_twin.cli.app import EXIT_END_STOP, EXIT_NOT_JUDGED, EXIT_OK
 
     plugin("push_x", lambda: Schedule([(0.0, (DAC_LIMIT_V, 0.0))]))
     code, _, err = run_main(cli_args(command, "push_x", tmp_path / "a"), capsys)
-    assert code == EXIT_OK
+    # a plug-in that estimates nothing gives the monitor nothing to judge: not a healthy verdict
+    assert code == (EXIT_OK if command == "run" else EXIT_NOT_JUDGED)
     (event,) = json.loads((tmp_path / "a" / "summary.json").read_text())["events"]
     lines = [line for line in err.splitlines() if "end stop" in line]
     assert len(lines) == 1

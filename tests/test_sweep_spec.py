@@ -346,7 +346,7 @@ def test_sweep_takes_the_progress_flags(monkeypatch):
     assert parser.parse_args(["sweep", "s.yaml", "--progress"]).progress is True
     args = parser.parse_args(["sweep", "s.yaml"])
     monkeypatch.setattr(cli.sys.stderr, "isatty", lambda: False)
-    assert args.progress is None and cli._progress_wanted(args) is False
+    assert args.progress is None and cli.progress_wanted(args) is False
 
 
 def test_tick_labels_of_swept_objects_name_only_the_leaves_that_differ():

@@ -33,6 +33,7 @@ from gantry_twin.cli import excite as excite_command
 from gantry_twin.cli import export as export_command
 from gantry_twin.cli import identify as identify_command
 from gantry_twin.cli.printing import format_health, format_summary, touched_end_stop, travel_warnings
+from gantry_twin.cli.progress import ProgressBar, progress_bar, progress_wanted  # noqa: F401 -- ProgressBar: tests
 from gantry_twin.cli.telemetry import add_telemetry_arguments, telemetry_observers
 from gantry_twin.compiling import compile_notice
 from gantry_twin.controllers import available
@@ -53,7 +54,6 @@ from gantry_twin.scenario.listing import listing
 from gantry_twin.settings import label_from, shorten
 from gantry_twin.sysid.logs import LogError
 from gantry_twin.telemetry import TelemetryError
-from gantry_twin.trace import RunInfo, Trace
 
 PROG = "gantry-twin"
 #: The examples under ``gantry-twin --help`` (docs/cli.md has every command).
@@ -94,54 +94,6 @@ class _Parser(argparse.ArgumentParser):
     def error(self, message: str) -> NoReturn:
         print(f"{self.prog}: error: {shorten(message, 200)} (see {self.prog} --help)", file=sys.stderr)
         raise SystemExit(EXIT_BAD_INPUT)
-
-
-class ProgressBar:
-    """A tqdm bar on stderr in simulated seconds (an Observer; reads nothing it could change).
-
-    Shown only when ``enabled`` (by default: stderr is a terminal) and only
-    once a run has lasted ``delay_s`` of wall time, so short runs stay quiet.
-    """
-
-    def __init__(self, enabled: bool, delay_s: float = 1.0) -> None:
-        self.enabled = enabled
-        self.delay_s = delay_s
-        self._bar: Any = None
-
-    def on_start(self, run: RunInfo, trace: Trace) -> None:
-        if not self.enabled:
-            return
-        from tqdm import tqdm
-
-        self._bar = tqdm(
-            total=run.samples,
-            unit="s",
-            unit_scale=trace.sample_period_s,
-            desc=f"{run.controller_name}",
-            file=sys.stderr,
-            delay=self.delay_s,
-            leave=False,
-            bar_format="{desc}: {percentage:3.0f}%|{bar}| {n:.2f}/{total:.2f} s simulated [{elapsed}<{remaining}]",
-        )
-
-    def on_chunk(self, trace: Trace, start: int, stop: int) -> None:
-        if self._bar is not None:
-            self._bar.update(stop - start)
-
-    def on_end(self, trace: Trace) -> None:
-        if self._bar is not None:
-            self._bar.close()
-            self._bar = None
-
-
-def _progress_wanted(args: argparse.Namespace) -> bool:
-    """--progress / --no-progress, else on when stderr is a terminal."""
-    return sys.stderr.isatty() if args.progress is None else args.progress
-
-
-def _progress(args: argparse.Namespace) -> ProgressBar:
-    """The progress bar of a ``run``."""
-    return ProgressBar(_progress_wanted(args))
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -446,7 +398,7 @@ def _run(args: argparse.Namespace) -> int:
         notice = compile_notice(built.controller, PROG)  # a line, and a count of seconds, if the loop compiles first
         with telemetry:
             try:
-                outcome = writer.run([notice, _progress(args), *telemetry])
+                outcome = writer.run([notice, progress_bar(args), *telemetry])
             except Exception as exc:  # the run or the writing failed: not the user's input
                 return _failed("run", exc)
             if outcome.failed:
@@ -495,7 +447,7 @@ def _report(args: argparse.Namespace) -> int:
     rig = rig_report.load_rig(args.rig) if args.rig is not None else None
     rigged = rig_report.rig_cases(cases, rig) if rig else []
     try:
-        results = run_matrix([*cases, *rigged], jobs=args.jobs or os.cpu_count() or 1, progress=_progress_wanted(args))
+        results = run_matrix([*cases, *rigged], jobs=args.jobs or os.cpu_count() or 1, progress=progress_wanted(args))
         results, rig_results = results[: len(cases)], results[len(cases) :]
         appendix = rig_report.section(results, rig_results, rig, args.out, args.overrides) if rig else []
         path = write_report(results, args.out, args.overrides, appendix)
@@ -516,7 +468,7 @@ def _sweep(args: argparse.Namespace) -> int:
     if not args.resume and existing_results(out):
         raise BadInput(f"--out {out}: holds an earlier sweep's results.parquet; add --resume to finish it")
     try:
-        done = run_sweep(plan, out, args.workers, args.scheduler, args.resume, _progress_wanted(args))
+        done = run_sweep(plan, out, args.workers, args.scheduler, args.resume, progress_wanted(args))
     except ClusterError as exc:
         raise BadInput(str(exc)) from None
     except Exception as exc:
