@@ -113,9 +113,12 @@ def plan(spec: CalibrationSpec, source: str) -> Plan:
                 )
     made = Plan(spec, source, tuple(scenarios), _base_shape(plant), tuple(map(float, masses)), tuple(map(float, gear)))
     start = {f.label: f.start_value for f in spec.free}
-    for i in range(len(spec.targets)):
+    plain_base = [override(k, v) for k, v in spec.base.items() if not _shape(spec, k)]
+    for i, target in enumerate(spec.targets):  # the target itself, before any free value is set on it
         try:
-            build(scenario_of(made, i, start), str(scenarios[i]))
+            load_scenario(
+                scenarios[i], [*plain_base, *(override(k, v) for k, v in target.set.items())], target.controller
+            )
         except ScenarioError as exc:
             raise _where(source, f"targets[{i}]", exc) from None
     for j, free in enumerate(spec.free):
@@ -124,6 +127,11 @@ def plan(spec: CalibrationSpec, source: str) -> Plan:
                 scenario_of(made, 0, {**start, free.label: value})
             except ScenarioError as exc:
                 raise _where(source, f"free[{j}].range ({end} {value:g})", exc) from None
+    for i in range(len(spec.targets)):
+        try:
+            build(scenario_of(made, i, start), str(scenarios[i]))
+        except ScenarioError as exc:
+            raise _where(source, f"targets[{i}]", exc) from None
     return made
 
 
@@ -364,7 +372,10 @@ def fit_record(fit: Fit, command: str) -> dict[str, Any]:
         "best_evaluation": best.index,
         "evaluations": len(fit.evaluations),
         "residuals": residuals(fit.plan, best),
-        "overrides": best.overrides,
+        # the fitted plant as scenario overrides (``gantry-twin report --rig fit.json`` reads them), and every
+        # override of the best point's runs (the base's too)
+        "overrides": [o for o in best.overrides if o.startswith("plant.")],
+        "run_overrides": best.overrides,
         "wall_time_s": fit.wall_time_s,
     }
 
