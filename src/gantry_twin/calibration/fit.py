@@ -1,5 +1,5 @@
 """The calibration: plan (every target's scenario checked), evaluate a point of the free properties on the batch
-runner, fit by Nelder-Mead in the unit box, and write fit.json, evaluations.jsonl and plant.xml.
+runner, fit by Nelder-Mead in the unit box; what fit.json and evaluations.jsonl hold (:mod:`.driver` writes them).
 
 A point is the free properties' values. Its runs are the targets' scenarios
 with the base, the target's own ``set`` and the point's values as ``--set``

@@ -32,7 +32,8 @@ from gantry_twin.run import execute
 from gantry_twin.scenario import BuiltRun, ScenarioError, build, load_scenario, shipped
 
 LABELS = ("C1", "C2", "C3")
-#: The cells the calibration fitted (contour, set): circle Set 1 (calibrations/paper_circle_set1.yaml); the rest validate.
+#: The cells the calibration fitted (contour, set): circle Set 1 (calibrations/paper_circle_set1.yaml);
+#: the rest validate.
 FIT_CELLS = {("circle", 1)}
 #: The rig's acceptance (docs/friction.md): at least VALIDATION_TARGET of the 26 validation numbers within
 #: VALIDATION_PCT of the paper.
