@@ -10,7 +10,8 @@ import sys
 import pytest
 import yaml
 
-from gantry_twin.calibration import calibration_file, lugre_fields
+from gantry_twin.calibration import calibration_file, load_calibration, lugre_fields, plan
+from gantry_twin.calibration.fit import scenario_of
 from gantry_twin.cli import main
 from gantry_twin.friction import identified_af_b
 from gantry_twin.metrics import contour_metrics
@@ -105,8 +106,22 @@ def test_the_constraint_gives_the_identification_back():
         assert p["sigma1_ns_m"] == pytest.approx(0.05 * 2 * math.sqrt(p["sigma0_n_m"] * 8.28))
 
 
-def test_the_shipped_example_is_found_by_name():
-    assert calibration_file("paper_circle_set1").is_file()
+def test_the_shipped_example_is_found_by_name_and_plans():
+    path = calibration_file("paper_circle_set1")
+    made = plan(load_calibration(path), str(path))
+    start = {f.label: f.start_value for f in made.spec.free}
+    theta = build(scenario_of(made, 0, start), str(path)).plant.true_parameters()
+    assert theta[:6] == pytest.approx([0.12, 0.5, 0.5, 0.7, 0.1, 0.15], rel=1e-6)  # the identification constraint
+    assert list(theta[6:]) == pytest.approx([start["dN1"], start["dN2"]])
+
+
+def test_an_unreachable_scheduler_is_exit_2_nothing_written(tmp_path, capsys):
+    spec = tmp_path / "spec.yaml"
+    spec.write_text(yaml.safe_dump(json.loads(json.dumps(GOOD)), sort_keys=False))
+    out = tmp_path / "out"
+    assert main(["calibrate", str(spec), "--out", str(out), "--scheduler", "tcp://127.0.0.1:9"]) == 2
+    assert "cannot connect" in capsys.readouterr().err
+    assert not out.exists()
 
 
 GOOD = {

@@ -38,9 +38,8 @@ def run_calibration(
     evaluations: int | None = None,
     on_evaluation: Callable[[Evaluation], None] | None = None,
 ) -> Fit:
-    """Fit ``made`` and write its files into ``out`` (made if need be)."""
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    """Fit ``made`` and write its files into ``out`` (made if need be, at the first evaluation)."""
+    out = Path(out)  # made by the first file written: a cluster that cannot be reached leaves nothing
     lines: list[str] = []
 
     def record(e: Evaluation) -> None:
