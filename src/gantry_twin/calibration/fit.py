@@ -86,9 +86,8 @@ def plan(spec: CalibrationSpec, source: str) -> Plan:
             scenarios.append(here if here.is_file() else resolve_scenario(target.scenario))
         except FileNotFoundError as exc:
             raise ScenarioError(source, f"targets[{i}].scenario", str(exc)) from None
-    fixed = _assignments(spec.base, "base")
-    for key, where in fixed:
-        _check_field(spec, source, key, where)
+    for key in spec.base:
+        _check_field(spec, source, key, f"base.{key}")
     for i, free in enumerate(spec.free):
         for key in free.fields():
             _check_field(spec, source, key, f"free[{i}].field")
@@ -139,10 +138,6 @@ def _shape(spec: CalibrationSpec, key: str) -> bool:
     """A LuGre shape field that the identification constraint turns into the plant's fields."""
     found = friction_field(key)
     return spec.identification is not None and found is not None and found[1] in SHAPE_FIELDS
-
-
-def _assignments(base: dict[str, Any], where: str) -> list[tuple[str, str]]:
-    return [(key, f"{where}.{key}") for key in base]
 
 
 def _check_field(spec: CalibrationSpec, source: str, key: str, where: str) -> None:

@@ -125,7 +125,11 @@ class CalibrationSpec(Model):
         if not self.free or len(self.free) > FREE_MAX:
             raise rule("free", f"give 1 to {FREE_MAX} free properties, got {len(self.free)}")
         seen: dict[str, str] = {}
+        labels: dict[str, int] = {}
         for i, free in enumerate(self.free):
+            if free.label in labels:
+                raise rule(f"free[{i}].name", f"{free.label!r} already names free[{labels[free.label]}]")
+            labels[free.label] = i
             for field in free.fields():
                 if field in seen:
                     raise rule(f"free[{i}].field", f"{field!r} is already free in {seen[field]}")
