@@ -5,22 +5,22 @@
     PYTHONPATH=src python tools/rig_study.py eval --plant rig      # the shipped models/rig.xml as it is
     PYTHONPATH=src python tools/rig_study.py overrides --set ...   # the scenario overrides of a point
 
+Fitting is ``gantry-twin calibrate`` (calibrations/paper_circle_set1.yaml, docs/cli.md); this script only
+evaluates a point on the whole of Tables 1-2, on the report's batch runner
+(:func:`gantry_twin.reports.paper.run_matrix`, the sweep engine).
+
 A point's parameters, per axis (suffix ``_x`` / ``_y``; without it, both):
 ``presliding_um`` (Fc / sigma0), ``zeta`` (sigma1 / 2 sqrt(sigma0 M)),
 ``fs_over_fc``, ``vs_mm_s``, ``offset_v`` (the constant dN), ``half_travel_v``
 (its linear part over the half travel), ``ripple_v`` (first harmonic),
 ``ripple2_v``, ``ripple3_v``, ``phase_rad``; and ``pitch_mm`` (both axes).
 Fc and sigma2 follow from the identification constraint in closed form
-(:func:`gantry_twin.friction.identified_af_b` is linear in Fc, Fs - Fc and
-sigma2): with (a, b) = stribeck_fit(vs) and r = Fs / Fc,
-
-    Fc = Af kf / (1 + (r - 1) a),   sigma2 = B kf - (Fs - Fc) b,
-
+(:func:`gantry_twin.calibration.lugre_fields`, as ``gantry-twin calibrate`` computes them),
 so the paper's identification returns the paper's Af and B exactly.
 
 Each case is one of the report's (gantry_twin.reports.paper.paper_matrix: Sets 1-3,
 C1-C3) shortened to 6.5 s (every contour window ends by then; the loop is
-causal), two processes at a time. Prints the 32 cells, paper / twin / error,
+causal), on ``--jobs`` local worker processes. Prints the 32 cells, paper / twin / error,
 and the acceptance counts; appends one JSON line per point to ``--log``.
 """
 
@@ -28,16 +28,14 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
-from gantry_twin.friction import stribeck_fit
-from gantry_twin.plant import Plant
-from gantry_twin.reports.paper import PAPER_CONTOUR_UM, paper_matrix, run_case
+from gantry_twin.calibration import lugre_fields
+from gantry_twin.plant import Plant, moving_masses_kg
+from gantry_twin.reports.paper import PAPER_CONTOUR_UM, paper_matrix, run_matrix
 
 AXES = ("x", "y")
 LABELS = ("C1", "C2", "C3")
@@ -74,19 +72,17 @@ def full_point(given: dict[str, float]) -> dict[str, float]:
 
 
 def lugre_axis(point: dict[str, float], axis: str) -> dict[str, float]:
-    """One axis' LuGre parameters (SI) of a point, Fc and sigma2 by the closed form of the module docstring."""
+    """One axis' LuGre parameters (SI) of a point, Fc and sigma2 by the identification constraint."""
     i = AXES.index(axis)
     plant = Plant()
-    gear = float(plant.gear_n_per_v[i])
-    mass = float(plant.true_parameters()[i]) * gear
-    r, vs = min(point[f"fs_over_fc_{axis}"], 2.0 - 1e-9), point[f"vs_mm_s_{axis}"] * 1e-3
-    a, b = stribeck_fit(vs)
-    fc = AF_V[i] * gear / (1.0 + (r - 1.0) * a)
-    fs = r * fc
-    sigma2 = B_V_S_M[i] * gear - (fs - fc) * b
-    sigma0 = fc / (point[f"presliding_um_{axis}"] * 1e-6)
-    sigma1 = point[f"zeta_{axis}"] * 2.0 * math.sqrt(sigma0 * mass)
-    return {"sigma0_n_m": sigma0, "sigma1_ns_m": sigma1, "fc_n": fc, "fs_n": fs, "vs_m_s": vs, "sigma2_ns_m": sigma2}
+    shape = {
+        "fs_over_fc": min(point[f"fs_over_fc_{axis}"], 2.0 - 1e-9),
+        "vs_m_s": point[f"vs_mm_s_{axis}"] * 1e-3,
+        "presliding_m": point[f"presliding_um_{axis}"] * 1e-6,
+        "zeta": point[f"zeta_{axis}"],
+    }
+    mass = float(moving_masses_kg(plant.model, plant.dof_index)[i])
+    return lugre_fields(shape, AF_V[i], B_V_S_M[i], mass, float(plant.gear_n_per_v[i]))
 
 
 def overrides(point: dict[str, float]) -> list[str]:
@@ -117,49 +113,12 @@ def cells(sets: tuple[int, ...]) -> list[tuple[str, int, str]]:
     ]
 
 
-def _run(case):  # noqa: ANN001, ANN202 (a worker's task)
-    r = run_case(case)
-    return (case.contour, case.set_id, case.label), r.rms_um, r.max_um
-
-
 def evaluate(
-    plant_overrides: list[str], sets: tuple[int, ...], pool: ProcessPoolExecutor, contours: tuple[str, ...] = CONTOURS
+    plant_overrides: list[str], sets: tuple[int, ...], jobs: int, contours: tuple[str, ...] = CONTOURS
 ) -> dict[tuple[str, int, str], tuple]:
+    """The cells of ``sets``: the report's cases with the point's overrides, on the report's batch runner."""
     cases = paper_matrix((*SHORT, *plant_overrides), sets=sets, contours=contours, labels=LABELS)
-    return {key: (rms, mx) for key, rms, mx in pool.map(_run, cases)}
-
-
-#: Free parameters of ``fit``: (low, high) of the unit box each is searched in.
-BOX = {
-    "vs_mm_s": (2.0, 50.0),
-    "fs_over_fc": (1.0, 2.0),
-    "offset_v": (0.0, 0.15),
-    "ripple_v": (0.0, 0.1),
-    "phase_rad": (-math.pi, math.pi),
-    "presliding_um": (0.5, 20.0),
-    "zeta": (0.01, 0.5),
-    "pitch_mm": (8.0, 32.0),
-    "ripple2_v": (0.0, 0.05),
-}
-
-
-def box(name: str) -> tuple[float, float]:
-    return BOX[name if name in BOX else name.rsplit("_", 1)[0]]
-
-
-def fit_cost(numbers: dict, ratio_weight: float = 0.0) -> float:
-    """Mean squared log ratio twin / paper of the six circle Set 1 numbers, plus ``ratio_weight`` times the
-    squared log ratio of DIARC's rms over DARC's, twin / paper (0.98 on circle Set 1), plus a penalty on that
-    ratio above 1.04."""
-    keys = [("circle", 1, label) for label in LABELS]
-    logs = [math.log(numbers[k][i] / PAPER_CONTOUR_UM[k][i]) for k in keys for i in (0, 1)]
-    ratio = numbers[keys[1]][0] / numbers[keys[0]][0]
-    paper_ratio = PAPER_CONTOUR_UM[keys[1]][0] / PAPER_CONTOUR_UM[keys[0]][0]
-    return (
-        float(np.mean(np.square(logs)))
-        + ratio_weight * math.log(ratio / paper_ratio) ** 2
-        + 10.0 * max(0.0, ratio - 1.04) ** 2
-    )
+    return {(r.case.contour, r.case.set_id, r.case.label): (r.rms_um, r.max_um) for r in run_matrix(cases, jobs)}
 
 
 def judge(numbers: dict) -> list[str]:
@@ -190,57 +149,9 @@ def judge(numbers: dict) -> list[str]:
     return lines
 
 
-def fit(start: dict[str, float], free: list[str], pool: ProcessPoolExecutor, args: argparse.Namespace) -> dict:
-    """Nelder-Mead on circle Set 1 alone (:func:`fit_cost`) in the unit box of ``free``; every evaluation logged."""
-    from scipy.optimize import minimize
-
-    def point_of(u: np.ndarray) -> dict[str, float]:
-        point = dict(start)
-        for name, x in zip(free, np.clip(u, 0.0, 1.0), strict=True):
-            lo, hi = box(name)
-            value = lo + (hi - lo) * x
-            point.update({f"{name}_{a}": value for a in AXES} if name in AXIS_DEFAULTS else {name: value})
-        return point
-
-    def unit(point: dict[str, float]) -> np.ndarray:
-        out = []
-        for name in free:
-            lo, hi = box(name)
-            out.append((point[f"{name}_x" if name in AXIS_DEFAULTS else name] - lo) / (hi - lo))
-        return np.array(out)
-
-    history = []
-
-    def objective(u: np.ndarray) -> float:
-        point = point_of(u)
-        numbers = evaluate(overrides(point), (1,), pool, ("circle",))
-        c = fit_cost(numbers, args.ratio_weight)
-        history.append((c, point))
-        shown = " ".join(f"{k}={point[k if k in point else k + '_x']:.4g}" for k in free)
-        cells_ = " ".join(f"{numbers[('circle', 1, label)][i]:.2f}" for label in LABELS for i in (0, 1))
-        print(f"{len(history):3d} cost {c:.5f} | {cells_} | {shown}", flush=True)
-        with args.log.with_suffix(".fit.jsonl").open("a") as handle:
-            handle.write(json.dumps({"cost": c, "point": point}) + "\n")
-        return c
-
-    minimize(
-        objective,
-        unit(start),
-        method="Nelder-Mead",
-        options={"maxfev": args.evaluations, "xatol": 0.005, "fatol": 1e-5, "initial_simplex": None},
-    )
-    best = min(history, key=lambda h: h[0])
-    print(f"best cost {best[0]:.5f}: " + json.dumps(best[1]))
-    return best[1]
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("mode", choices=("eval", "overrides", "fit"))
-    parser.add_argument("--free", default="", help="fit: comma-separated parameters (a name without _x/_y: both)")
-    parser.add_argument("--evaluations", type=int, default=60)
-    parser.add_argument("--ratio-weight", type=float, default=0.0, help="fit: weight of C2 / C1 rms")
-    parser.add_argument("--start", type=Path, help="fit: start from the best point of a .fit.jsonl")
+    parser.add_argument("mode", choices=("eval", "overrides"))
     parser.add_argument("--set", action="append", default=[], metavar="NAME=V")
     parser.add_argument("--plant", choices=("point", "rig", "paper"), default="point")
     parser.add_argument("--jobs", type=int, default=2)
@@ -249,24 +160,13 @@ def main() -> None:
     args = parser.parse_args()
     given = {k.strip(): float(v) for k, _, v in (p.partition("=") for p in args.set)}
     point = full_point(given)
-    if args.start is not None:
-        entries = [json.loads(line) for line in args.start.read_text().splitlines() if line.strip()]
-        point = {
-            **min(entries, key=lambda e: e["cost"])["point"],
-            **{k: v for k, v in full_point(given).items() if k in given or k[:-2] in given},
-        }
     plant_overrides = overrides(point) if args.plant == "point" else [f"plant.model={args.plant}"]
     if args.mode == "overrides":
         print("\n".join(plant_overrides))
         return
     sets = tuple(int(s) for s in args.sets.split(","))
     started = time.perf_counter()
-    pool = ProcessPoolExecutor(max_workers=args.jobs)
-    if args.mode == "fit":
-        point = fit(point, [n for n in args.free.split(",") if n], pool, args)
-        plant_overrides = overrides(point)
-    numbers = evaluate(plant_overrides, sets, pool)
-    pool.shutdown()
+    numbers = evaluate(plant_overrides, sets, args.jobs)
     print(f"| contour | set | ctrl | paper rms / max | twin rms / max | error rms / max % |  ({args.plant})")
     for key in cells(sets):
         p, t = PAPER_CONTOUR_UM[key], numbers[key]

@@ -28,6 +28,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, NoReturn
 
+from gantry_twin.cli import calibrate as calibrate_command
 from gantry_twin.cli import compare as compare_command
 from gantry_twin.cli import excite as excite_command
 from gantry_twin.cli import export as export_command
@@ -107,7 +108,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(
         dest="command",
         required=True,
-        metavar="{run,monitor,validate,report,sweep,scenarios,export,compare,identify,excite}",
+        metavar="{run,monitor,validate,report,sweep,calibrate,scenarios,export,compare,identify,excite}",
         parser_class=_Parser,
     )
 
@@ -188,6 +189,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sweep.add_argument("--resume", action="store_true", help="run only the points DIR/results.parquet lacks")
     _add_progress(sweep)
+    calibrate = sub.add_parser("calibrate", help="fit the plant to a machine's measured contour errors")
+    calibrate_command.add_arguments(calibrate)
+    calibrate.set_defaults(func=calibrate_command.command)
 
     scenarios = sub.add_parser("scenarios", help="list the shipped scenarios, one line each")
     scenarios.set_defaults(func=_scenarios)

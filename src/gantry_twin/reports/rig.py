@@ -2,15 +2,14 @@
 
 ``gantry-twin report --rig FILE`` runs the report's matrix (:mod:`gantry_twin.reports.paper`)
 a second time with the rig plant, the scenario overrides of FILE (the
-``overrides`` list of the ``fit.json`` that ``tools/calibrate_friction.py``
+``overrides`` list of the ``fit.json`` that ``gantry-twin calibrate``
 writes), and adds to report.md a section with paper / twin with rig friction
 / twin with Coulomb friction for every cell of Tables 1-2, the rig's error per
 cell (circle Set 1 is the calibration's fit, the other cells validation), the
 acceptance checks on the rig's numbers (docs/friction.md), and a figure of eps_c +-50 ms
 around an X reversal of circle Set 1 for C1-C3, rig and Coulomb
 (``rig_reversal_spike.png``), and writes the rig runs' numbers to
-``rig.json``. ``tools/friction_report.py`` adds the health monitor's alarms
-over long runs (:func:`monitor_alarms`).
+``rig.json``. :func:`monitor_alarms` counts the health monitor's alarms over long runs.
 """
 
 from __future__ import annotations
@@ -33,7 +32,8 @@ from gantry_twin.run import execute
 from gantry_twin.scenario import BuiltRun, ScenarioError, build, load_scenario, shipped
 
 LABELS = ("C1", "C2", "C3")
-#: The cells the calibration fitted (contour, set): circle Set 1 (tools/calibrate_friction.py); the rest validate.
+#: The cells the calibration fitted (contour, set): circle Set 1 (calibrations/paper_circle_set1.yaml);
+#: the rest validate.
 FIT_CELLS = {("circle", 1)}
 #: The rig's acceptance (docs/friction.md): at least VALIDATION_TARGET of the 26 validation numbers within
 #: VALIDATION_PCT of the paper.

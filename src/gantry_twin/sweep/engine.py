@@ -242,7 +242,7 @@ def run_batch(
     ``scheduler``; every worker first compiles or loads the loops of the
     ``resolved`` scenarios (:func:`prepare_workers`), then ``on_ready`` is
     called and :func:`run_tasks` yields (index, result, error). A sweep, the
-    paper's report matrix and a calibration's evaluations all run through it.
+    paper's report matrix run through it (a calibration's batches: :func:`open_batches`).
     """
     with open_client(workers, scheduler) as client:
         if arguments:
@@ -250,6 +250,31 @@ def run_batch(
         if on_ready is not None:
             on_ready()
         yield from run_tasks(client, function, arguments, progress, desc, total, initial)
+
+
+@contextlib.contextmanager
+def open_batches(
+    resolved: Sequence[dict[str, Any]], source: str, workers: int | None = None, scheduler: str | None = None
+) -> Iterator[Callable[[Callable[..., Any], Sequence[tuple[Any, ...]]], list[Any]]]:
+    """:func:`run_all` for a caller that runs one batch after another on one cluster (a calibration: each of its
+    optimiser's evaluations is a batch of runs, decided by the results of the last).
+
+    The cluster is opened and every worker warmed up for the ``resolved``
+    scenarios once; the yielded ``run(function, arguments)`` returns the
+    results in the order of ``arguments`` and raises the first task's error.
+    """
+    with open_client(workers, scheduler) as client:
+        prepare_workers(client, resolved, source)
+
+        def run(function: Callable[..., Any], arguments: Sequence[tuple[Any, ...]]) -> list[Any]:
+            done: dict[int, Any] = {}
+            for index, result, error in run_tasks(client, function, arguments):
+                if error is not None:
+                    raise error
+                done[index] = result
+            return [done[i] for i in range(len(arguments))]
+
+        yield run
 
 
 def run_all(
