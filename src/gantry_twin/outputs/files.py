@@ -3,13 +3,16 @@
 A crash leaves either the old file, the new file, or a hidden
 ``.<name>.*.part`` file, never a half-written file under the final name; an
 exception (Ctrl-C, and SIGTERM and SIGHUP under the command line) removes the
-temporary file.
+temporary file. Nothing is ever renamed over an existing path that is not a regular file (a device such as
+/dev/null, a FIFO, a socket, a directory): :class:`NotRegularFileError` instead, and the path is left as it was.
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
+import stat
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
@@ -21,12 +24,45 @@ import pyarrow.parquet as pq
 from gantry_twin.outputs.signals import signals_held
 
 
+class NotRegularFileError(FileExistsError):
+    """An output path exists and is not a regular file: it is never replaced."""
+
+    def __init__(self, path: Path, kind: str) -> None:
+        super().__init__(errno.EEXIST, f"exists and is {kind}, not a regular file; it is never replaced", str(path))
+
+
+def _kind(mode: int) -> str:
+    if stat.S_ISDIR(mode):
+        return "a directory"
+    if stat.S_ISFIFO(mode):
+        return "a FIFO"
+    if stat.S_ISSOCK(mode):
+        return "a socket"
+    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
+        return "a device"
+    return "not a plain file"
+
+
+def check_replaceable(path: Path) -> None:
+    """Refuse (``NotRegularFileError``) when ``path`` exists, behind any symlink, and is not a regular file."""
+    try:
+        mode = os.stat(path).st_mode
+    except (FileNotFoundError, NotADirectoryError):
+        return
+    except OSError:
+        mode = os.lstat(path).st_mode  # e.g. a symlink loop: the link itself is what would be replaced
+    if not stat.S_ISREG(mode):
+        raise NotRegularFileError(Path(path), _kind(mode))
+
+
 def temporary_file(path: Path) -> tuple[IO[bytes], Path]:
     """A new hidden ``.<name>.*.part`` file beside ``path`` (with the usual permissions), open for writing.
 
     Create and name it inside ``with signals_held():`` within the ``try``
-    whose ``except`` discards it, so that an interrupt comes after the name is known.
+    whose ``except`` discards it, so that an interrupt comes after the name is known. ``NotRegularFileError``
+    when ``path`` exists and is not a regular file (checked again by :func:`commit`).
     """
+    check_replaceable(path)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".part")
     try:
         os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give the usual permissions
@@ -42,6 +78,7 @@ def commit(fh: IO[bytes], tmp: Path, path: Path) -> None:
     fh.flush()
     os.fsync(fh.fileno())
     fh.close()
+    check_replaceable(path)
     os.replace(tmp, path)
     _fsync_dir(path.parent)
 
