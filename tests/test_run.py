@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import sys
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -119,6 +120,8 @@ class FaultyPD(PD):
         if measurement.t_s >= FAULT_STEP * TS - 1e-9:
             if self.mode == "raise":
                 raise ValueError("plug-in fault")
+            if self.mode == "exit":
+                sys.exit()  # SystemExit(None): a plug-in that "stops the program"
             return np.array([np.nan, 0.0])
         return super().update(measurement, reference)
 
@@ -203,6 +206,18 @@ def check_evidence(out, code, err, mode):  # noqa: ANN001, ANN201
     assert "contour_error_um" not in data  # a run that stopped early is not judged
     assert (out / "scenario.yaml").exists() and (out / "run_info.json").exists()
     return table
+
+
+def test_a_plugin_that_calls_sys_exit_is_a_failed_run_not_exit_0(tmp_path, capsys, faulty_controllers):
+    """sys.exit() in update(): the run stops as a failed run (exit 1, summary.json status failed, the trace kept)."""
+    out = tmp_path / "out"
+    args = ["run", "no_load_circle", *SHORT, "--controller", "faulty_py", "--set", "controller.options.mode=exit"]
+    code, stdout, err = run_main([*args, "--out", str(out)], capsys)
+    assert code == 1 and stdout == "", err
+    assert "the controller raised SystemExit at t = 0.2000 s (step 1000)" in one_line(err)
+    data = json.loads((out / "summary.json").read_text())
+    assert data["status"] == "failed" and data["steps"] == FAULT_STEP and "SystemExit" in data["failure"]["error"]
+    assert pq.read_table(out / "trace.parquet").num_rows == FAULT_STEP
 
 
 @pytest.mark.parametrize("mode", ["nan", "raise"])
