@@ -312,3 +312,36 @@ def test_the_writer_checks_before_it_writes(tmp_path):
             assert (tmp_path / "new").is_dir()
             writer.discard()
         assert list(tmp_path.iterdir()) == []
+
+
+def test_a_sigkilled_runs_temporaries_are_removed_by_the_next_run_in_its_directory(tmp_path, capsys):
+    """SIGKILL leaves the trace's ``.trace.parquet.<pid>.*.part``; the next run into the same --out removes it
+    (its process is gone) and leaves a live process's temporary and other files alone."""
+    import signal
+    import subprocess
+    import time
+    from pathlib import Path
+
+    out = tmp_path / "out"
+    src = Path(__file__).resolve().parents[1] / "src"
+    env = {**os.environ, "PYTHONPATH": str(src)}
+    command = [sys.executable, "-m", "gantry_twin.cli", "run", "--set", "duration_s=60", "--no-progress", "--out=out"]
+    child = subprocess.Popen(command, cwd=tmp_path, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 120.0
+        while not (out.is_dir() and list(out.glob(".trace.parquet.*.part"))):
+            assert child.poll() is None and time.monotonic() < deadline, "no trace temporary appeared"
+            time.sleep(0.05)
+        child.send_signal(signal.SIGKILL)
+        child.wait(timeout=30)
+    finally:
+        if child.poll() is None:
+            child.kill()
+    (stale,) = out.glob(".trace.parquet.*.part")
+    assert stale.name.startswith(f".trace.parquet.{child.pid}.")
+    live = out / f".trace.parquet.{os.getpid()}.abc123.part"  # this test's process is alive
+    live.write_bytes(b"in use")
+    (out / "notes.part").write_text("mine\n")
+    code, _, err = run_main(["run", "no_load_circle", *SHORT, "--out", str(out), "--no-progress"], capsys)
+    assert code == 0, err
+    assert not stale.exists() and live.exists() and (out / "notes.part").exists()
