@@ -83,6 +83,48 @@ def test_a_bad_run_is_one_line_and_exit_2_and_writes_nothing(run_dir, tmp_path, 
     assert sorted(p.name for p in tmp_path.iterdir()) == before
 
 
+KINDS = {"fifo": "a FIFO", "directory": "a directory", "symlink_to_dev_null": "a device"}
+
+
+@pytest.mark.parametrize("kind", ["fifo", "directory", "symlink_to_dev_null"])
+def test_an_out_that_is_not_a_regular_file_is_refused_and_left_as_it_was(run_dir, tmp_path, capsys, kind):
+    """Never renamed over: a FIFO stays a FIFO (and is not opened), a directory stays, /dev/null stays a device."""
+    import os
+    import stat
+
+    out = tmp_path / "x.csv"
+    if kind == "fifo":
+        os.mkfifo(out)
+    elif kind == "directory":
+        out.mkdir()
+    else:
+        out.symlink_to("/dev/null")
+    before = os.lstat(out)
+    code, stdout, err = run_main(["export", str(run_dir), "--csv", "--out", str(out)], capsys)
+    assert code == 2 and stdout == ""
+    assert err.strip().splitlines() == [
+        f"gantry-twin: error: --out {out}: exists and is {KINDS[kind]}, not a regular file; it is never replaced"
+        " (give the CSV file's name)"
+    ]
+    after = os.lstat(out)
+    assert (after.st_ino, stat.S_IFMT(after.st_mode)) == (before.st_ino, stat.S_IFMT(before.st_mode))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["x.csv"]
+    assert stat.S_ISCHR(os.stat("/dev/null").st_mode)
+
+
+def test_the_output_door_never_renames_over_a_fifo(tmp_path):
+    """outputs.files.atomic_write: checked again just before the rename (the FIFO appears during the write)."""
+    import os
+    import stat
+
+    from gantry_twin.outputs.files import NotRegularFileError, atomic_write
+
+    out = tmp_path / "f"
+    with pytest.raises(NotRegularFileError):
+        atomic_write(out, lambda fh: (fh.write(b"x"), os.mkfifo(out)))
+    assert stat.S_ISFIFO(os.lstat(out).st_mode) and [p.name for p in tmp_path.iterdir()] == ["f"]
+
+
 def test_export_needs_csv(run_dir, capsys):
     code, _, err = run_main(["export", str(run_dir)], capsys)
     assert code == 2 and "--csv" in err and len(err.strip().splitlines()) == 1

@@ -24,6 +24,7 @@ import pytest
 
 from gantry_twin.inputs import INPUT_MAX_BYTES
 from gantry_twin.scenario.loading import INPUT_MAX_DEPTH
+from gantry_twin.sweep.engine import machine_cores
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "hostile-input.md"
 #: What every case must stay within: CPU seconds (start-up included), and a wall-clock bound for a blocked read.
@@ -69,6 +70,18 @@ def _unknown_keys(megabytes: float) -> str:
 
 
 MONITORED = "monitor: {enable: true, baseline_summary: %s}\n"
+#: ``export`` of a (junk) trace to an --out that follows; a sweep file and its command.
+EXPORT = ("export", "trace.parquet", "--csv", "--out")
+SWEEP = "scenario: no_load_circle\naxes:\n  - {field: payload.mass_kg, values: [0, 1]}\n"
+SWEEP_RUN = ("sweep", "w.yaml", "--out", "out")
+
+
+def _log_csv(t_scale: float, rows: int = 200) -> str:
+    """A log of still axes at the machine's 0.2 ms, its t_s multiplied by ``t_scale`` (1000: milliseconds)."""
+    lines = ["t_s,u_x_v,u_y_v,x_m,y_m"] + [f"{k * 2e-4 * t_scale!r},0.0,0.0,0.0,0.0" for k in range(rows)]
+    return "\n".join(lines) + "\n"
+
+
 #: Past our nesting limit, and past libyaml's own (1000).
 DEEP, DEEPER = INPUT_MAX_DEPTH * 5, 1001
 
@@ -130,6 +143,18 @@ CASES = [
     Case("controller_name_of_10k_chars", {"s.yaml": "{}\n"}, (*RUN, "--controller", "c" * 10_000)),
     Case("out_is_a_file", {"s.yaml": "{}\n", "afile": "x"}, ("run", "s.yaml", "--out", "afile")),
     Case("jobs_of_5000_digits", {}, ("report", "--jobs", "9" * 5000, "--out", "out")),
+    # Outputs that are not regular files: never replaced (nothing read or written first).
+    Case("export_out_fifo", {"trace.parquet": "junk\n", "x.csv": Fifo()}, EXPORT + ("x.csv",)),
+    Case("export_out_dev_null", {"trace.parquet": "junk\n"}, EXPORT + ("/dev/null",)),
+    Case("export_out_directory", {"trace.parquet": "junk\n", "d": Link(".")}, EXPORT + ("d",)),
+    # Resources a typo could exhaust, and addresses that are none.
+    Case("sweep_workers_of_20_digits", {"w.yaml": SWEEP}, (*SWEEP_RUN, "--workers", "9" * 20)),
+    Case("sweep_workers_past_the_cores", {"w.yaml": SWEEP}, (*SWEEP_RUN, "--workers", "100000")),
+    Case("sweep_scheduler_not_an_address", {"w.yaml": SWEEP}, (*SWEEP_RUN, "--scheduler", "notaurl")),
+    # A log in other units than the machine's.
+    Case(
+        "monitor_log_t_in_milliseconds", {"log.csv": _log_csv(1000.0)}, ("monitor", "--log", "log.csv", "--out", "out")
+    ),
 ]
 
 
@@ -230,9 +255,9 @@ def test_nothing_written_beside_the_cases(hostile_root, outcomes):
 
 
 def documented_answers() -> dict[str, str]:
-    """case id -> the one-line answer, from the table in docs/hostile-input.md."""
+    """case id -> the one-line answer, from the table in docs/hostile-input.md (``<cores>``: this machine's)."""
     rows = re.findall(r"^\| `([^`]+)` \| .* \| `(.*)` \|$", DOC.read_text(encoding="utf-8"), flags=re.MULTILINE)
-    return dict(rows)
+    return {case: answer.replace("<cores>", str(machine_cores())) for case, answer in rows}
 
 
 def test_more_than_30_cases_each_documented():

@@ -102,6 +102,32 @@ def test_identify_command_writes_parameters_plant_and_fit_report(tmp_path):
     np.testing.assert_allclose(built.plant.true_parameters()[:6], identified, rtol=1e-5)  # MJCF text: 6 digits
 
 
+@pytest.mark.parametrize(("entry", "value"), [(2, -47.72), (5, -10.37), (0, 0.0), (1, -0.5)])
+def test_an_unphysical_fit_exits_1_with_the_reason_and_writes_no_plant(tmp_path, capsys, monkeypatch, entry, value):
+    """Negative damping or friction, a mass <= 0: exit 1, one line naming the entry, no plant.xml (nothing at all)."""
+    from gantry_twin.cli import identify as identify_command
+    from gantry_twin.sysid.identify import THETA_UNITS
+
+    theta = spec_theta(0.0)
+    log = ode_log(theta, duration_s=1.0)
+    write_log(tmp_path / "log.csv", log.t_s, log.u_v, log.q_m, None)
+
+    def unphysical(logs, settings):  # noqa: ANN001, ANN202
+        result = identify(logs, settings)
+        result.theta[entry] = value
+        return result
+
+    monkeypatch.setattr(identify_command, "identify", unphysical)
+    out = tmp_path / "id"
+    capsys.readouterr()
+    assert main(["identify", str(tmp_path / "log.csv"), "--out", str(out)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    name = ("M1", "M2", "B1", "B2", "Af1", "Af2")[entry]
+    assert len(err) == 1 and err[0].startswith("gantry-twin: identify failed: the fit is not physical (")
+    assert f"{name} = {value:.4g} {THETA_UNITS[entry]}" in err[0] and "no plant.xml written" in err[0]
+    assert not out.exists()
+
+
 def _errors(result, truth):
     err = np.abs(result.theta[:6] - truth[:6]) / truth[:6]
     return err[:2].max(), err[2:6].max()

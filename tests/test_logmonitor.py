@@ -77,6 +77,28 @@ def test_monitor_log_without_diarc_is_bad_input(tmp_path, capsys):
     assert "DIARC" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize(
+    ("factor", "answer"),
+    [
+        (
+            1e3,
+            "its sample period is 0.2 s (t_s in seconds), not the machine's 0.2 ms: t_s looks like milliseconds;"
+            " give t_s in seconds",
+        ),
+        (5.0, "its sample period is 0.001 s (t_s in seconds), not the machine's 0.2 ms; give a log sampled at it"),
+    ],
+)
+def test_monitor_log_at_another_sample_period_is_refused_naming_the_unit(tmp_path, capsys, factor, answer):
+    """t_s in milliseconds (a 6000 s "log" at 0.2 s) once gave 0 alarms; now: exit 2, one line, nothing written."""
+    t = np.arange(1000) * 2e-4 * factor
+    write_log(tmp_path / "log.csv", t, np.zeros((1000, 2)), np.zeros((1000, 2)), None)
+    out = tmp_path / "o"
+    code = main(["monitor", "--log", str(tmp_path / "log.csv"), "--out", str(out)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and err == [f"gantry-twin: error: --log {tmp_path / 'log.csv'}: {answer}"]
+    assert not out.exists()
+
+
 @pytest.mark.slow
 def test_friction_drift_circle_same_alarms_from_its_trace(tmp_path):
     """Acceptance: the trace of friction_drift_circle monitored as a log raises the simulated monitor's alarms."""

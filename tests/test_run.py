@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import sys
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -119,6 +120,8 @@ class FaultyPD(PD):
         if measurement.t_s >= FAULT_STEP * TS - 1e-9:
             if self.mode == "raise":
                 raise ValueError("plug-in fault")
+            if self.mode == "exit":
+                sys.exit()  # SystemExit(None): a plug-in that "stops the program"
             return np.array([np.nan, 0.0])
         return super().update(measurement, reference)
 
@@ -203,6 +206,18 @@ def check_evidence(out, code, err, mode):  # noqa: ANN001, ANN201
     assert "contour_error_um" not in data  # a run that stopped early is not judged
     assert (out / "scenario.yaml").exists() and (out / "run_info.json").exists()
     return table
+
+
+def test_a_plugin_that_calls_sys_exit_is_a_failed_run_not_exit_0(tmp_path, capsys, faulty_controllers):
+    """sys.exit() in update(): the run stops as a failed run (exit 1, summary.json status failed, the trace kept)."""
+    out = tmp_path / "out"
+    args = ["run", "no_load_circle", *SHORT, "--controller", "faulty_py", "--set", "controller.options.mode=exit"]
+    code, stdout, err = run_main([*args, "--out", str(out)], capsys)
+    assert code == 1 and stdout == "", err
+    assert "the controller raised SystemExit at t = 0.2000 s (step 1000)" in one_line(err)
+    data = json.loads((out / "summary.json").read_text())
+    assert data["status"] == "failed" and data["steps"] == FAULT_STEP and "SystemExit" in data["failure"]["error"]
+    assert pq.read_table(out / "trace.parquet").num_rows == FAULT_STEP
 
 
 @pytest.mark.parametrize("mode", ["nan", "raise"])
@@ -297,3 +312,36 @@ def test_the_writer_checks_before_it_writes(tmp_path):
             assert (tmp_path / "new").is_dir()
             writer.discard()
         assert list(tmp_path.iterdir()) == []
+
+
+def test_a_sigkilled_runs_temporaries_are_removed_by_the_next_run_in_its_directory(tmp_path, capsys):
+    """SIGKILL leaves the trace's ``.trace.parquet.<pid>.*.part``; the next run into the same --out removes it
+    (its process is gone) and leaves a live process's temporary and other files alone."""
+    import signal
+    import subprocess
+    import time
+    from pathlib import Path
+
+    out = tmp_path / "out"
+    src = Path(__file__).resolve().parents[1] / "src"
+    env = {**os.environ, "PYTHONPATH": str(src)}
+    command = [sys.executable, "-m", "gantry_twin.cli", "run", "--set", "duration_s=60", "--no-progress", "--out=out"]
+    child = subprocess.Popen(command, cwd=tmp_path, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 120.0
+        while not (out.is_dir() and list(out.glob(".trace.parquet.*.part"))):
+            assert child.poll() is None and time.monotonic() < deadline, "no trace temporary appeared"
+            time.sleep(0.05)
+        child.send_signal(signal.SIGKILL)
+        child.wait(timeout=30)
+    finally:
+        if child.poll() is None:
+            child.kill()
+    (stale,) = out.glob(".trace.parquet.*.part")
+    assert stale.name.startswith(f".trace.parquet.{child.pid}.")
+    live = out / f".trace.parquet.{os.getpid()}.abc123.part"  # this test's process is alive
+    live.write_bytes(b"in use")
+    (out / "notes.part").write_text("mine\n")
+    code, _, err = run_main(["run", "no_load_circle", *SHORT, "--out", str(out), "--no-progress"], capsys)
+    assert code == 0, err
+    assert not stale.exists() and live.exists() and (out / "notes.part").exists()

@@ -346,7 +346,8 @@ def test_axial_and_command_metrics_against_direct_computation():
         assert largest[axis] == u_max[axis] and np.sum(np.abs(u[:, axis]) >= u_max[axis]) > 0
 
 
-def test_resume_keeps_ok_rows_of_this_sweep_and_reruns_failed_ones(tmp_path):
+def test_resume_keeps_ok_rows_of_this_sweep_and_reruns_failed_ones_and_refuses_a_changed_sweep(tmp_path):
+    from gantry_twin.scenario import ScenarioError
     from gantry_twin.sweep.table import ResultsTable
 
     path = tmp_path / "minimal.yaml"
@@ -357,14 +358,14 @@ def test_resume_keeps_ok_rows_of_this_sweep_and_reruns_failed_ones(tmp_path):
     first.add(plan.points[1], {"status": "failed", "error": "SimulationError: x", "wall_time_s": 0.1})
     first.add(plan.points[4], {"contour_rms_um": 2.0, "status": "ok", "error": None, "wall_time_s": 0.5})
     (tmp_path / ".results.parquet.abc.part").write_bytes(b"cut short")
-    # The same sweep with one payload value changed: points 0-1 are still there, 4-5 (5 kg) are gone.
+    resumed = ResultsTable(plan, tmp_path / "results.parquet")
+    assert resumed.load() == 2
+    assert [resumed.done(p) for p in plan.points] == [True, False, False, False, True, False]
+    assert resumed.rows[plan.points[1].key]["status"] == "failed"  # kept until it runs again
+    assert not list(tmp_path.glob(".*.part"))
+    # The same sweep with one payload value changed is another plan: its results are not taken.
     path.write_text(MINIMAL.replace("[0, 2.5, 5]", "[0, 2.5, 6]"))
     changed = plan_sweep(load_sweep(path), str(path))
-    resumed = ResultsTable(changed, tmp_path / "results.parquet")
-    assert resumed.load() == 1
-    assert [resumed.done(p) for p in changed.points] == [True] + [False] * 5
-    assert resumed.rows[changed.points[1].key]["status"] == "failed"  # kept until it runs again
-    assert not list(tmp_path.glob(".*.part"))
-    resumed.write()
-    rows = rows_of(tmp_path)
-    assert [r["point"] for r in rows] == [0, 1] and rows[0]["contour_rms_um"] == 1.0
+    with pytest.raises(ScenarioError, match="holds the results of another sweep"):
+        ResultsTable(changed, tmp_path / "results.parquet").load()
+    assert [r["point"] for r in rows_of(tmp_path)] == [0, 1, 4]

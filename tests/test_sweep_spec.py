@@ -191,7 +191,11 @@ def test_at_least_15_malformed_sweep_files_each_with_its_own_message(tmp_path, c
 @pytest.mark.parametrize(
     ("argv", "fragment"),
     [
-        (["--workers", "0"], "--workers: must be a positive integer"),
+        (["--workers", "0"], "--workers: must be 1 to "),
+        (["--workers", "99999999999999999999"], "(this machine's cores), got 99999999999999999999"),
+        (["--workers", "100000"], "(this machine's cores), got 100000"),
+        (["--scheduler", "notaurl"], "--scheduler 'notaurl': not an address; give [tcp://]HOST:PORT"),
+        (["--resume", "--fresh"], "not allowed with argument"),
         (["--workers", "2", "--scheduler", "tcp://127.0.0.1:1"], "not allowed with argument"),
         (["--scheduler", "tcp://127.0.0.1:1"], "--scheduler tcp://127.0.0.1:1: cannot connect"),
     ],
@@ -218,6 +222,84 @@ def test_an_earlier_sweep_is_not_overwritten_without_resume(tmp_path, capsys):
     code, _, err = run_main(["sweep", str(path), "--out", str(out)], capsys)
     assert code == 2 and "add --resume" in one_line(err)
     assert (out / "results.parquet").read_bytes() == b"earlier"
+
+
+def _results_of(plan, out) -> None:
+    from gantry_twin.sweep.table import ResultsTable
+
+    table = ResultsTable(plan, out / "results.parquet")
+    table.add(plan.points[0], {"contour_rms_um": 1.0, "status": "ok", "error": None, "wall_time_s": 0.5})
+
+
+def test_resume_of_another_sweeps_results_is_refused_and_changes_nothing(tmp_path, capsys):
+    """Sweep A's results in DIR; ``sweep B --resume`` there: exit 2, A's files as they were, what to do instead."""
+    a, b = tmp_path / "a.yaml", tmp_path / "b.yaml"
+    a.write_text(HEAD + AXIS)
+    b.write_text(HEAD + AXIS.replace("[0, 1]", "[0, 2]"))
+    out = tmp_path / "out"
+    _results_of(plan_sweep(load_sweep(a), str(a)), out)
+    (out / "contour_rms_um_vs_payload.mass_kg.png").write_bytes(b"A's figure")
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    code, stdout, err = run_main(["sweep", str(b), "--out", str(out), "--resume", "--workers", "1"], capsys)
+    assert code == 2 and stdout == ""
+    line = one_line(err)
+    assert "holds the results of another sweep (plan " in line and "b.yaml is plan" in line
+    assert line.endswith("nothing resumed; choose a new --out, or add --fresh to replace them")
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+
+
+def test_results_without_a_plan_key_are_not_resumed(tmp_path, capsys):
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    a = tmp_path / "a.yaml"
+    a.write_text(HEAD + AXIS)
+    out = tmp_path / "out"
+    out.mkdir()
+    pq.write_table(pa.table({"key": ["x"], "status": ["ok"]}), out / "results.parquet")
+    code, _, err = run_main(["sweep", str(a), "--out", str(out), "--resume", "--workers", "1"], capsys)
+    assert code == 2 and "holds the results of another sweep (no plan key; a.yaml is plan" in one_line(err)
+
+
+def test_fresh_moves_the_earlier_sweep_aside_and_says_so(tmp_path):
+    from gantry_twin.sweep import set_aside
+    from gantry_twin.sweep.table import plan_key
+
+    a = tmp_path / "a.yaml"
+    a.write_text(HEAD + AXIS)
+    out = tmp_path / "out"
+    plan = plan_sweep(load_sweep(a), str(a))
+    _results_of(plan, out)
+    (out / "summary.md").write_text("A\n")
+    (out / "x_vs_y.png").write_bytes(b"A's figure")
+    (out / "notes.txt").write_text("mine\n")
+    line = set_aside(out)
+    (aside,) = out.glob("replaced-*")
+    assert line == (
+        f"--fresh: the earlier sweep's files in {out} (sweep a.yaml, plan {plan_key(plan)}): results.parquet, "
+        f"summary.md and 1 figures moved to {aside}"
+    )
+    assert sorted(p.name for p in out.iterdir()) == ["notes.txt", aside.name]
+    assert sorted(p.name for p in aside.iterdir()) == ["results.parquet", "summary.md", "x_vs_y.png"]
+    assert set_aside(out) == ""  # nothing left to move
+
+
+def test_a_sweep_whose_every_point_failed_exits_1(tmp_path, capsys, monkeypatch):
+    import gantry_twin.sweep as sweep
+    from gantry_twin.sweep.driver import SweepOutcome
+
+    a = tmp_path / "a.yaml"
+    a.write_text(HEAD + AXIS)
+    results = tmp_path / "out" / "results.parquet"
+    for failures, code in ((2, 1), (1, 0)):
+        outcome = SweepOutcome(2, 0, 2, failures, 1.0, 0.5, 0.5, results)
+        monkeypatch.setattr(sweep, "run_sweep", lambda *args, outcome=outcome: outcome)
+        got, _, err = run_main(["sweep", str(a), "--out", str(tmp_path / "out"), "--workers", "1"], capsys)
+        assert got == code
+        if code:
+            assert one_line(err) == (
+                f"gantry-twin: sweep failed: every point run failed (see the error column of {results})"
+            )
 
 
 def test_minimal_sweep_plans_the_grid_in_order(tmp_path):

@@ -26,7 +26,13 @@ from gantry_twin.events import TravelWatch
 from gantry_twin.gcode.part_error import PartErrorWatch
 from gantry_twin.gcode.sampling import Plan
 from gantry_twin.metrics import RunMetrics
-from gantry_twin.outputs.files import atomic_write_text, discard, remove_tree, temporary_file
+from gantry_twin.outputs.files import (
+    atomic_write_text,
+    discard,
+    remove_stale_temporaries,
+    remove_tree,
+    temporary_file,
+)
 from gantry_twin.outputs.signals import SwallowedInterrupt, signals_held
 from gantry_twin.outputs.summary import Failure, RunSummary, run_summary, summary_json
 from gantry_twin.outputs.tracefile import TRACE_COLUMNS, TRACE_FILE, TraceWriter, stored_row_bytes
@@ -157,6 +163,7 @@ class RunWriter:
         self._made = [p for p in (self.out, *self.out.parents) if not p.exists()]  # deepest first
         try:
             self.out.mkdir(parents=True, exist_ok=True)
+            remove_stale_temporaries(self.out)  # an earlier run's, SIGKILLed before it could remove them
             if scenario.outputs.trace:
                 self.trace = TraceWriter(self.out / TRACE_FILE, scenario.outputs.trace_stride)
             else:  # the trace writer's temporary file is the check; without one, try a file

@@ -319,7 +319,8 @@ class _Loop:
         try:
             arguments = (self.plant, self.encoder, self.recording, self.sample, self.changes, self.params, self.state)
             status, k = self.function(start, stop, *arguments)
-        except Exception as exc:  # the controller's step raised: the first sample not recorded is where
+        except (Exception, SystemExit) as exc:  # the controller's step raised (sys.exit() too): the first sample
+            # not recorded is where
             recorded = ~np.isnan(self.trace.q_m[self.trace.rows(start, stop), 0])
             k = start + int(np.argmin(recorded)) if not recorded.all() else stop
             text = str(exc).splitlines()[0] if str(exc) else ""

@@ -33,8 +33,22 @@ from gantry_twin.cli import compare as compare_command
 from gantry_twin.cli import excite as excite_command
 from gantry_twin.cli import export as export_command
 from gantry_twin.cli import identify as identify_command
+from gantry_twin.cli import sweep as sweep_command
+from gantry_twin.cli.common import (  # noqa: F401 -- the exit codes: tests and callers take them from here
+    EXIT_ALARM,
+    EXIT_BAD_INPUT,
+    EXIT_END_STOP,
+    EXIT_INTERRUPTED,
+    EXIT_NOT_JUDGED,
+    EXIT_OK,
+    EXIT_RUN_FAILED,
+    PROG,
+    BadInput,
+    checked_out,
+    failed,
+)
 from gantry_twin.cli.printing import format_health, format_summary, touched_end_stop, travel_warnings
-from gantry_twin.cli.progress import ProgressBar, progress_bar, progress_wanted  # noqa: F401 -- ProgressBar: tests
+from gantry_twin.cli.progress import ProgressBar, add_progress_arguments, progress_bar, progress_wanted  # noqa: F401 -- ProgressBar: tests
 from gantry_twin.cli.telemetry import add_telemetry_arguments, telemetry_observers
 from gantry_twin.compiling import compile_notice
 from gantry_twin.controllers import available
@@ -56,7 +70,6 @@ from gantry_twin.settings import label_from, shorten
 from gantry_twin.sysid.logs import LogError
 from gantry_twin.telemetry import TelemetryError
 
-PROG = "gantry-twin"
 #: The examples under ``gantry-twin --help`` (docs/cli.md has every command).
 EXAMPLES = """examples:
   gantry-twin run                                   the paper's no-load circle with DIARC (30 s)
@@ -75,18 +88,6 @@ PROGRAM_SUFFIXES = (".ngc", ".nc", ".gcode")
 DEFAULT_SCENARIO = "no_load_circle"
 #: Where outputs go by default: RUNS_DIR/<scenario name>/, RUNS_DIR/report/.
 RUNS_DIR = Path("runs")
-
-EXIT_OK = 0
-EXIT_RUN_FAILED = 1
-EXIT_BAD_INPUT = 2
-EXIT_ALARM = 3
-EXIT_END_STOP = 4
-EXIT_NOT_JUDGED = 5  # monitor: no parameter was ever judged (all in the baseline window or not excited)
-EXIT_INTERRUPTED = 128  # + the signal's number, as shells report it: 130 SIGINT, 143 SIGTERM, 129 SIGHUP
-
-
-class BadInput(Exception):
-    """Bad command-line input that is not a scenario field (exit code 2)."""
 
 
 class _Parser(argparse.ArgumentParser):
@@ -124,7 +125,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_out(run)
     _add_plots(run)
     _add_strict(run)
-    _add_progress(run)
+    add_progress_arguments(run)
     add_telemetry_arguments(run)
 
     monitor = sub.add_parser("monitor", help="run a scenario with the health monitor and report its alarms")
@@ -142,7 +143,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--fail-on-alarm", action="store_true", help=f"exit with status {EXIT_ALARM} if the monitor raised any alarm"
     )
     _add_strict(monitor)
-    _add_progress(monitor)
+    add_progress_arguments(monitor)
     add_telemetry_arguments(monitor)
 
     validate = sub.add_parser("validate", help="check scenario files without running them")
@@ -169,7 +170,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="also run the matrix with a rig plant: FILE's 'overrides' (a list of field=value strings); "
         "adds paper / rig / ideal per cell and a reversal-spike figure",
     )
-    _add_progress(report)
+    add_progress_arguments(report)
 
     identify = sub.add_parser("identify", help="identify M, B, Af (and LuGre) from logs; a plant file and a fit report")
     identify_command.add_arguments(identify)
@@ -179,16 +180,8 @@ def build_parser() -> argparse.ArgumentParser:
     excite.set_defaults(func=excite_command.command)
 
     sweep = sub.add_parser("sweep", help="run a sweep or Monte Carlo study on a Dask cluster (docs/sweeps.md)")
-    sweep.set_defaults(func=_sweep)
-    sweep.add_argument("file", help="sweep YAML file or shipped sweep name (sweeps/)")
-    sweep.add_argument("--out", metavar="DIR", type=Path, help=f"output directory (default: {RUNS_DIR}/sweeps/<file>/)")
-    where = sweep.add_mutually_exclusive_group()
-    where.add_argument("--workers", metavar="N", type=int, help="local worker processes (default: os.cpu_count())")
-    where.add_argument(
-        "--scheduler", metavar="ADDRESS", help="use the running Dask cluster at ADDRESS (tcp://host:8786)"
-    )
-    sweep.add_argument("--resume", action="store_true", help="run only the points DIR/results.parquet lacks")
-    _add_progress(sweep)
+    sweep_command.add_arguments(sweep, RUNS_DIR)
+    sweep.set_defaults(func=sweep_command.command)
     calibrate = sub.add_parser("calibrate", help="fit the plant to a machine's measured contour errors")
     calibrate_command.add_arguments(calibrate)
     calibrate.set_defaults(func=calibrate_command.command)
@@ -202,15 +195,6 @@ def build_parser() -> argparse.ArgumentParser:
     compare_command.add_arguments(compare, RUNS_DIR)
     compare.set_defaults(func=compare_command.command)
     return parser
-
-
-def _add_progress(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--progress",
-        action=argparse.BooleanOptionalAction,
-        default=None,
-        help="progress bar on stderr (default: when stderr is a terminal)",
-    )
 
 
 def _add_controller(parser: argparse.ArgumentParser) -> None:
@@ -298,25 +282,9 @@ def _validate(args: argparse.Namespace) -> int:
 def _out_dir(args: argparse.Namespace, scenario: Scenario) -> Path:
     """--out, else a new run directory under runs/<name>/ (gantry_twin.outputs.rundirs)."""
     if args.out is not None:
-        return _checked_out(args.out)
-    base = _checked_out(RUNS_DIR / (scenario.outputs.dir or str(scenario.name)))  # labels (settings.Label): under runs/
+        return checked_out(args.out)
+    base = checked_out(RUNS_DIR / (scenario.outputs.dir or str(scenario.name)))  # labels (settings.Label): under runs/
     return new_run_dir(base)
-
-
-def _checked_out(out: Path) -> Path:
-    """An output directory that exists or can be made (BadInput if a file is in the way)."""
-    if out.exists() and not out.is_dir():
-        raise BadInput(f"--out {out}: exists and is not a directory")
-    return out
-
-
-def _failed(what: str, exc: Exception) -> int:
-    """One line on stderr for a run or report that failed (not the user's input); GANTRY_TWIN_DEBUG re-raises."""
-    if os.environ.get("GANTRY_TWIN_DEBUG"):
-        raise exc
-    message = str(exc).splitlines()[0] if str(exc) else ""
-    print(f"{PROG}: {what} failed: {type(exc).__name__}: {message}", file=sys.stderr)
-    return EXIT_RUN_FAILED
 
 
 def _writer(out: Path, built: Any, args: argparse.Namespace) -> RunWriter:
@@ -347,9 +315,9 @@ def _monitor_log(args: argparse.Namespace) -> int:
 
     # runs never overwrite: a new directory under runs/<log>-monitor/ unless --out names one (outputs.rundirs)
     out = (
-        _checked_out(args.out)
+        checked_out(args.out)
         if args.out is not None
-        else new_run_dir(_checked_out(RUNS_DIR / f"{Path(args.log).stem}-monitor"))
+        else new_run_dir(checked_out(RUNS_DIR / f"{Path(args.log).stem}-monitor"))
     )
     try:
         data = monitor_log_command(args, None if args.scenario is None else _scenario_path(args.scenario), out)
@@ -404,7 +372,7 @@ def _run(args: argparse.Namespace) -> int:
             try:
                 outcome = writer.run([notice, progress_bar(args), *telemetry])
             except Exception as exc:  # the run or the writing failed: not the user's input
-                return _failed("run", exc)
+                return failed("run", exc)
             if outcome.failed:
                 if os.environ.get("GANTRY_TWIN_DEBUG") and outcome.error is not None:
                     raise outcome.error
@@ -446,7 +414,7 @@ def _report(args: argparse.Namespace) -> int:
 
     if args.jobs is not None and args.jobs < 1:
         raise BadInput(f"--jobs: must be a positive integer, got {args.jobs}")
-    _checked_out(args.out)
+    checked_out(args.out)
     cases = paper_matrix(args.overrides)  # validates every scenario before anything runs
     rig = rig_report.load_rig(args.rig) if args.rig is not None else None
     rigged = rig_report.rig_cases(cases, rig) if rig else []
@@ -456,32 +424,8 @@ def _report(args: argparse.Namespace) -> int:
         appendix = rig_report.section(results, rig_results, rig, args.out, args.overrides) if rig else []
         path = write_report(results, args.out, args.overrides, appendix)
     except Exception as exc:
-        return _failed("report", exc)
+        return failed("report", exc)
     print(f"report written to {path}")
-    return EXIT_OK
-
-
-def _sweep(args: argparse.Namespace) -> int:
-    from gantry_twin.sweep import ClusterError, existing_results, load_sweep, plan_sweep, run_sweep, sweep_file
-
-    if args.workers is not None and args.workers < 1:
-        raise BadInput(f"--workers: must be a positive integer, got {args.workers}")
-    path = sweep_file(args.file)
-    out = _checked_out(args.out or RUNS_DIR / "sweeps" / path.stem)
-    plan = plan_sweep(load_sweep(path), str(path))  # every point checked before anything runs
-    if not args.resume and existing_results(out):
-        raise BadInput(f"--out {out}: holds an earlier sweep's results.parquet; add --resume to finish it")
-    try:
-        done = run_sweep(plan, out, args.workers, args.scheduler, args.resume, progress_wanted(args))
-    except ClusterError as exc:
-        raise BadInput(str(exc)) from None
-    except Exception as exc:
-        return _failed("sweep", exc)
-    print(
-        f"{done.total} points: {done.done_before} done before, {done.ran} run now ({done.failed} failed) "
-        f"in {done.wall_time_s:.1f} s ({done.startup_s:.1f} s starting the workers); results in {done.results}",
-        flush=True,
-    )
     return EXIT_OK
 
 

@@ -8,6 +8,7 @@ from pathlib import Path
 import pyarrow as pa
 
 from gantry_twin.outputs.export import CSV_FILE, ExportError, open_trace, trace_path, write_csv
+from gantry_twin.outputs.files import NotRegularFileError, check_replaceable
 from gantry_twin.outputs.tracefile import TRACE_FILE
 
 
@@ -22,14 +23,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def command(args: argparse.Namespace) -> int:
-    """Run ``export``: 0 when the CSV is written; ExportError (exit 2) for a bad RUN or --out."""
+    """Run ``export``: 0 when the CSV is written; ExportError (exit 2) for a bad RUN or --out.
+
+    An ``--out`` that exists and is not a regular file (a directory, FIFO, socket or device such as /dev/null) is
+    refused before anything is read or written, and left as it was.
+    """
     source = trace_path(args.run)
-    trace = open_trace(source)
     out = args.out if args.out is not None else source.parent / CSV_FILE
-    if out.is_dir():
-        raise ExportError(f"--out {out}: is a directory (give the CSV file's name)")
     try:
+        check_replaceable(out)
+        trace = open_trace(source)
         write_csv(trace, out)
+    except NotRegularFileError as exc:
+        raise ExportError(f"--out {out}: {exc.strerror} (give the CSV file's name)") from None
     except OSError as exc:
         raise ExportError(f"--out {out}: cannot write there ({exc.strerror or exc})") from None
     except pa.ArrowException as exc:  # a damaged row group: nothing is written

@@ -21,7 +21,7 @@ import yaml
 
 from gantry_twin.outputs.files import atomic_write_text
 from gantry_twin.plant import AXES, Plant
-from gantry_twin.sysid.identify import Identified, IdentifySettings, identify, plant_xml
+from gantry_twin.sysid.identify import Identified, IdentifySettings, UnphysicalFit, identify, plant_xml
 from gantry_twin.sysid.logs import Log, read_log
 from gantry_twin.sysid.lugre import LuGreFit, identify_lugre
 from gantry_twin.sysid.replay import WINDOW_S, Replay, replay, write_figures
@@ -47,7 +47,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def command(args: argparse.Namespace) -> int:
-    """``gantry-twin identify``: exit 0, or 2 with one line on stderr for a bad log or option."""
+    """``gantry-twin identify``: exit 0; 2 with one line on stderr for a bad log or option; 1 with one line when the
+    fit is not physical (a mass <= 0, a negative damping or friction): nothing is written."""
     try:
         try:  # the range is IdentifySettings.filter_hz's, declared once
             settings = IdentifySettings(filter_hz=(args.filter_hz, args.filter_hz))
@@ -62,6 +63,9 @@ def command(args: argparse.Namespace) -> int:
         lugre = identify_lugre(logs, result) if args.friction == "lugre" else None
         note = "gantry-twin identify from " + ", ".join(str(p) for p in args.logs)
         xml = plant_xml(result.theta, note)
+    except UnphysicalFit as exc:
+        print(f"gantry-twin: identify failed: {exc}", file=sys.stderr)
+        return 1
     except ValueError as exc:  # LogError included
         print(f"gantry-twin: error: {str(exc).splitlines()[0]}", file=sys.stderr)
         return 2

@@ -47,6 +47,15 @@ class ProgressBar:
             self._bar = None
 
 
+def add_progress_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--progress",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="progress bar on stderr (default: when stderr is a terminal)",
+    )
+
+
 def progress_wanted(args: argparse.Namespace) -> bool:
     """--progress / --no-progress, else on when stderr is a terminal."""
     return sys.stderr.isatty() if args.progress is None else args.progress

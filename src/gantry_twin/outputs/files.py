@@ -1,15 +1,20 @@
 """Every file a command writes, atomically: a hidden temporary beside it, fsync, then ``os.replace``.
 
 A crash leaves either the old file, the new file, or a hidden
-``.<name>.*.part`` file, never a half-written file under the final name; an
+``.<name>.<pid>.*.part`` file (``pid``: the process that made it; :func:`remove_stale_temporaries` removes
+those whose process is gone), never a half-written file under the final name; an
 exception (Ctrl-C, and SIGTERM and SIGHUP under the command line) removes the
-temporary file.
+temporary file. Nothing is ever renamed over an existing path that is not a regular file (a device such as
+/dev/null, a FIFO, a socket, a directory): :class:`NotRegularFileError` instead, and the path is left as it was.
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
+import re
+import stat
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
@@ -21,13 +26,88 @@ import pyarrow.parquet as pq
 from gantry_twin.outputs.signals import signals_held
 
 
+class NotRegularFileError(FileExistsError):
+    """An output path exists and is not a regular file: it is never replaced."""
+
+    def __init__(self, path: Path, kind: str) -> None:
+        super().__init__(errno.EEXIST, f"exists and is {kind}, not a regular file; it is never replaced", str(path))
+
+
+def _kind(mode: int) -> str:
+    if stat.S_ISDIR(mode):
+        return "a directory"
+    if stat.S_ISFIFO(mode):
+        return "a FIFO"
+    if stat.S_ISSOCK(mode):
+        return "a socket"
+    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
+        return "a device"
+    return "not a plain file"
+
+
+def check_replaceable(path: Path) -> None:
+    """Refuse (``NotRegularFileError``) when ``path`` exists, behind any symlink, and is not a regular file."""
+    try:
+        mode = os.stat(path).st_mode
+    except (FileNotFoundError, NotADirectoryError):
+        return
+    except OSError:
+        mode = os.lstat(path).st_mode  # e.g. a symlink loop: the link itself is what would be replaced
+    if not stat.S_ISREG(mode):
+        raise NotRegularFileError(Path(path), _kind(mode))
+
+
+def _prefix(path: Path) -> str:
+    return f".{path.name}.{os.getpid()}."
+
+
+#: A temporary of this module: ``.<name>.<pid>.<random>.part`` (mkstemp's random part has no dot).
+_TEMPORARY = re.compile(r"\..+\.(\d+)\.[^.]+\.part")
+
+
+def _alive(pid: int) -> bool:
+    """Whether a process ``pid`` exists (one of another user's counts: it is not ours to judge)."""
+    if pid <= 0:
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError):
+        return True
+    return True
+
+
+def remove_stale_temporaries(directory: Path) -> list[str]:
+    """Remove the temporaries (files or directories) in ``directory`` whose process is gone (e.g. SIGKILLed);
+    returns their names. Those of live processes, this one included, and every other file are left alone."""
+    removed = []
+    try:
+        entries = list(os.scandir(directory))
+    except OSError:
+        return removed
+    for entry in entries:
+        found = _TEMPORARY.fullmatch(entry.name)
+        if found is None or _alive(int(found.group(1))):
+            continue
+        if entry.is_dir(follow_symlinks=False):
+            remove_tree(Path(entry.path))
+        else:
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(entry.path)
+        removed.append(entry.name)
+    return removed
+
+
 def temporary_file(path: Path) -> tuple[IO[bytes], Path]:
-    """A new hidden ``.<name>.*.part`` file beside ``path`` (with the usual permissions), open for writing.
+    """A new hidden ``.<name>.<pid>.*.part`` file beside ``path`` (with the usual permissions), open for writing.
 
     Create and name it inside ``with signals_held():`` within the ``try``
-    whose ``except`` discards it, so that an interrupt comes after the name is known.
+    whose ``except`` discards it, so that an interrupt comes after the name is known. ``NotRegularFileError``
+    when ``path`` exists and is not a regular file (checked again by :func:`commit`).
     """
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".part")
+    check_replaceable(path)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=_prefix(path), suffix=".part")
     try:
         os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give the usual permissions
         return os.fdopen(fd, "wb"), Path(tmp)
@@ -42,6 +122,7 @@ def commit(fh: IO[bytes], tmp: Path, path: Path) -> None:
     fh.flush()
     os.fsync(fh.fileno())
     fh.close()
+    check_replaceable(path)
     os.replace(tmp, path)
     _fsync_dir(path.parent)
 
@@ -79,13 +160,13 @@ def remove_tree(path: Path) -> None:
 
 
 def atomic_write_dir(path: Path, write: Callable[[Path], None]) -> None:
-    """Fill a directory via a hidden ``.<name>.*.part`` directory beside it renamed to ``path`` (an earlier
+    """Fill a directory via a hidden ``.<name>.<pid>.*.part`` directory beside it renamed to ``path`` (an earlier
     ``path`` is removed first); on error no directory appears."""
     path = Path(path)
     tmp = None
     try:
         with signals_held():
-            tmp = Path(tempfile.mkdtemp(dir=path.parent, prefix=f".{path.name}.", suffix=".part"))
+            tmp = Path(tempfile.mkdtemp(dir=path.parent, prefix=_prefix(path), suffix=".part"))
         os.chmod(tmp, 0o777 & ~_umask())
         write(tmp)
         remove_tree(path)

@@ -15,7 +15,7 @@ The modules, in the order data flows:
 * :mod:`.driver`: :func:`run_sweep`, the whole of ``gantry-twin sweep``.
 """
 
-from gantry_twin.sweep.driver import SweepOutcome, existing_results, run_sweep
+from gantry_twin.sweep.driver import SweepOutcome, existing_results, run_sweep, set_aside
 from gantry_twin.sweep.engine import ClusterError
 from gantry_twin.sweep.points import Plan, Point, plan_sweep
 from gantry_twin.sweep.spec import SweepSpec, load_sweep, sweep_file, sweeps_dir
@@ -30,6 +30,7 @@ __all__ = [
     "load_sweep",
     "plan_sweep",
     "run_sweep",
+    "set_aside",
     "sweep_file",
     "sweeps_dir",
 ]

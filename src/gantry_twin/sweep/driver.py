@@ -8,9 +8,9 @@ from pathlib import Path
 
 from gantry_twin.outputs.signals import stop_signals_interrupt
 from gantry_twin.sweep.engine import run_batch
-from gantry_twin.sweep.plots import write_figures, write_summary
+from gantry_twin.sweep.plots import SUMMARY_FILE, write_figures, write_summary
 from gantry_twin.sweep.points import STATUS_OK, Plan, failed_row, run_point
-from gantry_twin.sweep.table import RESULTS_FILE, ResultsTable
+from gantry_twin.sweep.table import RESULTS_FILE, ResultsTable, earlier_sweep
 
 #: Where ``keep_runs`` puts each point's run files (``<out>/runs/<key>/``, the files of ``gantry-twin run``).
 RUNS_DIR = "runs"
@@ -39,6 +39,25 @@ def existing_results(out: Path) -> Path | None:
     """The results file of an earlier sweep in ``out``, if any."""
     path = Path(out) / RESULTS_FILE
     return path if path.exists() else None
+
+
+def set_aside(out: Path) -> str:
+    """``--fresh``: move an earlier sweep's files in ``out`` (results.parquet, summary.md, the figures, runs/) into
+    ``out/replaced-<UTC time>/``; returns the one line that says what was moved where (nothing is deleted)."""
+    out = Path(out)
+    earlier = earlier_sweep(out / RESULTS_FILE)
+    names = [RESULTS_FILE, SUMMARY_FILE, RUNS_DIR]
+    moving = [p for p in sorted(out.iterdir()) if p.name in names or p.suffix == ".png"]
+    if not moving:
+        return ""
+    aside = out / time.strftime("replaced-%Y%m%dT%H%M%SZ", time.gmtime())
+    aside.mkdir()
+    for path in moving:
+        path.rename(aside / path.name)
+    figures = sum(p.suffix == ".png" for p in moving)
+    what = f"sweep {Path(str(earlier.get('source', '?'))).name}, plan {earlier.get('plan_key', '?')}"
+    moved = ", ".join(p.name for p in moving if p.suffix != ".png") + (f" and {figures} figures" if figures else "")
+    return f"--fresh: the earlier sweep's files in {out} ({what}): {moved} moved to {aside}"
 
 
 def run_sweep(

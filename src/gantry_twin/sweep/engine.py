@@ -21,6 +21,7 @@ import contextlib
 import json
 import logging
 import os
+import re
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import replace
 from typing import Any
@@ -104,6 +105,35 @@ def worker_versions() -> dict[str, str]:
 # On the driver.
 
 
+#: The address forms ``--scheduler`` takes: ``[protocol://]host:port`` (Dask's protocols over a network).
+_ADDRESS = re.compile(r"(?:(?:tcp|tls|ws|wss|ucx)://)?(?:\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9._-]+):[0-9]{1,5}")
+
+
+def machine_cores() -> int:
+    """The cores this process may run on (its CPU affinity where the system says, else os.cpu_count())."""
+    try:
+        return len(os.sched_getaffinity(0)) or 1
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
+
+
+def check_workers(workers: int | None) -> None:
+    """ClusterError unless ``workers`` is None or 1 to the machine's cores (more would only compete for them)."""
+    if workers is None:
+        return
+    cores = machine_cores()
+    if not 1 <= workers <= cores:
+        shown = str(workers) if len(str(workers)) <= 20 else str(workers)[:20] + "..."
+        raise ClusterError(f"--workers: must be 1 to {cores} (this machine's cores), got {shown}")
+
+
+def check_scheduler(address: str | None) -> None:
+    """ClusterError unless ``address`` is None or looks like ``[tcp://]host:port`` (before any connection)."""
+    if address is not None and not _ADDRESS.fullmatch(address):
+        shown = address if len(address) <= 40 else address[:40] + "..."
+        raise ClusterError(f"--scheduler {shown!r}: not an address; give [tcp://]HOST:PORT, e.g. tcp://head:8786")
+
+
 @contextlib.contextmanager
 def open_client(workers: int | None = None, scheduler: str | None = None) -> Iterator[Any]:
     """A Client: of a new LocalCluster (``workers`` processes, one thread each), or of the scheduler at an address."""
@@ -121,7 +151,8 @@ def open_client(workers: int | None = None, scheduler: str | None = None) -> Ite
         finally:
             client.close()
         return
-    n = workers or os.cpu_count() or 1
+    check_workers(workers)
+    n = workers or machine_cores()
     with (
         LocalCluster(
             n_workers=n,

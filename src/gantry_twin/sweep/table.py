@@ -9,10 +9,14 @@ by its field path (``payload.mass_kg``), the kept metrics, ``wall_time_s``
 file and a rename (:func:`gantry_twin.outputs.files.write_parquet`), so the file
 on disk is always a valid table of the points finished so far: a killed
 sweep loses only the points in flight.
+
+The file's metadata (``gantry_twin_sweep``) holds the sweep file's name, its spec and its plan key
+(:func:`plan_key`, a hash of every point's key): ``--resume`` takes only a file of the same plan.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import numbers
@@ -30,6 +34,25 @@ from gantry_twin.sweep.points import STATUS_OK, Plan, Point
 RESULTS_FILE = "results.parquet"
 _IDENTITY = [("point", pa.int64()), ("key", pa.string()), ("sample", pa.int64()), ("seed", pa.int64())]
 _TAIL = [("wall_time_s", pa.float64()), ("status", pa.string()), ("error", pa.string()), ("finished_utc", pa.string())]
+
+
+#: The key of the table's metadata that holds the sweep.
+METADATA_KEY = "gantry_twin_sweep"
+
+
+def plan_key(plan: Plan) -> str:
+    """A hash of the plan: of every point's key (each a hash of its resolved scenario and the version), in order."""
+    return hashlib.sha256("\n".join(p.key for p in plan.points).encode()).hexdigest()[:20]
+
+
+def earlier_sweep(path: Path) -> dict[str, Any]:
+    """What the results file at ``path`` says of the sweep that wrote it (``{}`` if it says nothing readable)."""
+    try:
+        metadata = pq.read_schema(path).metadata or {}
+        found = json.loads(metadata.get(METADATA_KEY.encode(), b"{}"))
+    except (OSError, pa.ArrowInvalid, ValueError):
+        return {}
+    return found if isinstance(found, dict) else {}
 
 
 def _value_type(values: list[Any]) -> pa.DataType:
@@ -65,17 +88,36 @@ class ResultsTable:
         self.field_types = {f: _value_type([p.values[f] for p in plan.points]) for f in plan.fields}
         metric_types = [(m, _metric_type(m)) for m in self.metrics]
         self.schema = pa.schema([*_IDENTITY, *self.field_types.items(), *metric_types, *_TAIL]).with_metadata(
-            {"gantry_twin_sweep": json.dumps({"version": plan.version, "spec": plan.spec.model_dump(mode="json")})}
+            {
+                METADATA_KEY: json.dumps(
+                    {
+                        "version": plan.version,
+                        "source": plan.source,
+                        "plan_key": plan_key(plan),
+                        "spec": plan.spec.model_dump(mode="json"),
+                    }
+                )
+            }
         )
         self.rows: dict[str, dict[str, Any]] = {}
         self._points = {p.key: p for p in plan.points}
 
     def load(self) -> int:
-        """Take the rows of an earlier run of this sweep (same keys) from the file; returns how many are ``ok``."""
+        """Take the rows of an earlier run of this sweep (the same plan key) from the file; returns how many are
+        ``ok``. ScenarioError (exit 2, nothing changed) when the file holds another plan's results."""
         for stale in self.path.parent.glob(f".{self.path.name}.*.part"):  # a write cut short by a killed driver
             stale.unlink(missing_ok=True)
         if not self.path.is_file():
             return 0
+        earlier = earlier_sweep(self.path).get("plan_key")
+        if earlier != plan_key(self.plan):
+            what = f"plan {earlier}" if isinstance(earlier, str) else "no plan key"
+            raise ScenarioError(
+                str(self.path),
+                "",
+                f"holds the results of another sweep ({what}; {Path(self.plan.source).name} is plan "
+                f"{plan_key(self.plan)}): nothing resumed; choose a new --out, or add --fresh to replace them",
+            )
         try:
             old = pq.read_table(self.path).to_pylist()
         except (OSError, pa.ArrowInvalid) as exc:

@@ -155,6 +155,25 @@ def identify(logs: Sequence[Log], settings: IdentifySettings | None = None) -> I
 # -- the plant file -------------------------------------------------------------------------------
 
 
+class UnphysicalFit(ValueError):
+    """The regression's theta is no machine: a mass <= 0 or a negative damping or friction (nothing is written)."""
+
+
+def check_physical(theta: np.ndarray) -> None:
+    """UnphysicalFit naming each entry that no machine has: M1, M2 > 0; B1, B2, Af1, Af2 >= 0 (dN may be any)."""
+    names = ("M1", "M2", "B1", "B2", "Af1", "Af2")
+    bad = [
+        f"{n} = {theta[j]:.4g} {THETA_UNITS[j]}"
+        for j, n in enumerate(names)
+        if not (theta[j] > 0.0 if j < 2 else theta[j] >= 0.0)
+    ]
+    if bad:
+        raise UnphysicalFit(
+            f"the fit is not physical ({', '.join(bad)}: a mass must be > 0, a damping or friction >= 0); "
+            "no plant.xml written: check the log's units and that it excites both axes in both directions"
+        )
+
+
 def plant_xml(theta: np.ndarray, note: str = "", model_path: Path | None = None) -> str:
     """The MJCF of the gantry with identified M, B, Af (volt units), as text.
 
@@ -162,8 +181,9 @@ def plant_xml(theta: np.ndarray, note: str = "", model_path: Path | None = None)
     Y, which carries X: M2 gear in all), damping = B gear, frictionloss =
     Af gear. dN has no place in the model (the twin has no constant force):
     it is reported, not written. ValueError if the masses cannot be met
-    (M2 <= M1: the Y axis moves the X carriage too).
+    (M2 <= M1: the Y axis moves the X carriage too); UnphysicalFit (a ValueError) for a theta no machine has.
     """
+    check_physical(theta)
     spec = build_spec(None, model_path)
     model = spec.compile()
     dofs = np.array([model.joint(a).dofadr[0] for a in AXES])

@@ -1,0 +1,37 @@
+"""What every subcommand shares: the program's name, the exit codes (docs/cli.md), bad input, a failed command."""
+
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+
+PROG = "gantry-twin"
+
+EXIT_OK = 0
+EXIT_RUN_FAILED = 1  # also: a sweep whose every point failed
+EXIT_BAD_INPUT = 2
+EXIT_ALARM = 3
+EXIT_END_STOP = 4
+EXIT_NOT_JUDGED = 5  # monitor: no parameter was ever judged (all in the baseline window or not excited)
+EXIT_INTERRUPTED = 128  # + the signal's number, as shells report it: 130 SIGINT, 143 SIGTERM, 129 SIGHUP
+
+
+class BadInput(Exception):
+    """Bad command-line input that is not a scenario field (exit code 2)."""
+
+
+def checked_out(out: Path) -> Path:
+    """An output directory that exists or can be made (BadInput if a file is in the way)."""
+    if out.exists() and not out.is_dir():
+        raise BadInput(f"--out {out}: exists and is not a directory")
+    return out
+
+
+def failed(what: str, exc: Exception) -> int:
+    """One line on stderr for a run or report that failed (not the user's input); GANTRY_TWIN_DEBUG re-raises."""
+    if os.environ.get("GANTRY_TWIN_DEBUG"):
+        raise exc
+    message = str(exc).splitlines()[0] if str(exc) else ""
+    print(f"{PROG}: {what} failed: {type(exc).__name__}: {message}", file=sys.stderr)
+    return EXIT_RUN_FAILED
