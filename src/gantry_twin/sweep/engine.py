@@ -298,12 +298,7 @@ def open_batches(
         prepare_workers(client, resolved, source)
 
         def run(function: Callable[..., Any], arguments: Sequence[tuple[Any, ...]]) -> list[Any]:
-            done: dict[int, Any] = {}
-            for index, result, error in run_tasks(client, function, arguments):
-                if error is not None:
-                    raise error
-                done[index] = result
-            return [done[i] for i in range(len(arguments))]
+            return in_order(run_tasks(client, function, arguments), len(arguments))
 
         yield run
 
@@ -319,9 +314,15 @@ def run_all(
     desc: str = "batch",
 ) -> list[Any]:
     """:func:`run_batch` to the end: the results in the order of ``arguments``; the first task's error is raised."""
+    batch = run_batch(function, arguments, resolved, source, workers, scheduler, progress, desc)
+    return in_order(batch, len(arguments))
+
+
+def in_order(finished: Iterator[tuple[int, Any, Exception | None]], count: int) -> list[Any]:
+    """The results of ``count`` tasks yielded as they finish, in task order; the first task error is raised."""
     done: dict[int, Any] = {}
-    for index, result, error in run_batch(function, arguments, resolved, source, workers, scheduler, progress, desc):
+    for index, result, error in finished:
         if error is not None:
             raise error
         done[index] = result
-    return [done[i] for i in range(len(arguments))]
+    return [done[i] for i in range(count)]
