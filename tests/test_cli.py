@@ -226,7 +226,7 @@ def test_validate_rejects_the_same_files(tmp_path, capsys, text, field, allowed)
         (["run", "{shipped}", "--set", "payload.mass_kg.x=1"], ["payload.mass_kg", "not a mapping"]),
         (["run", "{shipped}", "--controller", "nope"], ["unknown controller 'nope'", "available:"]),
         (["run", "{shipped}", "--bogus"], ["unrecognized arguments: --bogus"]),
-        (["report", "--jobs", "0", "--out", "{tmp}/r"], ["--jobs", "positive integer"]),
+        (["report", "--workers", "0", "--out", "{tmp}/r"], ["--workers", "positive integer"]),
         (["report", "--set", "duration_s=-1", "--out", "{tmp}/r"], ["duration_s", "(0, 3600] s"]),
         (["frobnicate"], ["invalid choice"]),
     ],

@@ -1,4 +1,4 @@
-"""gantry-twin export RUN --csv (gantry_twin.outputs.export): the trace as CSV, positions bit for bit."""
+"""gantry-twin export RUN [--csv] (gantry_twin.outputs.export): the trace as CSV, positions bit for bit."""
 
 from __future__ import annotations
 
@@ -125,9 +125,12 @@ def test_the_output_door_never_renames_over_a_fifo(tmp_path):
     assert stat.S_ISFIFO(os.lstat(out).st_mode) and [p.name for p in tmp_path.iterdir()] == ["f"]
 
 
-def test_export_needs_csv(run_dir, capsys):
-    code, _, err = run_main(["export", str(run_dir)], capsys)
-    assert code == 2 and "--csv" in err and len(err.strip().splitlines()) == 1
+def test_export_writes_csv_without_the_csv_flag(run_dir, tmp_path, capsys):
+    """CSV is the default format: ``export RUN`` and ``export RUN --csv`` write the same file."""
+    plain, flagged = tmp_path / "plain.csv", tmp_path / "flagged.csv"
+    assert run_main(["export", str(run_dir), "--out", str(plain)], capsys)[0] == 0
+    assert run_main(["export", str(run_dir), "--csv", "--out", str(flagged)], capsys)[0] == 0
+    assert plain.read_bytes() == flagged.read_bytes()
 
 
 def test_an_export_that_fails_midway_leaves_no_file(run_dir, tmp_path):

@@ -1,4 +1,4 @@
-"""The command line: ``gantry-twin run | monitor | validate | report | sweep | scenarios | export | compare |
+"""The command line: ``gantry-twin run | monitor | validate | report | sweep | scenarios | sweeps | export | compare |
 identify | excite`` (docs/cli.md, docs/sweeps.md, docs/logs.md).
 
 Exit codes: 0 success; 2 bad input (one line on stderr naming the file, the
@@ -76,6 +76,7 @@ EXAMPLES = """examples:
   gantry-twin run load_5kg_ellipse --controller darc --set duration_s=10
   gantry-twin run --set plant.model=rig             the same circle on the rig plant
   gantry-twin scenarios                             the shipped scenarios
+  gantry-twin sweeps                                the shipped sweeps
   gantry-twin compare runs/no_load_circle/<time>-<id> runs/no_load_circle/latest
   gantry-twin report --out runs/report              the paper's Tables 1-4 and figures
   gantry-twin monitor friction_drift_circle --fail-on-alarm
@@ -109,7 +110,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(
         dest="command",
         required=True,
-        metavar="{run,monitor,validate,report,sweep,calibrate,scenarios,export,compare,identify,excite}",
+        metavar="{run,monitor,validate,report,sweep,calibrate,scenarios,sweeps,export,compare,identify,excite}",
         parser_class=_Parser,
     )
 
@@ -159,8 +160,9 @@ def build_parser() -> argparse.ArgumentParser:
         "--out", metavar="DIR", type=Path, default=default_report, help=f"output directory (default: {default_report}/)"
     )
     report.add_argument(
-        "--jobs", metavar="N", type=int, default=None, help="parallel processes (default: os.cpu_count())"
+        "--workers", metavar="N", type=int, default=None, help="parallel worker processes (default: os.cpu_count())"
     )
+    report.add_argument("--jobs", metavar="N", type=int, default=None, help=argparse.SUPPRESS)  # deprecated: --workers
     _add_set(report, "override a field in every scenario of the matrix, e.g. duration_s=10")
     report.add_argument(
         "--rig",
@@ -188,6 +190,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     scenarios = sub.add_parser("scenarios", help="list the shipped scenarios, one line each")
     scenarios.set_defaults(func=_scenarios)
+    sweeps = sub.add_parser("sweeps", help="list the shipped sweeps, one line each")
+    sweeps.set_defaults(func=_sweeps)
     export = sub.add_parser("export", help="write a run's trace as CSV (docs/cli.md)")
     export_command.add_arguments(export)
     export.set_defaults(func=export_command.command)
@@ -252,6 +256,13 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _scenarios(args: argparse.Namespace) -> int:
     print("\n".join(listing()))
+    return EXIT_OK
+
+
+def _sweeps(args: argparse.Namespace) -> int:
+    from gantry_twin.sweep.listing import listing as sweep_listing
+
+    print("\n".join(sweep_listing()))
     return EXIT_OK
 
 
@@ -412,14 +423,19 @@ def _report(args: argparse.Namespace) -> int:
     from gantry_twin.reports import rig as rig_report
     from gantry_twin.reports.paper import paper_matrix, run_matrix, write_report
 
-    if args.jobs is not None and args.jobs < 1:
-        raise BadInput(f"--jobs: must be a positive integer, got {args.jobs}")
+    workers, flag = args.workers, "--workers"
+    if args.jobs is not None:
+        print(f"{PROG}: warning: --jobs is deprecated, use --workers", file=sys.stderr)
+        if workers is None:
+            workers, flag = args.jobs, "--jobs"
+    if workers is not None and workers < 1:
+        raise BadInput(f"{flag}: must be a positive integer, got {workers}")
     checked_out(args.out)
     cases = paper_matrix(args.overrides)  # validates every scenario before anything runs
     rig = rig_report.load_rig(args.rig) if args.rig is not None else None
     rigged = rig_report.rig_cases(cases, rig) if rig else []
     try:
-        results = run_matrix([*cases, *rigged], jobs=args.jobs or os.cpu_count() or 1, progress=progress_wanted(args))
+        results = run_matrix([*cases, *rigged], jobs=workers or os.cpu_count() or 1, progress=progress_wanted(args))
         results, rig_results = results[: len(cases)], results[len(cases) :]
         appendix = rig_report.section(results, rig_results, rig, args.out, args.overrides) if rig else []
         path = write_report(results, args.out, args.overrides, appendix)

@@ -1,4 +1,4 @@
-"""``gantry-twin export RUN [--out FILE]``: a run's trace.parquet as CSV (docs/cli.md, "export")."""
+"""``gantry-twin export RUN [--csv] [--out FILE]``: a run's trace.parquet as CSV (docs/cli.md, "export")."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ from gantry_twin.outputs.tracefile import TRACE_FILE
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("run", metavar="RUN", help=f"a run's directory (holding {TRACE_FILE}) or a {TRACE_FILE} file")
     parser.add_argument(
-        "--csv", action="store_true", required=True, help="write the trace as CSV (the only format so far)"
+        "--csv", action="store_true", help="write the trace as CSV (the default, and so far the only format)"
     )
     parser.add_argument(
         "--out", metavar="FILE", type=Path, help=f"the CSV file to write (default: RUN/{CSV_FILE}, beside the trace)"

@@ -57,7 +57,11 @@ def command(args: argparse.Namespace) -> int:
         if moved:
             print(f"{PROG}: {moved}", file=sys.stderr, flush=True)
     elif not args.resume and existing_results(out):
-        raise BadInput(f"--out {out}: holds an earlier sweep's results.parquet; add --resume to finish it or --fresh")
+        again = f"{PROG} sweep {args.file}" + (f" --out {args.out}" if args.out else "")
+        raise BadInput(
+            f"--out {out}: holds an earlier sweep's results.parquet; to finish it: {again} --resume; "
+            f"to start afresh (the earlier files moved aside): {again} --fresh"
+        )
     try:
         done = run_sweep(plan, out, args.workers, args.scheduler, args.resume, progress_wanted(args))
     except ClusterError as exc:
