@@ -35,6 +35,57 @@ def test_a_run_draws_every_figure_with_units(strided_run):
         assert (strided_run / "plots" / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def test_figure_labels_use_the_micro_sign_and_name_the_metric_window(strided_run):
+    plt = runplots.pyplot()
+    series = read_series(strided_run, _summary(strided_run), "r")
+    fig = runplots.fig_eps_c(plt, [series])
+    ax = fig.axes[0]
+    assert ax.get_ylabel() == "contour error eps_c (µm)"
+    assert any(t.startswith("metric window [0.20, 1.00] s") for t in ax.get_legend_handles_labels()[1])
+    assert "µm" in runplots.fig_axial(plt, [series]).axes[0].get_ylabel()
+    plt.close("all")
+
+
+def test_commands_are_scaled_to_the_data_and_an_off_scale_limit_is_named(strided_run):
+    plt = runplots.pyplot()
+    series = read_series(strided_run, _summary(strided_run), "r")
+    fig = runplots.fig_commands(plt, [series])
+    for ax, (_, u) in zip(fig.axes, series.command, strict=True):
+        low, high = ax.get_ylim()
+        assert high < 10 and low > -10 and high - low < 4 * np.ptp(u)  # not squashed to +-10 V
+        assert any("off the scale" in t.get_text() for t in ax.texts)
+    plt.close("all")
+
+
+def test_untrusted_estimates_are_marked_in_their_panel(strided_run):
+    summary = _summary(strided_run)
+    untrusted = [n for n, e in (summary.estimates or {}).items() if e.trustworthy is False]
+    assert untrusted  # a 1 s run vouches for few estimates
+    plt = runplots.pyplot()
+    fig = runplots.fig_estimates(plt, [read_series(strided_run, summary, "r")])
+    titles = {ax.get_ylabel().split()[0]: ax.get_title() for ax in fig.axes}
+    for name, title in titles.items():
+        assert title.startswith("not trusted: ") == (name in untrusted), (name, title)
+    plt.close("all")
+
+
+@pytest.mark.parametrize("fmt", ["svg", "pdf"])
+def test_plot_format_and_dpi(strided_run, tmp_path, fmt):
+    summary = _summary(strided_run)
+    names = runplots.write_plots(strided_run, tmp_path / fmt, summary, fmt, 40)
+    assert sorted(names) == sorted(n.replace(".png", f".{fmt}") for n in FIGURES)
+    png = runplots.write_plots(strided_run, tmp_path / "png", summary, "png", 40)
+    from PIL import Image
+
+    assert Image.open(tmp_path / "png" / png[0]).info["dpi"][0] == pytest.approx(40, abs=1)
+
+
+def _summary(run_dir):
+    from gantry_twin.outputs.summary import RunSummary
+
+    return RunSummary.model_validate_json((run_dir / "summary.json").read_text())
+
+
 def test_binned_series_keep_the_peaks_and_times_of_the_trace(strided_run, monkeypatch):
     monkeypatch.setattr(runplots, "PLOT_BINS", 50)  # bins of many rows, and a shorter last one
     table = pq.read_table(strided_run / "trace.parquet")

@@ -150,9 +150,12 @@ class RunWriter:
         overrides: Sequence[str] = (),
         controller_option: str | None = None,
         plots: bool = False,
+        plot_format: str = "png",
+        plot_dpi: float = 150.0,
     ) -> None:
         self.out, self.built = Path(out), built
         self.overrides, self.controller_option, self.plots = tuple(overrides), controller_option, plots
+        self.plot_format, self.plot_dpi = plot_format, plot_dpi
         #: Why the figures were not drawn (a run without trace, or the plotting raised), None if they were.
         self.plots_skipped: str | None = None
         scenario = built.scenario
@@ -248,7 +251,7 @@ class RunWriter:
             self.plots_skipped = "no trace.parquet to draw from (outputs.trace: false)"
             return False
         try:
-            write_plots(self.out, self.out / PLOTS_DIR, data)
+            write_plots(self.out, self.out / PLOTS_DIR, data, self.plot_format, self.plot_dpi)
         except Exception as exc:  # a figure is not worth the run
             self.plots_skipped = f"drawing them raised {type(exc).__name__}: {exc}"
             return False

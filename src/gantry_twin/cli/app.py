@@ -223,6 +223,22 @@ def _add_plots(parser: argparse.ArgumentParser) -> None:
         default=True,
         help="draw the run's figures into DIR/plots/ (default: on; --no-plots to skip)",
     )
+    parser.add_argument(
+        "--plot-format", choices=("png", "svg", "pdf"), default="png", help="the figures' file format (default: png)"
+    )
+    parser.add_argument(
+        "--plot-dpi", metavar="DPI", type=_positive_dpi, default=150.0, help="png resolution (default: 150 dpi)"
+    )
+
+
+def _positive_dpi(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of dots per inch, got {text!r}") from None
+    if not 10.0 <= value <= 1200.0:
+        raise argparse.ArgumentTypeError(f"must be in [10, 1200] dpi, got {text}")
+    return value
 
 
 def _add_strict(parser: argparse.ArgumentParser) -> None:
@@ -301,7 +317,15 @@ def _out_dir(args: argparse.Namespace, scenario: Scenario) -> Path:
 def _writer(out: Path, built: Any, args: argparse.Namespace) -> RunWriter:
     """The run's writer: BadInput (exit 2) if ``out`` cannot be made or written, before anything runs."""
     try:
-        return RunWriter(out, built, args.overrides, args.controller, plots=args.plots)
+        return RunWriter(
+            out,
+            built,
+            args.overrides,
+            args.controller,
+            plots=args.plots,
+            plot_format=args.plot_format,
+            plot_dpi=args.plot_dpi,
+        )
     except OSError as exc:
         raise BadInput(f"--out {out}: cannot write there ({exc.strerror or exc})") from None
 

@@ -1,4 +1,4 @@
-"""Figures of one run (``plots/*.png`` in its directory) and of several runs overlaid (``gantry-twin compare``).
+"""Figures of one run (``plots/*.png``, svg or pdf, in its directory) and of several runs overlaid (``compare``).
 
 Drawn with matplotlib (Agg) from a run's ``trace.parquet`` and ``summary.json``,
 read a row group at a time so that a long run is drawn in bounded memory:
@@ -9,11 +9,13 @@ survive), the estimates the first row of each bin. The trace's rows are every
 
 Figures (units on every axis; the window of each figure in its title):
 
-- ``eps_c.png``: the true contour error eps_c(t), um, the paper's window shaded;
+- ``eps_c.png``: the true contour error eps_c(t), um, the metric window shaded;
 - ``axial_errors.png``: e_x, e_y = q - q_d (t), um;
-- ``commands.png``: u_x, u_y (t), V, with the motor's limits (``saturation.limit_v`` of summary.json);
+- ``commands.png``: u_x, u_y (t), V, scaled to the data; the motor's limits (``saturation.limit_v`` of
+  summary.json) drawn when in range, else named in the panel's text;
 - ``estimates.png``: theta^ (t) of each parameter against its true value (dashed), volt units; only when
-  the controller logs ``theta_hat``;
+  the controller logs ``theta_hat``; a panel whose estimate summary.json does not trust is greyed, hatched,
+  and titled "not trusted: why";
 - ``contour.png``: the desired path, mm, and around it the contour error magnified: the points
   q_d + k eps_c n (n the unit normal to the left of the direction of travel, the side where eps_c > 0),
   k in the legend.
@@ -42,8 +44,10 @@ THETA_UNITS = {"M": "V s²/m", "B": "V s/m", "Af": "V", "dN": "V"}
 MAGNIFIED_SHARE = 0.12
 #: A figure's title names the run in at most this many characters.
 TITLE_CHARS = 110
-#: Figure resolution, dots per inch.
-DPI = 90
+#: Figure resolution, dots per inch (png; svg and pdf are vector).
+DPI = 150
+#: The file formats a figure can be written in.
+PLOT_FORMATS = ("png", "svg", "pdf")
 
 _TRACE_COLUMNS = ("t_s", "x_d_m", "y_d_m", "e_x_m", "e_y_m", "eps_c_m", "u_x_v", "u_y_v")
 
@@ -202,16 +206,16 @@ def _name(runs: Sequence[RunSeries], r: RunSeries, what: str) -> str:
 
 
 def fig_eps_c(plt: Any, runs: Sequence[RunSeries]) -> Any:
-    """eps_c(t), um, with the paper's window (the first run's) shaded."""
+    """eps_c(t), µm, with the metric window (the first run's) shaded."""
     fig, ax = plt.subplots(figsize=(9, 3.6))
     fig.subplots_adjust(left=0.08, right=0.98, bottom=0.14, top=0.85)
     for r in runs:
         ax.plot(r.t_eps_s, r.eps_c_um, lw=0.7, label=_name(runs, r, "" if len(runs) > 1 else "eps_c"))
     window = _window(runs[0].summary)
     if window is not None:
-        ax.axvspan(*window, color="0.85", zorder=0, label=f"paper's window [{window[0]:.2f}, {window[1]:.2f}] s")
+        ax.axvspan(*window, color="0.85", zorder=0, label=f"metric window [{window[0]:.2f}, {window[1]:.2f}] s")
     ax.axhline(0.0, color="0.4", lw=0.5)
-    ax.set(xlabel="time t (s)", ylabel="contour error eps_c (um)")
+    ax.set(xlabel="time t (s)", ylabel="contour error eps_c (µm)")
     ax.set_title(_title(runs, "true contour error eps_c (largest |eps_c| of each bin)"), fontsize=9)
     _legend(ax, runs)
     return fig
@@ -246,7 +250,7 @@ def fig_axial(plt: Any, runs: Sequence[RunSeries]) -> Any:
         plt,
         runs,
         "axial",
-        "e_{axis} = {axis} - {axis}_d (um)",
+        "e_{axis} = {axis} - {axis}_d (µm)",
         "axial tracking errors (largest |e| of each bin)",
         zero_line,
     )
@@ -259,10 +263,14 @@ def fig_commands(plt: Any, runs: Sequence[RunSeries]) -> Any:
         saturation = runs[0].summary.saturation or {}
         limit = saturation[axis].limit_v if axis in saturation else None
         if limit:
-            for v in limit:
+            low, high = ax.get_ylim()  # the data's range: a limit far outside it is named, not drawn
+            inside = [v for v in limit if low <= v <= high]
+            for v in inside:
                 ax.axhline(v, color="tab:red", lw=0.8, ls="--")
-            label = f"limits {limit[0]:+g} / {limit[1]:+g} V"
-            ax.text(0.005, 0.96, label, transform=ax.transAxes, va="top", fontsize=7, color="tab:red")
+            label = f"limits {limit[0]:+g} / {limit[1]:+g} V" + ("" if len(inside) == 2 else " (off the scale)")
+            box = {"facecolor": "white", "edgecolor": "0.8", "alpha": 0.9, "pad": 2}
+            ax.text(0.005, 0.96, label, transform=ax.transAxes, va="top", fontsize=7, color="tab:red", bbox=box)
+            ax.set_ylim(low, high)
 
     return _per_axis(
         plt, runs, "command", "command u_{axis} (V)", "commands as applied (largest |u| of each bin)", limits
@@ -293,11 +301,26 @@ def fig_estimates(plt: Any, runs: Sequence[RunSeries]) -> Any | None:
         ax.set_ylim(lo - margin, hi + margin)  # the true value inside, with a margin
         unit = THETA_UNITS[name.rstrip("12")]
         ax.set_ylabel(f"{name} ({unit})")
+        doubt = _distrust(runs, name)
+        if doubt:
+            ax.set_facecolor("0.93")
+            ax.patch.set_hatch("///")
+            ax.patch.set_edgecolor("0.8")
+            ax.set_title(textwrap.shorten(doubt, 60, placeholder=" ..."), fontsize=7, color="0.35", pad=2)
     for ax in axes[-1]:
         ax.set_xlabel("time t (s)")
     axes[0, 0].legend(loc="upper right", fontsize=6)
     fig.suptitle(_title(runs, "parameter estimates theta^ (solid) and true values (dashed), volt units"), fontsize=9)
     return fig
+
+
+def _distrust(runs: Sequence[RunSeries], name: str) -> str:
+    """``not trusted: why`` when a run's summary.json does not trust its estimate of ``name``; empty otherwise."""
+    for r in runs:
+        e = (r.summary.estimates or {}).get(name)
+        if e is not None and e.trustworthy is False:
+            return f"not trusted: {e.why}" if len(runs) == 1 else f"{r.label}: not trusted: {e.why}"
+    return ""
 
 
 def magnification(runs: Sequence[RunSeries]) -> float:
@@ -352,21 +375,25 @@ def pyplot() -> Any:
     return plt
 
 
-def draw(runs: Sequence[RunSeries], directory: Path) -> list[str]:
-    """Write each figure of ``runs`` (overlaid) into ``directory``; the file names written."""
+def draw(runs: Sequence[RunSeries], directory: Path, fmt: str = "png", dpi: float = DPI) -> list[str]:
+    """Write each figure of ``runs`` (overlaid) into ``directory`` as ``fmt`` (:data:`PLOT_FORMATS`) at ``dpi``;
+    the file names written."""
+    if fmt not in PLOT_FORMATS:
+        raise ValueError(f"plot format {fmt!r}: expected one of {', '.join(PLOT_FORMATS)}")
     plt = pyplot()
     written = []
-    for name, draw_one in FIGURES.items():
+    for png, draw_one in FIGURES.items():
         fig = draw_one(plt, runs)
         if fig is None:
             continue
-        fig.savefig(directory / name, dpi=DPI)
+        name = str(Path(png).with_suffix(f".{fmt}"))
+        fig.savefig(directory / name, dpi=dpi)
         plt.close(fig)
         written.append(name)
     return written
 
 
-def write_plots(run_dir: Path, plots_dir: Path, summary: RunSummary) -> list[str]:
+def write_plots(run_dir: Path, plots_dir: Path, summary: RunSummary, fmt: str = "png", dpi: float = DPI) -> list[str]:
     """The figures of the run in ``run_dir`` (its trace.parquet, its summary ``summary``) into ``plots_dir``,
     written as one directory (:func:`gantry_twin.outputs.files.atomic_write_dir`); the file names."""
     from gantry_twin.outputs.files import atomic_write_dir
@@ -375,7 +402,7 @@ def write_plots(run_dir: Path, plots_dir: Path, summary: RunSummary) -> list[str
     if series is None:
         raise FileNotFoundError(f"{run_dir}/trace.parquet: no trace to draw")
     names: list[str] = []
-    atomic_write_dir(plots_dir, lambda tmp: names.extend(draw([series], tmp)))
+    atomic_write_dir(plots_dir, lambda tmp: names.extend(draw([series], tmp, fmt, dpi)))
     return names
 
 
