@@ -128,11 +128,15 @@ def metric_plot(plan: Plan, rows: list[dict[str, Any]], field: str, metric: str,
         for x, r in zip(xs, group, strict=True):
             by_x[x].append(r)
         order = sorted(by_x)
-        if is_grid and len(order) > 1:
-            ax.plot(order, [_mean([r[metric] for r in by_x[x]]) for x in order], "-", color=dots.get_color())
+        categorical = labels is not None  # categories: a mark per category, no line from one to the next
+        if is_grid and (len(order) > 1 or categorical):
+            means = [_mean([r[metric] for r in by_x[x]]) for x in order]
+            style = {"ls": "none", "marker": "_", "ms": 16, "mew": 1.5} if categorical else {"ls": "-"}
+            ax.plot(order, means, color=dots.get_color(), **style)
         if true_column and all(r.get(true_column) is not None for r in group):
             true = [_mean([r[true_column] for r in by_x[x]]) for x in order]
-            ax.plot(order, true, "--", color=dots.get_color(), lw=0.9)
+            style = {"ls": "none", "marker": "_", "ms": 22, "mew": 0.9} if categorical else {"ls": "--", "lw": 0.9}
+            ax.plot(order, true, color=dots.get_color(), **style)
     if labels is not None:
         _set_ticks(ax.xaxis, tick_labels(labels), rotation=45 if len(labels) > 4 else 0)
     ax.set_xlabel(field)
