@@ -29,7 +29,7 @@ from gantry_twin.telemetry import (
     theta_entity,
 )
 
-from .helpers import FLOAT32_REL, read_rrd, scalars, trace_column
+from .helpers import FLOAT32_REL, read_rrd, run_main, scalars, trace_column
 
 SRC = Path(__file__).resolve().parents[1] / "src"
 #: `gantry-twin run` options for a run of 0.1 s (the metric windows must lie inside it).
@@ -422,3 +422,11 @@ def test_true_value_line_follows_plant_changes(tmp_path):
     expected = trace.true_parameters_t()[np.rint(times / trace.sample_period_s).astype(int), 0]
     np.testing.assert_allclose(true, expected)
     assert true[0] == pytest.approx(8.28 / 69) and true[-1] == pytest.approx(13.28 / 69)
+
+
+def test_save_prints_what_it_wrote_and_its_size(tmp_path, capsys):
+    rrd = tmp_path / "short.rrd"
+    argv = ["run", "--set", "duration_s=0.5", "--out", str(tmp_path / "r"), "--no-plots", "--save", str(rrd)]
+    code, out, _ = run_main([*argv, "--no-progress"], capsys)
+    size_mb = rrd.stat().st_size / 1e6
+    assert code == 0 and f"recording written to {rrd} ({size_mb:.1f} MB)" in out

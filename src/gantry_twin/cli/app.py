@@ -33,6 +33,7 @@ from gantry_twin.cli import compare as compare_command
 from gantry_twin.cli import excite as excite_command
 from gantry_twin.cli import export as export_command
 from gantry_twin.cli import identify as identify_command
+from gantry_twin.cli import runs as runs_command
 from gantry_twin.cli import sweep as sweep_command
 from gantry_twin.cli.common import (  # noqa: F401 -- the exit codes: tests and callers take them from here
     EXIT_ALARM,
@@ -110,7 +111,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(
         dest="command",
         required=True,
-        metavar="{run,monitor,validate,report,sweep,calibrate,scenarios,sweeps,export,compare,identify,excite}",
+        metavar="{run,monitor,validate,report,sweep,calibrate,scenarios,sweeps,runs,export,compare,identify,excite}",
         parser_class=_Parser,
     )
 
@@ -192,6 +193,9 @@ def build_parser() -> argparse.ArgumentParser:
     scenarios.set_defaults(func=_scenarios)
     sweeps = sub.add_parser("sweeps", help="list the shipped sweeps, one line each")
     sweeps.set_defaults(func=_sweeps)
+    runs = sub.add_parser("runs", help="list the runs under runs/ (size, status, time); --prune --keep N")
+    runs_command.add_arguments(runs, RUNS_DIR)
+    runs.set_defaults(func=runs_command.command)
     export = sub.add_parser("export", help="write a run's trace as CSV (docs/cli.md)")
     export_command.add_arguments(export)
     export.set_defaults(func=export_command.command)

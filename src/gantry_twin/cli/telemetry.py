@@ -72,8 +72,10 @@ class TelemetryObservers(list):
         rerun_observer: RerunObserver | None,
         server: WebViewerServer | None,
         out: TextIO,
+        save: Path | None = None,
     ) -> None:
         super().__init__(observers)
+        self.save = save
         self.rerun_observer = rerun_observer
         self.server = server
         self.out = out
@@ -82,6 +84,9 @@ class TelemetryObservers(list):
         try:
             if self.rerun_observer is not None:
                 self.rerun_observer.close()
+                if self.save is not None and self.save.is_file():
+                    size = self.save.stat().st_size
+                    print(f"recording written to {self.save} ({size / 1e6:.1f} MB)", file=self.out, flush=True)
             if self.server is not None and wait:
                 try:  # from before the message: Ctrl-C may come as soon as it is printed
                     print(f"Still serving the viewer at {self.server.url} ; press Ctrl-C to stop.", file=self.out)
@@ -151,4 +156,4 @@ def telemetry_observers(
         observers.append(rerun_observer)
     if realtime is not None:
         observers.append(RealtimePacer(realtime))
-    return TelemetryObservers(observers, rerun_observer, server, out)
+    return TelemetryObservers(observers, rerun_observer, server, out, save)
