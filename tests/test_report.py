@@ -75,6 +75,19 @@ def _row_cells(text: str, row_start: str) -> list[str]:
     return [cell.strip() for cell in rows[0].strip("|").split("|")[1:]]
 
 
+def test_signed_pct_never_says_minus_zero():
+    assert report.signed_pct(-0.04) == "0.0 %" and report.signed_pct(0.0) == "0.0 %"
+    assert report.signed_pct(-0.06) == "-0.1 %" and report.signed_pct(2.0) == "+2.0 %"
+
+
+def test_provenance_line_names_version_date_command_and_wall_time():
+    line = report.provenance("gantry-twin report --workers 2", 12.4, "1.2.3", now_s=0.0)
+    assert line == (
+        "Made by gantry-twin 1.2.3 on 1970-01-01 00:00:00 UTC with `gantry-twin report --workers 2` "
+        "in 12 s of wall time."
+    )
+
+
 def test_report_on_a_tiny_matrix(tmp_path, capsys):
     """The report's numbers (results.json, Tables 1 and 3, the runs table) against the same runs done with
     `run` and computed from their traces, estimates judged against the reference machine."""
@@ -82,8 +95,11 @@ def test_report_on_a_tiny_matrix(tmp_path, capsys):
     assert len(cases) == 5
     res = report.run_matrix(cases, jobs=2)
     assert [r.case for r in res] == cases
-    path = report.write_report(res, tmp_path / "rep", TINY)
+    path = report.write_report(res, tmp_path / "rep", TINY, made_by="Made by gantry-twin x")
     text = path.read_text()
+    assert text.splitlines()[2] == "Made by gantry-twin x" and "-0.0 %" not in text
+    checks = json.loads((tmp_path / "rep" / "results.json").read_text())["findings"]
+    assert f"{sum(c['pass'] for c in checks)} of {len(checks)} findings hold." in text
     for heading in ("Table 1", "Table 2", "Table 3", "Table 4", "after running the gantry for one period"):
         assert heading in text
     assert "| rms paper (um) | 2.03 | 1.99 | 7.33 |" in text
@@ -117,7 +133,7 @@ def test_report_on_a_tiny_matrix(tmp_path, capsys):
         ("DARC", "set1_circle_C1"),
     ):
         estimates = expected[key]["estimates"]
-        cells = [f"{estimates[i]:.4f} ({deviation_pct(estimates[i], truth[i]):+.1f} %)" for i in range(6)]
+        cells = [f"{estimates[i]:.4f} ({report.signed_pct(deviation_pct(estimates[i], truth[i]))})" for i in range(6)]
         assert _row_cells(_section(text, "## Table 3:"), f"| {name}: circle |") == cells, name
 
 

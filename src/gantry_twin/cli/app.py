@@ -22,8 +22,10 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shlex
 import signal
 import sys
+import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, NoReturn
@@ -262,6 +264,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         args = parser.parse_args(argv)
     except SystemExit as exc:  # --help (0) or a usage error (2)
         return int(exc.code or 0)
+    args.argv = list(sys.argv[1:] if argv is None else argv)  # the command line, for a report's provenance
     try:
         with stop_signals_interrupt():
             return args.func(args)
@@ -449,7 +452,9 @@ def _point_latest(out: Path) -> None:
 
 def _report(args: argparse.Namespace) -> int:
     from gantry_twin.reports import rig as rig_report
-    from gantry_twin.reports.paper import paper_matrix, run_matrix, write_report
+    from gantry_twin.reports.paper import paper_matrix, provenance, run_matrix, write_report
+
+    started = time.monotonic()
 
     workers, flag = args.workers, "--workers"
     if args.jobs is not None:
@@ -466,7 +471,8 @@ def _report(args: argparse.Namespace) -> int:
         results = run_matrix([*cases, *rigged], jobs=workers or os.cpu_count() or 1, progress=progress_wanted(args))
         results, rig_results = results[: len(cases)], results[len(cases) :]
         appendix = rig_report.section(results, rig_results, rig, args.out, args.overrides) if rig else []
-        path = write_report(results, args.out, args.overrides, appendix)
+        made_by = provenance(shlex.join([PROG, *args.argv]), time.monotonic() - started, package_version())
+        path = write_report(results, args.out, args.overrides, appendix, made_by)
     except Exception as exc:
         return failed("report", exc)
     print(f"report written to {path}")

@@ -212,6 +212,20 @@ def _fmt(x: float | None, digits: int = 2) -> str:
     return "-" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:.{digits}f}"
 
 
+def signed_pct(x: float) -> str:
+    """``+1.2 %``, ``-0.4 %``; a value that rounds to zero is ``0.0 %``, never ``-0.0 %``."""
+    text = f"{x:+.1f}"
+    return ("0.0" if float(text) == 0.0 else text) + " %"
+
+
+def provenance(command: str, wall_time_s: float, version: str, now_s: float | None = None) -> str:
+    """The report's provenance line: the gantry-twin version, the UTC date, the command line and the wall time."""
+    import time
+
+    date = time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime(time.time() if now_s is None else now_s))
+    return f"Made by gantry-twin {version} on {date} with `{command}` in {wall_time_s:.0f} s of wall time."
+
+
 def _contour_table(by_key: dict[tuple[int, str, str], CaseResult], contour: str) -> list[str]:
     columns = [(s, c) for s in (1, 2, 3) for c in ("C1", "C2", "C3") if _in_matrix(s, c)]
     head = "| | " + " | ".join(f"Set {s} {c}" for s, c in columns) + " |"
@@ -244,7 +258,7 @@ def _estimate_table(by_key: dict[tuple[int, str, str], CaseResult], set_id: int)
         for contour, r in zip(CONTOURS, runs, strict=True):
             if r is None or r.estimates is None:
                 continue
-            cells = [f"{r.estimates[i]:.4f} ({error_pct(r.estimates[i], true[i]):+.1f} %)" for i in _TABLE_INDEX]
+            cells = [f"{r.estimates[i]:.4f} ({signed_pct(error_pct(r.estimates[i], true[i]))})" for i in _TABLE_INDEX]
             lines.append(f"| {name}: {contour} | " + " | ".join(cells) + " |")
         worst = [max(abs(error_pct(r.estimates[i], true[i])) for r in runs_ok) for i in _TABLE_INDEX]
         lines.append(f"| {name}: max deviation % | " + " | ".join(f"{w:.1f} %" for w in worst) + " |")
@@ -386,11 +400,16 @@ def figures(by_key: dict[tuple[int, str, str], CaseResult]) -> list[tuple[Any, s
 
 
 def write_report(
-    results: Sequence[CaseResult], out: Path, overrides: Sequence[str] = (), appendix: Sequence[str] = ()
+    results: Sequence[CaseResult],
+    out: Path,
+    overrides: Sequence[str] = (),
+    appendix: Sequence[str] = (),
+    made_by: str = "",
 ) -> Path:
     """Write report.md, results.json and the PNG figures into ``out``; returns report.md's path.
 
-    ``appendix``: Markdown lines put after the figures (``report --rig``: :func:`gantry_twin.reports.rig.section`).
+    ``appendix``: Markdown lines put after the figures (``report --rig``: :func:`gantry_twin.reports.rig.section`);
+    ``made_by``: the provenance line under the title (:func:`provenance`).
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -400,6 +419,7 @@ def write_report(
     lines = [
         "# gantry-twin: reproduction of Hu, Yao, Wang (Automatica 2010), Tables 1-4 and Fig. 2-5",
         "",
+        *([made_by, ""] if made_by else []),
         f"{len(results)} runs: C1 = DARC, C2 = DIARC with the paper's estimator settings, C3 = DRC; "
         "C2r = DIARC with the twin's recommended estimator (10 Hz filters, sign friction). Set 1: no load; Set 2: 5 kg "
         "payload; Set 3: +0.6 V on the Y input from 1.86 s to 4.86 s.",
@@ -415,6 +435,8 @@ def write_report(
     if overrides:
         lines += [f"Overrides applied to every run: `{' '.join(overrides)}`.", ""]
     lines += ["## Findings checked", ""]
+    if checks:
+        lines += [f"{sum(ok for ok, _ in checks)} of {len(checks)} findings hold.", ""]
     lines += [f"- {'PASS' if ok else 'FAIL'}: {text}" for ok, text in checks] or ["- (no complete set to check)"]
     for number, contour in ((1, "circle"), (2, "ellipse")):
         lines += ["", f"## Table {number}: {contour} contouring, ||eps_c||_rms and eps_cM (um)", ""]
