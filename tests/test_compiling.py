@@ -113,3 +113,28 @@ def test_a_fresh_install_path_announces_its_compile(tmp_path):
     assert _python(second, cache, NEEDS).stdout.split() == ["True"]  # the first path's cache is not this one's
     again = _python(second, cache, RUN, *args, "--out", str(tmp_path / "out2"))  # the same cache, another install
     assert again.returncode == 0 and compile_message("gantry-twin") in again.stderr
+
+
+def test_a_batch_driver_says_once_that_its_workers_compile(monkeypatch):
+    """report and sweep: one line from the driver, before the first result, naming the loops and the time."""
+    from gantry_twin import compiling
+
+    monkeypatch.setattr(compiling, "loop_needs_compiling", lambda c: c != "cached")
+    stream = io.StringIO()
+    assert compiling.batch_compile_notice(["diarc", "darc", "cached"], "gantry-twin", stream)
+    assert stream.getvalue() == (
+        f"gantry-twin: workers compile the 2 loops for this install, once per worker "
+        f"(about {2 * EXPECTED_COMPILE_S} s) before the first result\n"
+    )
+    quiet = io.StringIO()
+    assert not compiling.batch_compile_notice(["cached"], "gantry-twin", quiet) and quiet.getvalue() == ""
+
+
+def test_monitor_log_says_when_the_estimator_replay_compiles(monkeypatch):
+    from gantry_twin import _jit, compiling
+
+    for cached, expected in ((False, True), (True, False)):
+        monkeypatch.setattr(_jit, "is_cached", lambda f, cached=cached: cached)
+        stream = io.StringIO()
+        assert compiling.replay_compile_notice("gantry-twin", stream) is expected
+        assert ("compiling the estimator's replay" in stream.getvalue()) is expected

@@ -91,6 +91,34 @@ def compile_notice(controller: Controller, prog: str) -> CompileNotice | _Quiet:
     return CompileNotice(prog) if loop_needs_compiling(controller) else _Quiet()
 
 
+def replay_compile_notice(prog: str, stream: TextIO | None = None) -> bool:
+    """``monitor --log``: print the compile line if the estimator's replay kernel will compile first; True if so."""
+    from gantry_twin._jit import is_cached
+    from gantry_twin.health.estimator_replay import estimator_replay
+
+    if is_cached(estimator_replay):
+        return False
+    print(compile_message(prog).replace("the 0.2 ms loop", "the estimator's replay"), file=stream or sys.stderr)
+    return True
+
+
+def workers_compile_message(prog: str, loops: int) -> str:
+    """The line a batch's driver (report, sweep) prints when its workers will compile ``loops`` loops first."""
+    what = "the loop" if loops == 1 else f"the {loops} loops"
+    return (
+        f"{prog}: workers compile {what} for this install, once per worker "
+        f"(about {EXPECTED_COMPILE_S * loops} s) before the first result"
+    )
+
+
+def batch_compile_notice(controllers: list[Controller], prog: str, stream: TextIO | None = None) -> bool:
+    """Print :func:`workers_compile_message` if any of ``controllers``' loops will compile first; True if printed."""
+    loops = sum(loop_needs_compiling(c) for c in controllers)
+    if loops:
+        print(workers_compile_message(prog, loops), file=stream if stream is not None else sys.stderr, flush=True)
+    return loops > 0
+
+
 def _is_terminal(stream: TextIO) -> bool:
     try:
         return stream.isatty()

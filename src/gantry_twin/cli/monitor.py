@@ -6,6 +6,8 @@ import argparse
 import json
 from pathlib import Path
 
+from gantry_twin.cli.common import PROG
+from gantry_twin.compiling import replay_compile_notice
 from gantry_twin.controllers import DIARC, create
 from gantry_twin.health.log_monitor import ESTIMATE_WINDOW_S, monitor_log
 from gantry_twin.outputs.files import atomic_write_text
@@ -66,6 +68,7 @@ def monitor_log_command(args: argparse.Namespace, scenario_path: Path | None, ou
             "so nothing would be judged; give a longer log, --set monitor.baseline_window_s=[a,b] inside it, "
             "or --baseline SUMMARY (a healthy run's summary.json)"
         )
+    replay_compile_notice(PROG)  # a line if the estimator's replay compiles first
     report = monitor_log(log, controller, monitor)
     summary = log_summary(log, report, (end - min(ESTIMATE_WINDOW_S, 0.5 * log.duration_s), end))
     out.mkdir(parents=True, exist_ok=True)
