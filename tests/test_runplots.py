@@ -149,3 +149,17 @@ def test_a_figure_that_fails_does_not_cost_the_run(tmp_path, capsys, monkeypatch
     assert sorted(p.name for p in out.iterdir()) == ["run_info.json", "scenario.yaml", "summary.json", "trace.parquet"]
     assert not [p for p in out.iterdir() if p.name.startswith(".")]  # no half-drawn directory left
     assert stdout.strip().endswith("(summary.json, scenario.yaml, trace.parquet, run_info.json)")
+
+
+def test_the_shaded_window_is_called_the_papers_only_when_it_is(tmp_path, capsys):
+    out = tmp_path / "run"
+    code, _, _ = run_main(
+        ["run", "no_load_ellipse", "--set", "duration_s=5", "--no-progress", "--out", str(out)], capsys
+    )
+    assert code == 0
+    summary = _summary(out)
+    assert summary.contour_error_um.paper_window is True
+    plt = runplots.pyplot()
+    labels = runplots.fig_eps_c(plt, [read_series(out, summary, "r")]).axes[0].get_legend_handles_labels()[1]
+    assert any(t.startswith("paper's window (second period) [") for t in labels)
+    plt.close("all")

@@ -213,7 +213,9 @@ def fig_eps_c(plt: Any, runs: Sequence[RunSeries]) -> Any:
         ax.plot(r.t_eps_s, r.eps_c_um, lw=0.7, label=_name(runs, r, "" if len(runs) > 1 else "eps_c"))
     window = _window(runs[0].summary)
     if window is not None:
-        ax.axvspan(*window, color="0.85", zorder=0, label=f"metric window [{window[0]:.2f}, {window[1]:.2f}] s")
+        c = runs[0].summary.contour_error_um
+        what = "paper's window (second period)" if c is not None and c.paper_window else "metric window"
+        ax.axvspan(*window, color="0.85", zorder=0, label=f"{what} [{window[0]:.2f}, {window[1]:.2f}] s")
     ax.axhline(0.0, color="0.4", lw=0.5)
     ax.set(xlabel="time t (s)", ylabel="contour error eps_c (µm)")
     ax.set_title(_title(runs, "true contour error eps_c (largest |eps_c| of each bin)"), fontsize=9)

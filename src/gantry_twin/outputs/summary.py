@@ -34,6 +34,7 @@ class ContourError(Model):
     rms: float
     max: float
     window_s: Window
+    paper_window: bool | None = None  # window_s is the paper's second period [T, 2T] (None: not recorded)
 
 
 class WholeRunContour(Model):
@@ -279,7 +280,12 @@ def run_summary(
         out["failure"] = {"time_s": failure.time_s, "step": failure.step, "error": failure.error}
     else:
         contour = metrics.contour()
-        out["contour_error_um"] = {"rms": contour.rms_um, "max": contour.max_um, "window_s": list(contour.window_s)}
+        out["contour_error_um"] = {
+            "rms": contour.rms_um,
+            "max": contour.max_um,
+            "window_s": list(contour.window_s),
+            "paper_window": scenario.metric_window_is_papers,
+        }
         whole = metrics.whole_run()
         if whole is not None:
             out.update(whole_run_summary(whole))

@@ -358,6 +358,12 @@ class Scenario(Model):
         return (t0, d) if d > t0 else (0.0, d)
 
     @property
+    def metric_window_is_papers(self) -> bool:
+        """True when :attr:`metric_window_s` is the paper's second period (no window_s, and the run holds it)."""
+        t0, period = self.timing_law().settled_s, self.period_s
+        return self.window_s is None and t0 + 2.0 * period <= self.duration_s + 1e-9
+
+    @property
     def estimate_window_s(self) -> tuple[float, float]:
         """estimates_window_s, or the last period [d - T, d]; in a run shorter than that, the run after the
         start ramp [t0, d] (else the whole run)."""
