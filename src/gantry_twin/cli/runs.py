@@ -35,7 +35,7 @@ def command(args: argparse.Namespace) -> int:
         for e in entries:
             print(describe(e))
         total = sum(e.size_bytes for e in entries)
-        print(f"{len(entries)} runs, {human_size(total)} in {args.dir}")
+        print(f"{_runs(len(entries))}, {human_size(total)} in {args.dir}")
         return EXIT_OK
     doomed = to_prune(entries, args.keep)
     verb = "deleted" if args.yes else "would delete"
@@ -44,7 +44,11 @@ def command(args: argparse.Namespace) -> int:
             remove_tree(e.path)
         print(f"{verb} {describe(e)}")
     freed = human_size(sum(e.size_bytes for e in doomed))
-    print(f"{len(doomed)} runs {verb} ({freed}); kept the last {args.keep} per scenario and every latest")
+    print(f"{verb} {_runs(len(doomed))} ({freed}); kept the last {args.keep} per scenario and every latest")
     if doomed and not args.yes:
         print(f"{PROG}: dry run: add --yes to delete them", file=sys.stderr)
     return EXIT_OK
+
+
+def _runs(n: int) -> str:
+    return f"{n} run" if n == 1 else f"{n} runs"
