@@ -120,7 +120,7 @@ def test_report_without_rig_runs_only_the_paper_matrix(tmp_path, capsys, monkeyp
     code, _, err = run_main(["report", "--out", str(tmp_path / "r"), *_sets(TINY)], capsys)
     assert code == 0, err
     assert seen == [report.paper_matrix(TINY)]
-    assert "rig" not in (tmp_path / "r" / "report.md").read_text().lower()
+    assert "## the rig's" not in (tmp_path / "r" / "report.md").read_text().lower()  # no rig section
     assert not list((tmp_path / "r").glob("rig*"))
 
 

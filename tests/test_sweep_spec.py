@@ -220,7 +220,7 @@ def test_an_earlier_sweep_is_not_overwritten_without_resume(tmp_path, capsys):
     out.mkdir()
     (out / "results.parquet").write_bytes(b"earlier")
     code, _, err = run_main(["sweep", str(path), "--out", str(out)], capsys)
-    assert code == 2 and "add --resume" in one_line(err)
+    assert code == 2 and "--resume" in one_line(err) and "--fresh" in one_line(err)
     assert (out / "results.parquet").read_bytes() == b"earlier"
 
 
