@@ -192,51 +192,44 @@ def test_the_loop_names_no_controller(graph, loop):
 
 
 def private_imports(path: Path) -> list[str]:
-    """``from gantry_twin.X import _name`` (or ``import`` of a ``_module`` attribute) in a file, as text."""
+    """``from gantry_twin.X import _name`` in a file, as ``<file>:<line>: from X import _name`` (the file relative
+    to the repository when it is inside it)."""
     tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
-    found = []
-    for node in ast.walk(tree):
-        if isinstance(node, ast.ImportFrom) and (node.module or "").startswith(PACKAGE) and not node.level:
-            for alias in node.names:
-                if alias.name.startswith("_") and alias.name != "__version__":
-                    found.append(f"{path.relative_to(ROOT)}:{node.lineno}: from {node.module} import {alias.name}")
-    return found
+    where = path.relative_to(ROOT) if path.is_relative_to(ROOT) else path
+    return [
+        f"{where}:{node.lineno}: from {node.module} import {alias.name}"
+        for node in ast.walk(tree)
+        if isinstance(node, ast.ImportFrom) and (node.module or "").startswith(PACKAGE) and not node.level
+        for alias in node.names
+        if alias.name.startswith("_") and alias.name != "__version__"
+    ]
+
+
+def private_imports_in(directory: Path) -> list[str]:
+    return [line for path in sorted(directory.rglob("*.py")) for line in private_imports(path)]
 
 
 def test_private_imports_are_found(tmp_path):
     bad = tmp_path / "bad.py"
     bad.write_text("from gantry_twin.cli.app import _scenario_path\nfrom gantry_twin.plant import AXES\n")
-    assert private_imports_in(tmp_path) == [
-        f"{bad.relative_to(ROOT) if bad.is_relative_to(ROOT) else bad}:1: "
-        "from gantry_twin.cli.app import _scenario_path"
-    ] or private_imports_in(tmp_path)[0].endswith("from gantry_twin.cli.app import _scenario_path")
-
-
-def private_imports_in(directory: Path) -> list[str]:
-    out = []
-    for path in sorted(directory.rglob("*.py")):
-        try:
-            out += private_imports(path)
-        except ValueError:  # outside the repository (a test's own file)
-            tree = ast.parse(path.read_text(encoding="utf-8"))
-            out += [
-                f"{path}:{n.lineno}: from {n.module} import {a.name}"
-                for n in ast.walk(tree)
-                if isinstance(n, ast.ImportFrom) and (n.module or "").startswith(PACKAGE)
-                for a in n.names
-                if a.name.startswith("_") and a.name != "__version__"
-            ]
-    return out
+    assert private_imports_in(tmp_path) == [f"{bad}:1: from gantry_twin.cli.app import _scenario_path"]
+    inside = "src/gantry_twin/cli/__init__.py:1: from gantry_twin.cli.app import _helper"
+    assert _private_across_modules([inside, f"{bad}:1: from gantry_twin.cli.app import _x"]) == [
+        f"{bad}:1: from gantry_twin.cli.app import _x"
+    ]
 
 
 def _private_across_modules(found: list[str]) -> list[str]:
-    """Drop imports of a module's own private names from inside it (a package's __init__ from its modules)."""
+    """Drop the imports a module makes of its own package's private names (a package's __init__ from its
+    modules, a module from its package); any other private import stays."""
     out = []
     for line in found:
         where, _, what = line.partition(": from ")
         module = what.split(" import ")[0]
-        file_module = ".".join(Path(where.split(":")[0]).with_suffix("").parts[1:])  # src/gantry_twin/a/b -> dotted
-        if file_module.removesuffix(".__init__").startswith(module) and where.startswith("src/"):
+        parts = Path(where.split(":")[0]).with_suffix("").parts
+        package = ".".join(parts[1:-1])  # the file's own package: src/gantry_twin/cli/app.py -> gantry_twin.cli
+        inside = where.startswith("src/") and (module == package or module.startswith(f"{package}."))
+        if inside and (parts[-1] == "__init__" or module == package):
             continue
         out.append(line)
     return out
