@@ -1,9 +1,13 @@
 """Behaviour pinned across refactors: every shipped scenario x every built-in controller, 2 s, both backends.
 
-The digests in ``tests/data/trace_digests.json`` were recorded from main
-before the loop was restructured; a run that changes any bit of
-any trace array changes its digest. Regenerate them only for an intended
-change of behaviour, and say so in the commit:
+Each shipped scenario runs on its default machine, the rig plant (models/rig.xml); the ideal plant
+(``plant.model=paper``) is pinned too, DIARC on every scenario and every controller on the plain
+circle (keys ``scenario/controller@paper``; their digests are those recorded before the default
+machine became the rig, so they also show the ideal plant unchanged by it).
+
+The digests in ``tests/data/trace_digests.json``: a run that changes any bit of any trace array
+changes its digest. Regenerate them only for an intended change of behaviour, and say so in the
+commit:
 
     python tests/test_pinned_traces.py --record
 """
@@ -33,10 +37,14 @@ def _digest(values: np.ndarray) -> str:
     return hashlib.sha256(np.ascontiguousarray(values, dtype=np.float64).tobytes()).hexdigest()[:24]
 
 
-def trace_digests(scenario: str, controller: str, backend: str) -> dict[str, str]:
-    """Per-array sha256 prefixes of a 2 s run's trace."""
+#: The plants pinned: the scenario's default machine (the rig plant) and the ideal plant.
+PLANTS = {"": (), "@paper": ("plant.model=paper",)}
+
+
+def trace_digests(scenario: str, controller: str, backend: str, plant: str = "") -> dict[str, str]:
+    """Per-array sha256 prefixes of a 2 s run's trace; ``plant`` a key of :data:`PLANTS`."""
     path = next(p for p in shipped_scenarios() if p.stem == scenario)
-    built = build(load_scenario(path, OVERRIDES, controller), str(path))
+    built = build(load_scenario(path, [*OVERRIDES, *PLANTS[plant]], controller), str(path))
     trace = simulate(
         built.plant,
         built.path,
@@ -54,6 +62,8 @@ def trace_digests(scenario: str, controller: str, backend: str) -> dict[str, str
 
 
 CASES = [(p.stem, c) for p in shipped_scenarios() for c in CONTROLLERS]
+#: The ideal plant's cases: every controller on the plain circle and DIARC on every scenario.
+PAPER_CASES = sorted({("no_load_circle", c) for c in CONTROLLERS} | {(p.stem, "diarc") for p in shipped_scenarios()})
 #: The compiled cases the quick run (-m "not slow") keeps: every controller on the plain circle, and DIARC
 #: on each scenario that exercises another per-sample concern of the loop (disturbance input, payload
 #: change, friction drift, cogging). The others, and the whole reference half, are marked slow.
@@ -75,6 +85,15 @@ def test_compiled_trace_is_pinned(scenario, controller):
     assert trace_digests(scenario, controller, "compiled") == _recorded()[f"{scenario}/{controller}"]
 
 
+@pytest.mark.parametrize(
+    ("scenario", "controller"),
+    [pytest.param(*case, marks=() if case in REPRESENTATIVE else pytest.mark.slow) for case in PAPER_CASES],
+)
+def test_compiled_trace_on_the_ideal_plant_is_pinned(scenario, controller):
+    got = trace_digests(scenario, controller, "compiled", "@paper")
+    assert got == _recorded()[f"{scenario}/{controller}@paper"]
+
+
 #: The reference cases the whole suite (CI) runs: DIARC on every scenario and every controller on the plain
 #: circle; the other 24 (DRC, DARC, PD on the other eight scenarios; test_backends checks those controllers'
 #: compiled == reference on the ellipse) only with ``-m exhaustive``, to keep the suite under 10 minutes.
@@ -90,13 +109,22 @@ def test_reference_trace_is_pinned(scenario, controller):
     assert trace_digests(scenario, controller, "reference") == _recorded()[f"{scenario}/{controller}"]
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize(("scenario", "controller"), [("no_load_circle", "diarc"), ("cogging_circle", "diarc")])
+def test_reference_trace_on_the_ideal_plant_is_pinned(scenario, controller):
+    got = trace_digests(scenario, controller, "reference", "@paper")
+    assert got == _recorded()[f"{scenario}/{controller}@paper"]
+
+
 def test_every_shipped_case_is_pinned():
-    assert sorted(_recorded()) == sorted(f"{s}/{c}" for s, c in CASES)
+    expected = [f"{s}/{c}" for s, c in CASES] + [f"{s}/{c}@paper" for s, c in PAPER_CASES]
+    assert sorted(_recorded()) == sorted(expected)
     assert REPRESENTATIVE <= set(CASES)
 
 
 if __name__ == "__main__" and "--record" in sys.argv:
     DIGESTS.parent.mkdir(exist_ok=True)
-    table = {f"{s}/{c}": trace_digests(s, c, "compiled") for s, c in CASES}
+    table = {f"{s}/{c}{k}": trace_digests(s, c, "compiled", k) for k, cases in (("", CASES), ("@paper", PAPER_CASES))
+             for s, c in cases}  # fmt: skip
     DIGESTS.write_text(json.dumps(table, indent=1, sort_keys=True) + "\n", encoding="utf-8")
     print(f"wrote {len(table)} cases to {DIGESTS}")

@@ -66,6 +66,10 @@ PayloadOffset = Vector(tuple(Range(-limit, limit, "m") for limit in PAYLOAD_OFFS
 #: The shipped machines (``plant.model``) and their MJCF files in models/.
 PLANT_MODELS: dict[str, str] = {"paper": "gantry.xml", "rig": "rig.xml"}
 PlantModel = Literal["paper", "rig"]
+#: How the shipped machines are named in words.
+PLANT_WORDS: dict[str, str] = {"paper": "ideal", "rig": "rig"}
+#: The machine a scenario runs on when it names none: the paper's rig (docs/rig-plant.md).
+DEFAULT_PLANT_MODEL: PlantModel = "rig"
 
 
 def default_model_path(model: PlantModel = "paper") -> Path:
@@ -75,6 +79,11 @@ def default_model_path(model: PlantModel = "paper") -> Path:
     if packaged.is_file():
         return Path(str(packaged))
     return Path(__file__).resolve().parents[2] / "models" / name
+
+
+def short_label(label: str) -> str:
+    """A :attr:`PlantSettings.label` without its file: ``rig plant``, ``ideal plant`` (headers, table rows)."""
+    return label.split(" (")[0]
 
 
 @validated("payload")
@@ -94,9 +103,10 @@ class Payload:
 class PlantSettings:
     """The machine of a scenario.
 
-    model: the shipped machine, ``paper`` (models/gantry.xml, the paper's
-    model) or ``rig`` (models/rig.xml: LuGre friction, a static input offset
-    and a force ripple; docs/rig-plant.md). file: an MJCF model in place of
+    model: the shipped machine, ``rig`` (models/rig.xml, the default: the
+    paper's rig as measured, with LuGre friction, a static input offset and a
+    force ripple; docs/rig-plant.md) or ``paper`` (models/gantry.xml, the
+    paper's ideal model); None with ``file``. file: an MJCF model in place of
     the shipped one (e.g. ``gantry-twin identify``'s plant.xml), relative to
     the scenario file. friction, offset, ripple: the friction model
     (:mod:`gantry_twin.friction`), the static input offset and the force
@@ -105,15 +115,29 @@ class PlantSettings:
     value given replaces the file's whole property.
     """
 
-    model: PlantModel = "paper"
+    model: PlantModel | None = None
     file: str | None = None
     friction: Friction | None = None
     offset: InputOffset | None = None
     ripple: ForceRipple | None = None
 
     def __post_init__(self) -> None:
-        if self.file is not None and self.model != "paper":
+        if self.file is not None and self.model is not None:
             raise rule("file", f"give a model file or model: {self.model}, not both")
+        if self.file is None and self.model is None:
+            object.__setattr__(self, "model", DEFAULT_PLANT_MODEL)  # frozen: the default machine, resolved once
+
+    @property
+    def label(self) -> str:
+        """The machine in words, as summaries, printed headers and reports name it: ``rig plant
+        (models/rig.xml)``, ``ideal plant (models/gantry.xml)`` or ``plant file NAME``; ``, with plant
+        overrides`` when the scenario sets its friction, offset or ripple."""
+        if self.file is not None:
+            name = f"plant file {Path(self.file).name}"
+        else:
+            name = f"{PLANT_WORDS[self.model]} plant (models/{PLANT_MODELS[self.model]})"
+        given = (self.friction, self.offset, self.ripple)
+        return name + (", with plant overrides" if any(v is not None for v in given) else "")
 
 
 def build_spec(

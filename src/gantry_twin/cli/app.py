@@ -77,7 +77,7 @@ from gantry_twin.telemetry import TelemetryError
 EXAMPLES = """examples:
   gantry-twin run                                   the paper's no-load circle with DIARC (30 s)
   gantry-twin run load_5kg_ellipse --controller darc --set duration_s=10
-  gantry-twin run --set plant.model=rig             the same circle on the rig plant
+  gantry-twin run --set plant.model=paper           the same circle on the paper's ideal model
   gantry-twin scenarios                             the shipped scenarios
   gantry-twin sweeps                                the shipped sweeps
   gantry-twin compare runs/no_load_circle/<time>-<id> runs/no_load_circle/latest
@@ -172,8 +172,13 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="FILE",
         type=Path,
         default=None,
-        help="also run the matrix with a rig plant: FILE's 'overrides' (a list of field=value strings); "
-        "adds paper / rig / ideal per cell and a reversal-spike figure",
+        help="the rig twin's plant from a calibration: FILE's 'overrides' (a list of field=value strings, "
+        "the fit.json that gantry-twin calibrate writes), after each run's own",
+    )
+    report.add_argument(
+        "--no-ideal",
+        action="store_true",
+        help="skip the ideal twin's runs (plant.model=paper) and the paper / rig twin / ideal twin section",
     )
     add_progress_arguments(report)
 
@@ -464,15 +469,23 @@ def _report(args: argparse.Namespace) -> int:
     if workers is not None and workers < 1:
         raise BadInput(f"{flag}: must be a positive integer, got {workers}")
     checked_out(args.out)
-    cases = paper_matrix(args.overrides)  # validates every scenario before anything runs
-    rig = rig_report.load_rig(args.rig) if args.rig is not None else None
-    rigged = rig_report.rig_cases(cases, rig) if rig else []
+    rig = rig_report.load_rig(args.rig) if args.rig is not None else ()
+    cases = paper_matrix((*args.overrides, *rig))  # validates every scenario before anything runs
+    plant = rig_report.plant_label(cases[0])
+    # The ideal twin beside the rig twin, unless told not to or the matrix runs on the ideal twin already.
+    ideal = (
+        []
+        if args.no_ideal or rig_report.is_ideal(cases[0])
+        else rig_report.rig_cases(paper_matrix(args.overrides, labels=rig_report.LABELS), rig_report.IDEAL)
+    )
     try:
-        results = run_matrix([*cases, *rigged], jobs=workers or os.cpu_count() or 1, progress=progress_wanted(args))
-        results, rig_results = results[: len(cases)], results[len(cases) :]
-        appendix = rig_report.section(results, rig_results, rig, args.out, args.overrides) if rig else []
+        results = run_matrix([*cases, *ideal], jobs=workers or os.cpu_count() or 1, progress=progress_wanted(args))
+        results, ideal_results = results[: len(cases)], results[len(cases) :]
+        appendix = (
+            rig_report.section(ideal_results, results, rig, args.out, args.overrides, plant) if ideal_results else []
+        )
         made_by = provenance(shlex.join([PROG, *args.argv]), time.monotonic() - started, package_version())
-        path = write_report(results, args.out, args.overrides, appendix, made_by)
+        path = write_report(results, args.out, (*args.overrides, *rig), appendix, made_by, plant)
     except Exception as exc:
         return failed("report", exc)
     print(f"report written to {path}")

@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from gantry_twin.outputs.summary import RunSummary
-from gantry_twin.plant import AXES, THETA_NAMES
+from gantry_twin.plant import AXES, THETA_NAMES, short_label
 
 #: Each series is cut into at most this many bins (the points drawn per line).
 PLOT_BINS = 3000
@@ -409,8 +409,11 @@ def write_plots(run_dir: Path, plots_dir: Path, summary: RunSummary, fmt: str = 
 
 
 def run_label(summary: RunSummary) -> str:
-    """``<scenario> with <controller>`` and the command line's overrides: how the printed header names a run."""
+    """``<scenario> with <controller> on the <plant>`` and the command line's overrides: how the printed header
+    names a run."""
     label = f"{summary.scenario or summary.log or '?'} with {summary.controller}"
+    if summary.plant is not None:
+        label += f" on the {short_label(summary.plant)}"
     overrides = summary.overrides or []
     if overrides:
         label += " (" + " ".join(f"--set {o}" for o in overrides) + ")"

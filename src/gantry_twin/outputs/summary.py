@@ -180,6 +180,7 @@ class RunSummary(Model):
     schema_version: Literal[SUMMARY_SCHEMA_VERSION]  # type: ignore[valid-type]
     scenario: str | None = None
     log: str | None = None
+    plant: str | None = None
     controller: str
     overrides: list[str] | None = None
     controller_option: str | None = None
@@ -268,6 +269,7 @@ def run_summary(
     out: dict[str, Any] = {
         "schema_version": SUMMARY_SCHEMA_VERSION,
         "scenario": scenario.name,
+        "plant": scenario.plant.label,
         "controller": controller_name,
         "overrides": list(overrides),
         "controller_option": controller_option,

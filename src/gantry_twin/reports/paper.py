@@ -30,7 +30,7 @@ import numpy as np
 from gantry_twin.metrics import contour_metrics, error_pct, steady_estimates, steady_true_parameters
 from gantry_twin.outputs.files import atomic_write, atomic_write_text
 from gantry_twin.outputs.plots import envelope
-from gantry_twin.plant import THETA_NAMES, THETA_UNITS
+from gantry_twin.plant import THETA_NAMES, THETA_UNITS, short_label
 from gantry_twin.run import execute
 from gantry_twin.scenario import build, load_scenario, shipped
 from gantry_twin.theta import NOMINAL_THETA
@@ -212,10 +212,16 @@ def _fmt(x: float | None, digits: int = 2) -> str:
     return "-" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:.{digits}f}"
 
 
-def signed_pct(x: float) -> str:
-    """``+1.2 %``, ``-0.4 %``; a value that rounds to zero is ``0.0 %``, never ``-0.0 %``."""
-    text = f"{x:+.1f}"
-    return ("0.0" if float(text) == 0.0 else text) + " %"
+def signed(x: float, digits: int = 1) -> str:
+    """``+1.2``, ``-0.4`` with ``digits`` decimals; a value that rounds to zero is ``0.0`` (``0``), never
+    ``-0.0`` or ``+0.0``."""
+    text = f"{x:+.{digits}f}"
+    return f"{0.0:.{digits}f}" if float(text) == 0.0 else text
+
+
+def signed_pct(x: float, digits: int = 1) -> str:
+    """``+1.2 %``, ``-0.4 %``; a value that rounds to zero is ``0.0 %``, never ``-0.0 %`` (:func:`signed`)."""
+    return signed(x, digits) + " %"
 
 
 def provenance(command: str, wall_time_s: float, version: str, now_s: float | None = None) -> str:
@@ -226,16 +232,16 @@ def provenance(command: str, wall_time_s: float, version: str, now_s: float | No
     return f"Made by gantry-twin {version} on {date} with `{command}` in {wall_time_s:.0f} s of wall time."
 
 
-def _contour_table(by_key: dict[tuple[int, str, str], CaseResult], contour: str) -> list[str]:
+def _contour_table(by_key: dict[tuple[int, str, str], CaseResult], contour: str, twin: str = "twin") -> list[str]:
     columns = [(s, c) for s in (1, 2, 3) for c in ("C1", "C2", "C3") if _in_matrix(s, c)]
     head = "| | " + " | ".join(f"Set {s} {c}" for s, c in columns) + " |"
     lines = [head, "|---" * (len(columns) + 1) + "|"]
     for what, index in (("rms", 0), ("max", 1)):
         paper = [PAPER_CONTOUR_UM.get((contour, s, c), (None, None))[index] for s, c in columns]
         twin_results = [by_key.get((s, contour, c)) for s, c in columns]
-        twin = [None if r is None else (r.rms_um if index == 0 else r.max_um) for r in twin_results]
+        values = [None if r is None else (r.rms_um if index == 0 else r.max_um) for r in twin_results]
         lines.append(f"| {what} paper (um) | " + " | ".join(_fmt(v) for v in paper) + " |")
-        lines.append(f"| **{what} twin (um)** | " + " | ".join(f"**{_fmt(v)}**" for v in twin) + " |")
+        lines.append(f"| **{what} {twin} (um)** | " + " | ".join(f"**{_fmt(v)}**" for v in values) + " |")
     return lines
 
 
@@ -405,11 +411,13 @@ def write_report(
     overrides: Sequence[str] = (),
     appendix: Sequence[str] = (),
     made_by: str = "",
+    plant: str = "",
 ) -> Path:
     """Write report.md, results.json and the PNG figures into ``out``; returns report.md's path.
 
-    ``appendix``: Markdown lines put after the figures (``report --rig``: :func:`gantry_twin.reports.rig.section`);
-    ``made_by``: the provenance line under the title (:func:`provenance`).
+    ``appendix``: Markdown lines put after the figures (the paper / rig twin / ideal twin section:
+    :func:`gantry_twin.reports.rig.section`); ``made_by``: the provenance line under the title
+    (:func:`provenance`); ``plant``: the runs' plant in words, named in the tables and results.json.
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -424,6 +432,7 @@ def write_report(
         "C2r = DIARC with the twin's recommended estimator (10 Hz filters, sign friction). Set 1: no load; Set 2: 5 kg "
         "payload; Set 3: +0.6 V on the Y input from 1.86 s to 4.86 s.",
         "",
+        *([f"Every twin number in Tables 1-4 and the figures comes from the {plant}.", ""] if plant else []),
         '**Reading of "after running the gantry for one period"** (the paper says no more): every run starts '
         "on the path (as if already running) and lasts 30 s unless overridden."
         " The contour metrics of Sets 1-2 cover the second "
@@ -440,7 +449,7 @@ def write_report(
     lines += [f"- {'PASS' if ok else 'FAIL'}: {text}" for ok, text in checks] or ["- (no complete set to check)"]
     for number, contour in ((1, "circle"), (2, "ellipse")):
         lines += ["", f"## Table {number}: {contour} contouring, ||eps_c||_rms and eps_cM (um)", ""]
-        lines += _contour_table(by_key, contour)
+        lines += _contour_table(by_key, contour, "twin" if not plant else f"twin, {short_label(plant)}")
     for number, set_id, what in ((3, 1, "without load"), (4, 2, "with 5 kg load")):
         lines += [
             "",
@@ -477,7 +486,11 @@ def write_report(
     ]
     atomic_write_text(
         out / "results.json",
-        json.dumps({"runs": numbers, "findings": [{"pass": ok, "text": text} for ok, text in checks]}, indent=2) + "\n",
+        json.dumps(
+            {"plant": plant, "runs": numbers, "findings": [{"pass": ok, "text": text} for ok, text in checks]},
+            indent=2,
+        )
+        + "\n",
     )
     atomic_write_text(path, "\n".join(lines) + "\n")
     return path
