@@ -91,6 +91,18 @@ def fmt(x: float | None, none: str = "inf") -> str:
     return none if x is None else f"{x:g}"
 
 
+def signed_pct(x: float | None, decimals: int = 1, width: int = 0, unit: str = " %", none: str = "-") -> str:
+    """A signed percentage as every report and summary prints it: ``+1.2 %``, ``-0.4 %``; a value that rounds
+    to zero is ``0.0 %``, never ``-0.0 %`` (nor ``+0.0 %``); ``none`` for None or NaN. ``width`` pads the
+    number (not the unit) on the left, for columns."""
+    if x is None or x != x:
+        return f"{none:>{width}}"
+    text = f"{x:+.{decimals}f}"
+    if float(text) == 0.0:
+        text = f"{0.0:.{decimals}f}"
+    return f"{text:>{width}}{unit}"
+
+
 def interval(lo: float | None, hi: float | None, unit: str = "", lo_open: bool = False) -> str:
     """``[lo, hi] unit`` (``(lo, hi]`` when lo_open); None is unbounded."""
     left = "(" if lo_open else "["

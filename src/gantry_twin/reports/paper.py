@@ -33,6 +33,7 @@ from gantry_twin.outputs.plots import envelope
 from gantry_twin.plant import THETA_NAMES, THETA_UNITS
 from gantry_twin.run import execute
 from gantry_twin.scenario import build, load_scenario, shipped
+from gantry_twin.settings import signed_pct
 from gantry_twin.theta import NOMINAL_THETA
 
 SET_SCENARIOS = {1: "no_load", 2: "load_5kg", 3: "step_disturbance"}
@@ -210,12 +211,6 @@ def run_matrix(cases: Sequence[Case], jobs: int = 1, progress: bool = False) -> 
 
 def _fmt(x: float | None, digits: int = 2) -> str:
     return "-" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:.{digits}f}"
-
-
-def signed_pct(x: float) -> str:
-    """``+1.2 %``, ``-0.4 %``; a value that rounds to zero is ``0.0 %``, never ``-0.0 %``."""
-    text = f"{x:+.1f}"
-    return ("0.0" if float(text) == 0.0 else text) + " %"
 
 
 def provenance(command: str, wall_time_s: float, version: str, now_s: float | None = None) -> str:

@@ -30,6 +30,7 @@ from gantry_twin.plant import THETA_NAMES
 from gantry_twin.reports.paper import CONTOURS, CONTROLLERS, PAPER_CONTOUR_UM, SET_SCENARIOS, Case, CaseResult
 from gantry_twin.run import execute
 from gantry_twin.scenario import BuiltRun, ScenarioError, build, load_scenario, shipped
+from gantry_twin.settings import signed_pct
 
 LABELS = ("C1", "C2", "C3")
 #: The cells the calibration fitted (contour, set): circle Set 1 (calibrations/paper_circle_set1.yaml);
@@ -105,7 +106,7 @@ def matrix_table(rig: dict[Key, CaseResult], coulomb: dict[Key, CaseResult]) -> 
                     f"{paper[0]:.2f} / {paper[1]:.2f}",
                     f"{r.rms_um:.2f} / {r.max_um:.2f}",
                     f"{c.rms_um:.2f} / {c.max_um:.2f}",
-                    f"{err[0]:+.0f} / {err[1]:+.0f}",
+                    f"{signed_pct(err[0], 0, unit='')} / {signed_pct(err[1], 0, unit='')}",
                 ]
                 role = "fit" if (contour, set_id) in FIT_CELLS else "validation"
                 lines.append(f"| {contour} | {set_id} | {label} | " + " | ".join(cells) + f" | {role} |")
@@ -123,7 +124,7 @@ def acceptance(rig: dict[Key, CaseResult]) -> list[tuple[bool | None, str]]:
         for kind, e in zip(("rms", "max"), cell_errors_pct(r, paper), strict=True):
             total += 1
             if abs(e) > VALIDATION_PCT:
-                misses.append(f"{contour} {set_id} {label} {kind} {e:+.0f} %")
+                misses.append(f"{contour} {set_id} {label} {kind} {signed_pct(e, 0)}")
     if total:
         within = total - len(misses)
         text = f"validation numbers within +-{VALIDATION_PCT:g} % of the paper: {within} of {total}"
@@ -148,7 +149,7 @@ def acceptance(rig: dict[Key, CaseResult]) -> list[tuple[bool | None, str]]:
                 if r is None or r.estimates is None:
                     continue
                 errs = [error_pct(r.estimates[i], r.true_theta[i]) for i in range(6)]
-                text = ", ".join(f"{THETA_NAMES[i]} {e:+.1f} %" for i, e in enumerate(errs))
+                text = ", ".join(f"{THETA_NAMES[i]} {signed_pct(e)}" for i, e in enumerate(errs))
                 if label == "C2r":
                     ok = all(abs(e) <= ESTIMATE_PCT[THETA_NAMES[i].rstrip("12")] for i, e in enumerate(errs))
                     out.append((ok, f"DIARC recommended, {contour} Set {set_id}: {text}"))
