@@ -67,7 +67,7 @@ def _pct(e: Estimate) -> str:
 
 def trust_mark(e: Estimate) -> str:
     """``  (not trusted: why)`` after an estimate the run's own signals cannot vouch for; empty otherwise."""
-    return f"  (not trusted: {e.why})" if e.trustworthy is False else ""
+    return f"  ({e.distrust})" if e.distrust else ""
 
 
 def format_health(health: Health) -> list[str]:

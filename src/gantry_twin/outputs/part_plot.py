@@ -119,14 +119,17 @@ def _mark_worst(ax: Any, summary: Any, plan: Plan) -> None:
                 label = f"worst {MARKED} blocks (band)" if first else None
                 ax.plot(p[:, 0], p[:, 1], color="tab:orange", lw=7, alpha=0.35, solid_capstyle="round", label=label)
                 first = False
+    middle = _geometry_points(plan).mean(axis=0) * 1e3
     for i, corner in enumerate(part.worst_corners[:MARKED]):
         x, y = (1e3 * v for v in corner.point_m)
         label = f"worst {MARKED} corners" if i == 0 else None
         ax.plot(x, y, "o", ms=11, mfc="none", mec="tab:red", mew=1.4, label=label, zorder=5)
+        inward = x > middle[0]  # the label towards the part's middle, off the panel's edge
         ax.annotate(
             f"line {corner.line}: {corner.max_um:.1f} µm",
             (x, y),
-            xytext=(8, 8 if i % 2 == 0 else -14),
+            xytext=(-8 if inward else 8, 8 if i % 2 == 0 else -14),
+            ha="right" if inward else "left",
             textcoords="offset points",
             fontsize=7,
             color="tab:red",

@@ -329,8 +329,8 @@ def _distrust(runs: Sequence[RunSeries], name: str) -> str:
     """``not trusted: why`` when a run's summary.json does not trust its estimate of ``name``; empty otherwise."""
     for r in runs:
         e = (r.summary.estimates or {}).get(name)
-        if e is not None and e.trustworthy is False:
-            return f"not trusted: {e.why}" if len(runs) == 1 else f"{r.label}: not trusted: {e.why}"
+        if e is not None and e.distrust:
+            return e.distrust if len(runs) == 1 else f"{r.label}: {e.distrust}"
     return ""
 
 
