@@ -28,7 +28,7 @@ import numbers
 import re
 import reprlib
 from collections.abc import Callable, Sequence
-from dataclasses import fields
+from dataclasses import dataclass, fields
 from typing import Annotated, Any, TypeVar, dataclass_transform
 
 from pydantic import (
@@ -131,6 +131,14 @@ def _type_error(value: Any, kind: str, allowed: str = "", article: str = "a") ->
     )
 
 
+@dataclass(frozen=True)
+class Allowed:
+    """What a field type allows, in the words of its errors: carried in the type's ``Annotated`` metadata for the
+    generated scenario reference (:mod:`gantry_twin.scenario.reference`); pydantic ignores it."""
+
+    text: str
+
+
 def Range(lo: float | None, hi: float | None, unit: str = "", *, lo_open: bool = False) -> Any:  # noqa: N802
     """A finite float in [lo, hi] (``(lo, hi]`` with lo_open; None: unbounded) whose error states the range."""
     allowed = interval(lo, hi, unit, lo_open)
@@ -150,7 +158,7 @@ def Range(lo: float | None, hi: float | None, unit: str = "", *, lo_open: bool =
             )
         return x
 
-    return Annotated[float, BeforeValidator(check)]
+    return Annotated[float, BeforeValidator(check), Allowed(allowed)]
 
 
 def _as_float(value: Any) -> float:
@@ -174,7 +182,7 @@ def Count(lo: int, hi: int) -> Any:  # noqa: N802
             )
         return int(value)
 
-    return Annotated[int, BeforeValidator(check)]
+    return Annotated[int, BeforeValidator(check), Allowed(f"an integer in [{lo}, {hi}]")]
 
 
 def Vector(component: Any, names: Sequence[str]) -> Any:  # noqa: N802
@@ -207,7 +215,19 @@ def Vector(component: Any, names: Sequence[str]) -> Any:  # noqa: N802
                 ) from None
         return tuple(out)
 
-    return Annotated[tuple[Any, ...], BeforeValidator(check)]
+    each = sorted({allowed_text(c) for c in per_item})
+    text = f"{count}" + (f", each in {each[0]}" if len(each) == 1 and each[0] else "")
+    if len(each) > 1:
+        text += ": " + ", ".join(f"{n} in {allowed_text(c)}" for n, c in zip(names, per_item, strict=True))
+    return Annotated[tuple[Any, ...], BeforeValidator(check), Allowed(text)]
+
+
+def allowed_text(kind: Any) -> str:
+    """The :class:`Allowed` text of a field type, or empty."""
+    for meta in reversed(getattr(kind, "__metadata__", ())):
+        if isinstance(meta, Allowed):
+            return meta.text
+    return ""
 
 
 def OrNamed(kind: Any, choices: dict[str, Any]) -> Any:  # noqa: N802
@@ -221,7 +241,7 @@ def OrNamed(kind: Any, choices: dict[str, Any]) -> Any:  # noqa: N802
             raise PydanticCustomError("literal_error", "Input should be {allowed}", {"allowed": allowed})
         return choices[value]
 
-    return Annotated[kind, BeforeValidator(by_name)]
+    return Annotated[kind, BeforeValidator(by_name), Allowed(allowed)]
 
 
 def _ordered(window: tuple[float, float]) -> tuple[float, float]:
@@ -244,7 +264,9 @@ Positive = Range(0.0, None, lo_open=True)
 NonNegative = Range(0.0, None)
 Seconds = Range(0.0, None, "s")
 #: A time window [start, end], s, end after start.
-Window = Annotated[Vector(Seconds, ("start", "end")), AfterValidator(_ordered)]
+Window = Annotated[
+    Vector(Seconds, ("start", "end")), AfterValidator(_ordered), Allowed("[start, end] s, start >= 0, end > start")
+]
 #: A frequency of the sampled system, Hz.
 Frequency = Range(0.0, FREQUENCY_MAX_HZ, "Hz", lo_open=True)
 
@@ -268,7 +290,7 @@ def _label(value: Any) -> str:
 
 
 #: A name that becomes one directory name (``runs/<name>/``): never a path (no '/', '..', leading '.' or '-').
-Label = Annotated[str, BeforeValidator(_label)]
+Label = Annotated[str, BeforeValidator(_label), Allowed(f"a label: {LABEL_RULE}")]
 
 
 def label_from(text: str) -> str:
