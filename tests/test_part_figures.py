@@ -87,7 +87,7 @@ def test_a_program_run_draws_its_part_with_the_error_summary_json_reports(progra
     starts = np.array([s[0] for s in collection.get_segments()])
     assert np.isin(starts.round(9), drawn.round(9)).all()
     text = fig._suptitle.get_text()
-    assert f"magnified {k:g}x normal to the programmed path" in text
+    assert f"drawn at p + {k:g} (q - p)" in text and f"magnified {k:g}x" in text
     labels = [t.get_text() for ax in fig.axes for t in ax.texts]
     worst = summary.part_error.worst_corners[0]
     assert f"line {worst.line}: {worst.max_um:.1f} µm" in labels

@@ -11,7 +11,8 @@ The figure (one column of XY panels per run, up to :data:`MAX_PANELS`):
 
 - top: the programmed geometry (mm; rapids dotted), and the actual path
   drawn at p + k (q - p), p the nearest programmed point to the actual
-  position q: the part error magnified k times normal to the programmed path,
+  position q: the part error magnified k times (normal to the programmed path
+  inside a move; from the end point beyond it),
   coloured by the part error (um, one colour scale for every run; k and the
   scale in the title). The worst corners of summary.json's ``part_error``
   are circled and labelled with their line and error, its worst blocks drawn
@@ -161,7 +162,7 @@ def fig_part(plt: Any, runs: Sequence[Any], name: str = "") -> Any | None:
     shown = runs[:MAX_PANELS]
     fig = plt.figure(figsize=(max(7.5, 5.2 * len(shown)), 9.2))
     grid = fig.add_gridspec(2, len(shown), height_ratios=(3.2, 1), hspace=0.2, wspace=0.18)
-    fig.subplots_adjust(left=0.09, right=0.9, bottom=0.06, top=0.9)
+    fig.subplots_adjust(left=0.09, right=0.9, bottom=0.06, top=0.855)
     for i, r in enumerate(shown):
         ax = fig.add_subplot(grid[0, i])
         p = r.part
@@ -172,6 +173,10 @@ def fig_part(plt: Any, runs: Sequence[Any], name: str = "") -> Any | None:
         lines = LineCollection(seg, cmap=COLOURS, norm=norm, linewidths=1.6, zorder=4)
         lines.set_array(value)
         ax.add_collection(lines)
+        if np.isfinite(p.distance_m).any():
+            i_max = int(np.nanargmax(p.distance_m))
+            label = f"largest: {p.distance_m[i_max] * 1e6:.1f} µm, t = {p.t_s[i_max]:.2f} s"
+            ax.plot(*drawn[i_max], "*", ms=12, mfc="gold", mec="black", mew=0.7, label=label, zorder=6)
         ax.set_aspect("equal", adjustable="datalim")
         ax.autoscale_view()
         ax.set_xlabel("x (mm)")
@@ -195,8 +200,9 @@ def fig_part(plt: Any, runs: Sequence[Any], name: str = "") -> Any | None:
     ax_t.set(xlabel="time t (s)", ylabel="part error (µm)")
     ax_t.set_ylim(bottom=0.0)
     ax_t.legend(loc="upper left", fontsize=6)
-    heading = f"part error: the actual path magnified {k:g}x normal to the programmed path, coloured by its error"
+    heading = f"part error: the actual path q drawn at p + {k:g} (q - p), p its nearest programmed point (the error "
+    heading += f"magnified {k:g}x), coloured by the part error |q - p|"
     if len(runs) > len(shown):
         heading += f" (the first {len(shown)} of {len(runs)} runs drawn in XY)"
-    fig.suptitle(textwrap.fill(heading, 120) + (f"\n{name}" if name else ""), fontsize=9)
+    fig.suptitle(textwrap.fill(heading, 100) + (f"\n{name}" if name else ""), fontsize=9)
     return fig
