@@ -57,6 +57,11 @@ def _independent_numbers(tmp_path, capsys) -> dict[str, dict]:
             "estimates": np.array([values.mean() for values in theta]),
             # how far float32 rounding can move each mean: 2**-24 of the mean magnitude (and float64 arithmetic)
             "estimates_tolerance": np.array([2 * FLOAT32_REL * np.abs(values).mean() for values in theta]),
+            "distrust": {
+                n: f"not trusted: {e['why']}"
+                for n, e in json.loads((out / "summary.json").read_text()).get("estimates", {}).items()
+                if e.get("trustworthy") is False
+            },
         }
     return numbers
 
@@ -119,6 +124,7 @@ def test_report_on_a_tiny_matrix(tmp_path, capsys):
         assert got["max_um"] == pytest.approx(want["max_um"], rel=2 * FLOAT32_REL), key
         assert np.all(np.abs(np.subtract(got["estimates"], want["estimates"])) <= want["estimates_tolerance"]), key
         np.testing.assert_allclose(got["true_theta"], truth, rtol=1e-12, atol=1e-15, err_msg=key)
+        assert got["not_trusted"] == want["distrust"], key  # the verdicts `run` gives the same run
         row = _row_cells(_section(text, "## Runs"), f"| {key} |")
         assert row[:3] == ["500", f"{want['rms_um']:.3f}", f"{want['max_um']:.3f}"], key
     # Table 1 (circle): columns Set 1 C1 C2 C3, Set 2 C1 C2 C3, Set 3 C1 C2; runs not in the matrix show "-".
@@ -134,7 +140,14 @@ def test_report_on_a_tiny_matrix(tmp_path, capsys):
     ):
         estimates = expected[key]["estimates"]
         cells = [f"{estimates[i]:.4f} ({report.signed_pct(deviation_pct(estimates[i], truth[i]))})" for i in range(6)]
-        assert _row_cells(_section(text, "## Table 3:"), f"| {name}: circle |") == cells, name
+        row = _row_cells(_section(text, "## Table 3:"), f"| {name}: circle |")
+        assert [c.removesuffix(f" {report.DISTRUST_MARK}") for c in row] == cells, name
+        # an estimate is marked exactly when its run's summary.json would not trust it, with the reason below
+        distrust = runs[key]["not_trusted"]
+        marked = [report.THETA_NAMES[i] for i, c in enumerate(row) if c.endswith(report.DISTRUST_MARK)]
+        assert marked == [n for n in report.THETA_NAMES[:6] if n in distrust], name
+        for n in marked:
+            assert f"- {name}, circle: {n} {distrust[n]}" in text
 
 
 def _fake(set_id, contour, label, rms, peak, est=None, true=None):

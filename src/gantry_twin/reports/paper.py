@@ -31,7 +31,7 @@ from gantry_twin.metrics import contour_metrics, error_pct, steady_estimates, st
 from gantry_twin.outputs.files import atomic_write, atomic_write_text
 from gantry_twin.outputs.plots import envelope
 from gantry_twin.plant import THETA_NAMES, THETA_UNITS
-from gantry_twin.run import execute
+from gantry_twin.run import execute, summarise
 from gantry_twin.scenario import build, load_scenario, shipped
 from gantry_twin.settings import signed_pct
 from gantry_twin.theta import NOMINAL_THETA
@@ -86,6 +86,8 @@ PAPER_ESTIMATES: dict[int, dict[str, tuple[float, ...]]] = {
 }
 #: The physical parameters the paper's Tables 3-4 report (dN is left out, as there).
 TABLE_PARAMS = THETA_NAMES[:6]
+#: After an estimate in Tables 3-4 that its run's trust verdict does not vouch for (the reasons under the table).
+DISTRUST_MARK = "†"
 _TABLE_INDEX = range(len(TABLE_PARAMS))
 #: Figure sampling: eps_c keeps the largest |value| of each bin; estimates every n-th sample.
 EPS_BIN = 10
@@ -125,6 +127,8 @@ class CaseResult:
     eps_c_um: np.ndarray = field(repr=False)
     t_theta_s: np.ndarray | None = field(default=None, repr=False)
     theta_hat: np.ndarray | None = field(default=None, repr=False)
+    #: The estimates summary.json would not trust (name -> ``not trusted: why``, :attr:`Estimate.distrust`).
+    distrust: dict[str, str] = field(default_factory=dict)
 
 
 def paper_matrix(
@@ -172,6 +176,7 @@ def run_case(case: Case) -> CaseResult:
     est = steady_estimates(trace, scenario.estimate_window_s)
     t_eps, eps = envelope(trace.t_s[: trace.filled], trace.eps_c_m[: trace.filled] * 1e6, EPS_BIN)
     theta = trace.controller_state.get("theta_hat")
+    verdicts = summarise(built, trace).estimates or {}  # the trust verdicts, as summary.json gives them
     return CaseResult(
         case=case,
         rms_um=metrics.rms_um,
@@ -186,6 +191,7 @@ def run_case(case: Case) -> CaseResult:
         eps_c_um=eps,
         t_theta_s=None if theta is None else trace.t_s[::THETA_EVERY].copy(),
         theta_hat=None if theta is None else theta[::THETA_EVERY].copy(),
+        distrust={name: e.distrust for name, e in verdicts.items() if e.distrust},
     )
 
 
@@ -237,6 +243,7 @@ def _contour_table(by_key: dict[tuple[int, str, str], CaseResult], contour: str)
 def _estimate_table(by_key: dict[tuple[int, str, str], CaseResult], set_id: int) -> list[str]:
     head = "| | " + " | ".join(TABLE_PARAMS) + " |"
     lines = [head, "|---" * (len(TABLE_PARAMS) + 1) + "|"]
+    doubts: list[str] = []
     paper = PAPER_ESTIMATES[set_id]
     lines.append("| *paper:* nominal theta_iN | " + " | ".join(f"{v:g}" for v in paper["nominal"]) + " |")
     lines.append("| *paper:* circle theta_iC | " + " | ".join(f"{v:g}" for v in paper["circle"]) + " |")
@@ -253,10 +260,18 @@ def _estimate_table(by_key: dict[tuple[int, str, str], CaseResult], set_id: int)
         for contour, r in zip(CONTOURS, runs, strict=True):
             if r is None or r.estimates is None:
                 continue
-            cells = [f"{r.estimates[i]:.4f} ({signed_pct(error_pct(r.estimates[i], true[i]))})" for i in _TABLE_INDEX]
+            cells = [
+                f"{r.estimates[i]:.4f} ({signed_pct(error_pct(r.estimates[i], true[i]))})"
+                + (f" {DISTRUST_MARK}" if THETA_NAMES[i] in r.distrust else "")
+                for i in _TABLE_INDEX
+            ]
             lines.append(f"| {name}: {contour} | " + " | ".join(cells) + " |")
+            doubts += [f"{name}, {contour}: {n} {why}" for n, why in r.distrust.items() if n in TABLE_PARAMS]
         worst = [max(abs(error_pct(r.estimates[i], true[i])) for r in runs_ok) for i in _TABLE_INDEX]
         lines.append(f"| {name}: max deviation % | " + " | ".join(f"{w:.1f} %" for w in worst) + " |")
+    if doubts:
+        why = "the run's own signals cannot vouch for the estimate (summary.json's trust verdict, docs/health.md)"
+        lines += ["", f"{DISTRUST_MARK}: {why}:", "", *[f"- {d}" for d in doubts]]
     return lines
 
 
@@ -467,6 +482,7 @@ def write_report(
             "true_theta": r.true_theta,
             "estimates": r.estimates,
             "estimates_window_s": list(r.estimates_window_s),
+            "not_trusted": r.distrust,
         }
         for r in results
     ]
