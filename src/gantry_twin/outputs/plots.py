@@ -225,6 +225,12 @@ def fig_eps_c(plt: Any, runs: Sequence[RunSeries]) -> Any:
         c = runs[0].summary.contour_error_um
         what = "paper's window (second period)" if c is not None and c.paper_window else "metric window"
         ax.axvspan(*window, color="0.85", zorder=0, label=f"{what} [{window[0]:.2f}, {window[1]:.2f}] s")
+    part = runs[0].part
+    if part is not None:  # a program's rapids: eps_c there is not the part's (the part error leaves them out)
+        spans = [(part.plan.t0_s[k], part.plan.end_s[k]) for k, m in enumerate(part.plan.moves) if m.rapid]
+        for i, (a, b) in enumerate(spans):
+            label = f"rapid (G0) moves ({len(spans)})" if i == 0 else None
+            ax.axvspan(a, b, facecolor="none", edgecolor="tab:red", hatch="//", lw=0, alpha=0.4, label=label)
     ax.axhline(0.0, color="0.4", lw=0.5)
     ax.set(xlabel="time t (s)", ylabel="contour error eps_c (µm)")
     ax.set_title(_title(runs, "true contour error eps_c (largest |eps_c| of each bin)"), fontsize=9)
@@ -317,10 +323,14 @@ def fig_estimates(plt: Any, runs: Sequence[RunSeries]) -> Any | None:
             ax.set_facecolor("0.93")
             ax.patch.set_hatch("///")
             ax.patch.set_edgecolor("0.8")
-            ax.set_title(textwrap.shorten(doubt, 60, placeholder=" ..."), fontsize=7, color="0.35", pad=2)
+            ax.set_title(textwrap.shorten(doubt, 85, placeholder=" ..."), fontsize=6.5, color="0.35", pad=2)
+        window = runs[0].summary.estimates_window_s
+        if window is not None:  # where the summary's mean estimate is taken
+            label = f"estimates window [{window[0]:.2f}, {window[1]:.2f}] s" if j == 0 else None
+            ax.axvspan(*window, color="tab:green", alpha=0.08, zorder=0, label=label)
     for ax in axes[-1]:
         ax.set_xlabel("time t (s)")
-    axes[0, 0].legend(loc="upper right", fontsize=6)
+    axes[0, 0].legend(loc="best", fontsize=6)
     fig.suptitle(_title(runs, "parameter estimates theta^ (solid) and true values (dashed), volt units"), fontsize=9)
     return fig
 

@@ -26,6 +26,7 @@ import numpy as np
 from gantry_twin.contours import reference
 from gantry_twin.metrics import error_pct
 from gantry_twin.outputs.files import atomic_write, atomic_write_text
+from gantry_twin.outputs.plots import DPI
 from gantry_twin.plant import THETA_NAMES
 from gantry_twin.reports.paper import CONTOURS, CONTROLLERS, PAPER_CONTOUR_UM, SET_SCENARIOS, Case, CaseResult
 from gantry_twin.run import execute
@@ -210,7 +211,7 @@ def spike_figure(series: dict[tuple[str, str], tuple[np.ndarray, np.ndarray]]) -
         ax.set_title(f"{label} ({CONTROLLERS[label][2]})")
         ax.set_xlabel("time from the X reversal [ms]")
         ax.grid(True, alpha=0.3)
-    axes[0].set_ylabel("eps_c [um]")
+    axes[0].set_ylabel("eps_c [µm]")
     axes[0].legend(fontsize=8)
     fig.suptitle("circle Set 1: contour error around an X reversal")
     fig.tight_layout()
@@ -250,7 +251,7 @@ def section(
     atomic_write_text(out / RIG_JSON, json.dumps({"overrides": list(rig_overrides), "runs": cells}, indent=2) + "\n")
     fig = spike_figure(spike_series(overrides, rig_overrides))
     buffer = io.BytesIO()
-    fig.savefig(buffer, format="png", dpi=110)
+    fig.savefig(buffer, format="png", dpi=DPI)
     plt.close(fig)
     data = buffer.getvalue()
     atomic_write(out / SPIKE_FILE, lambda fh: fh.write(data))
