@@ -18,6 +18,9 @@ from gantry_twin.outputs.plots import DPI
 from gantry_twin.plant import THETA_NAMES, THETA_UNITS
 from gantry_twin.reports.paper import CONTROLLERS, CaseResult
 
+#: The runs of Figs. 4-5 by the estimator they differ in.
+ESTIMATOR_NAMES = {"C2": "paper estimator", "C2r": "recommended estimator"}
+
 
 def write_figures(by_key: dict[tuple[int, str, str], CaseResult], out: Path) -> list[tuple[str, str]]:
     """Write :func:`figures` as PNG files into ``out``; (file name, caption) of each."""
@@ -104,7 +107,7 @@ def figures(by_key: dict[tuple[int, str, str], CaseResult]) -> list[tuple[Any, s
             ax.margins(y=0.1)
             ax.ticklabel_format(axis="y", useOffset=False)
             ax.grid(alpha=0.3)
-            doubts = [CONTROLLERS[c][2].split(", ")[-1].split(" (")[0] for c, r in runs if name in r.distrust]
+            doubts = [ESTIMATOR_NAMES.get(c, c) for c, r in runs if name in r.distrust]
             if doubts:  # the reasons are listed under Tables 3-4 of report.md
                 note = f"{name} not trusted: {', '.join(doubts)} (why: report.md, under Tables 3-4)"
                 ax.set_title(note, fontsize=7, color="0.35", loc="left", pad=2)
