@@ -163,8 +163,10 @@ def fig_part(plt: Any, runs: Sequence[Any], name: str = "") -> Any | None:
     fig = plt.figure(figsize=(max(7.5, 5.2 * len(shown)), 9.2))
     grid = fig.add_gridspec(2, len(shown), height_ratios=(3.2, 1), hspace=0.2, wspace=0.18)
     fig.subplots_adjust(left=0.09, right=0.9, bottom=0.06, top=0.855)
+    xy_axes = []
     for i, r in enumerate(shown):
         ax = fig.add_subplot(grid[0, i])
+        xy_axes.append(ax)
         p = r.part
         _draw_program(ax, p.plan)
         _mark_worst(ax, r.summary, p.plan)
@@ -187,6 +189,12 @@ def fig_part(plt: Any, runs: Sequence[Any], name: str = "") -> Any | None:
             text = f"part error max {part.max_um:.2f} µm, rms {part.rms_um:.2f} µm\ncycle {part.cycle_time_s:.3f} s"
             ax.set_title((r.label + "\n" if len(runs) > 1 else "") + text, fontsize=8)
         ax.legend(loc="upper right", fontsize=6, framealpha=0.85)
+    if len(xy_axes) > 1:  # one scale for every run's part: the union of their data limits
+        lo = np.min([(a.get_xlim()[0], a.get_ylim()[0]) for a in xy_axes], axis=0)
+        hi = np.max([(a.get_xlim()[1], a.get_ylim()[1]) for a in xy_axes], axis=0)
+        for a in xy_axes:
+            a.set_xlim(lo[0], hi[0])
+            a.set_ylim(lo[1], hi[1])
     bar = fig.colorbar(lines, ax=fig.axes, fraction=0.03, pad=0.02, shrink=0.7, anchor=(0.0, 0.8))
     bar.set_label("part error (µm): distance to the programmed lines and arcs", fontsize=8)
     ax_t = fig.add_subplot(grid[1, :])
