@@ -130,3 +130,20 @@ def test_compare_of_a_program_run_and_a_circle_run_says_which_is_not_a_program(p
     assert code == 0, err
     assert "| part error rms (um) | " in stdout and "| - (not a part program) |" in stdout
     assert json.loads((tmp_path / "c" / "compare.json").read_text())["missing"] == []
+
+
+def test_a_scenario_with_a_relative_program_is_compared_from_anywhere(program_runs, tmp_path, capsys, monkeypatch):
+    """The run's scenario.yaml names the program by its absolute path, so compare plans it again from any
+    working directory."""
+    _, dirs = program_runs
+    (tmp_path / "job").mkdir()
+    (tmp_path / "job" / "part.ngc").write_text(PART)
+    (tmp_path / "job" / "part.yaml").write_text("contour: {type: gcode, file: part.ngc}\n")
+    run = tmp_path / "run"
+    code, _, err = run_main(["run", str(tmp_path / "job" / "part.yaml"), "--out", str(run), "--no-progress"], capsys)
+    assert code == 0, err
+    assert f"file: {tmp_path / 'job' / 'part.ngc'}" in (run / "scenario.yaml").read_text()
+    monkeypatch.chdir(tmp_path)
+    code, _, err = run_main(["compare", str(run), str(dirs["drc"]), "--out", str(tmp_path / "c")], capsys)
+    assert code == 0 and "cannot be planned again" not in err, err
+    assert (tmp_path / "c" / "plots" / "part.png").is_file()
