@@ -201,7 +201,8 @@ def test_figures_share_one_y_scale_and_label_every_axis_with_a_unit():
         _with_series(_fake(2, "ellipse", "C3", 1.0, 15.0), t, -15.0 * t / 2.0),
         _with_series(_fake(1, "circle", "C2", 1.0, 2.0, est=true, true=true), t, np.sin(t), theta),
     ]
-    made = paper_figures.figures({(r.case.set_id, r.case.contour, r.case.label): r for r in results})
+    names = {label: c[2] for label, c in report.CONTROLLERS.items()}
+    made = paper_figures.figures({(r.case.set_id, r.case.contour, r.case.label): r for r in results}, names)
     by_name = {name: fig for fig, name, _ in made}
     assert set(by_name) == {"fig3_set2_ellipse_contour_error.png", "fig4_set1_y_estimates.png"}
     limits = [ax.get_ylim() for ax in by_name["fig3_set2_ellipse_contour_error.png"].axes]

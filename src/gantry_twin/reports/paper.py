@@ -30,6 +30,7 @@ from gantry_twin.metrics import contour_metrics, error_pct, steady_estimates, st
 from gantry_twin.outputs.files import atomic_write_text
 from gantry_twin.outputs.plots import envelope
 from gantry_twin.plant import THETA_NAMES
+from gantry_twin.reports.paper_figures import write_figures
 from gantry_twin.run import execute, summarise
 from gantry_twin.scenario import build, load_scenario, shipped
 from gantry_twin.settings import signed_pct
@@ -352,9 +353,7 @@ def write_report(
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     by_key = {(r.case.set_id, r.case.contour, r.case.label): r for r in results}
-    from gantry_twin.reports.paper_figures import write_figures
-
-    figures = write_figures(by_key, out)
+    figures = write_figures(by_key, out, {label: c[2] for label, c in CONTROLLERS.items()})
     checks = findings(by_key)
     lines = [
         "# gantry-twin: reproduction of Hu, Yao, Wang (Automatica 2010), Tables 1-4 and Fig. 2-5",
