@@ -21,12 +21,12 @@ from gantry_twin.plant import THETA_NAMES, THETA_UNITS
 ESTIMATOR_NAMES = {"C2": "paper estimator", "C2r": "recommended estimator"}
 
 
-def write_figures(by_key: dict[tuple[int, str, str], Any], out: Path, names: dict[str, str]) -> list[tuple[str, str]]:
+def write_figures(by_key: dict[tuple[int, str, str], Any], out: Path, legend: dict[str, str]) -> list[tuple[str, str]]:
     """Write :func:`figures` as PNG files into ``out``; (file name, caption) of each."""
     import matplotlib.pyplot as plt
 
     made: list[tuple[str, str]] = []
-    for fig, name, caption in figures(by_key, names):
+    for fig, name, caption in figures(by_key, legend):
         buffer = io.BytesIO()
         fig.savefig(buffer, format="png", dpi=DPI)
         plt.close(fig)
@@ -49,10 +49,10 @@ def _mark_events(ax: Any, r: Any, t_end: float, label: bool) -> None:
                    label=f"disturbance: {what}, {span} s" if label else None)  # fmt: skip
 
 
-def figures(by_key: dict[tuple[int, str, str], Any], names: dict[str, str]) -> list[tuple[Any, str, str]]:
+def figures(by_key: dict[tuple[int, str, str], Any], legend: dict[str, str]) -> list[tuple[Any, str, str]]:
     """The report's figures (matplotlib, Agg) as (figure, file name, caption); every axis label gives its unit.
     ``by_key``: the matrix's results (:class:`~gantry_twin.reports.paper.CaseResult`) by (set, contour,
-    label); ``names``: each label's legend name (``C2``: ``DIARC, paper estimator (...)``).
+    label); ``legend``: each label's legend name (``C2``: ``DIARC, paper estimator (...)``).
 
     Figs. 2 and 3 share one y scale across the controllers they compare;
     the estimate plots (Figs. 4 and 5) keep a 10 % margin around the
@@ -102,7 +102,7 @@ def figures(by_key: dict[tuple[int, str, str], Any], names: dict[str, str]) -> l
         for k, (ax, name) in enumerate(zip(axes, names, strict=True)):
             j = axis + 2 * k
             for c, r in runs:
-                ax.plot(r.t_theta_s, r.theta_hat[:, j], lw=0.9, label=names[c])
+                ax.plot(r.t_theta_s, r.theta_hat[:, j], lw=0.9, label=legend[c])
             ax.axhline(runs[0][1].true_theta[j], ls="--", color="k", lw=0.9, label="true (model)")
             ax.set_ylabel(f"{name} [{THETA_UNITS[j]}]")
             ax.margins(y=0.1)
