@@ -12,6 +12,7 @@ import pytest
 
 from gantry_twin.plant import THETA_NAMES
 from gantry_twin.reports import paper as report
+from gantry_twin.reports import paper_figures
 
 from .helpers import FLOAT32_REL, deviation_pct, run_main, spec_theta, trace_column
 
@@ -57,6 +58,11 @@ def _independent_numbers(tmp_path, capsys) -> dict[str, dict]:
             "estimates": np.array([values.mean() for values in theta]),
             # how far float32 rounding can move each mean: 2**-24 of the mean magnitude (and float64 arithmetic)
             "estimates_tolerance": np.array([2 * FLOAT32_REL * np.abs(values).mean() for values in theta]),
+            "distrust": {
+                n: f"not trusted: {e['why']}"
+                for n, e in json.loads((out / "summary.json").read_text()).get("estimates", {}).items()
+                if e.get("trustworthy") is False
+            },
         }
     return numbers
 
@@ -119,6 +125,7 @@ def test_report_on_a_tiny_matrix(tmp_path, capsys):
         assert got["max_um"] == pytest.approx(want["max_um"], rel=2 * FLOAT32_REL), key
         assert np.all(np.abs(np.subtract(got["estimates"], want["estimates"])) <= want["estimates_tolerance"]), key
         np.testing.assert_allclose(got["true_theta"], truth, rtol=1e-12, atol=1e-15, err_msg=key)
+        assert got["not_trusted"] == want["distrust"], key  # the verdicts `run` gives the same run
         row = _row_cells(_section(text, "## Runs"), f"| {key} |")
         assert row[:3] == ["500", f"{want['rms_um']:.3f}", f"{want['max_um']:.3f}"], key
     # Table 1 (circle): columns Set 1 C1 C2 C3, Set 2 C1 C2 C3, Set 3 C1 C2; runs not in the matrix show "-".
@@ -134,7 +141,14 @@ def test_report_on_a_tiny_matrix(tmp_path, capsys):
     ):
         estimates = expected[key]["estimates"]
         cells = [f"{estimates[i]:.4f} ({report.signed_pct(deviation_pct(estimates[i], truth[i]))})" for i in range(6)]
-        assert _row_cells(_section(text, "## Table 3:"), f"| {name}: circle |") == cells, name
+        row = _row_cells(_section(text, "## Table 3:"), f"| {name}: circle |")
+        assert [c.removesuffix(f" {report.DISTRUST_MARK}") for c in row] == cells, name
+        # an estimate is marked exactly when its run's summary.json would not trust it, with the reason below
+        distrust = runs[key]["not_trusted"]
+        marked = [report.THETA_NAMES[i] for i, c in enumerate(row) if c.endswith(report.DISTRUST_MARK)]
+        assert marked == [n for n in report.THETA_NAMES[:6] if n in distrust], name
+        for n in marked:
+            assert f"- {name}, circle: {n} {distrust[n]}" in text
 
 
 def _fake(set_id, contour, label, rms, peak, est=None, true=None):
@@ -187,7 +201,8 @@ def test_figures_share_one_y_scale_and_label_every_axis_with_a_unit():
         _with_series(_fake(2, "ellipse", "C3", 1.0, 15.0), t, -15.0 * t / 2.0),
         _with_series(_fake(1, "circle", "C2", 1.0, 2.0, est=true, true=true), t, np.sin(t), theta),
     ]
-    made = report.figures({(r.case.set_id, r.case.contour, r.case.label): r for r in results})
+    names = {label: c[2] for label, c in report.CONTROLLERS.items()}
+    made = paper_figures.figures({(r.case.set_id, r.case.contour, r.case.label): r for r in results}, names)
     by_name = {name: fig for fig, name, _ in made}
     assert set(by_name) == {"fig3_set2_ellipse_contour_error.png", "fig4_set1_y_estimates.png"}
     limits = [ax.get_ylim() for ax in by_name["fig3_set2_ellipse_contour_error.png"].axes]

@@ -25,10 +25,12 @@ from __future__ import annotations
 
 from importlib import resources
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import mujoco
 import numpy as np
+from pydantic import model_validator
+from pydantic_core import ArgsKwargs
 
 from gantry_twin.contours import Contour
 from gantry_twin.friction import (
@@ -106,7 +108,7 @@ class PlantSettings:
     model: the shipped machine, ``rig`` (models/rig.xml, the default: the
     paper's rig as measured, with LuGre friction, a static input offset and a
     force ripple; docs/rig-plant.md) or ``paper`` (models/gantry.xml, the
-    paper's ideal model); None with ``file``. file: an MJCF model in place of
+    paper's ideal model); none when ``file`` is given without it. file: an MJCF model in place of
     the shipped one (e.g. ``gantry-twin identify``'s plant.xml), relative to
     the scenario file. friction, offset, ripple: the friction model
     (:mod:`gantry_twin.friction`), the static input offset and the force
@@ -115,17 +117,28 @@ class PlantSettings:
     value given replaces the file's whole property.
     """
 
-    model: PlantModel | None = None
+    model: PlantModel | None = DEFAULT_PLANT_MODEL
     file: str | None = None
     friction: Friction | None = None
     offset: InputOffset | None = None
     ripple: ForceRipple | None = None
 
+    @model_validator(mode="before")
+    @classmethod
+    def _a_file_alone_has_no_model(cls, data: Any) -> Any:
+        """``file`` given without ``model``: the file is the machine (model none), not the default's."""
+        if isinstance(data, dict) and data.get("file") is not None and "model" not in data:
+            return {**data, "model": None}
+        if isinstance(data, ArgsKwargs) and not data.args and (data.kwargs or {}).get("file") is not None:
+            if "model" not in data.kwargs:
+                return ArgsKwargs((), {**data.kwargs, "model": None})
+        return data
+
     def __post_init__(self) -> None:
         if self.file is not None and self.model is not None:
             raise rule("file", f"give a model file or model: {self.model}, not both")
         if self.file is None and self.model is None:
-            object.__setattr__(self, "model", DEFAULT_PLANT_MODEL)  # frozen: the default machine, resolved once
+            raise rule("model", "give a shipped machine (rig, paper) or a model file")
 
     @property
     def label(self) -> str:

@@ -251,7 +251,8 @@ class RunWriter:
             self.plots_skipped = "no trace.parquet to draw from (outputs.trace: false)"
             return False
         try:
-            write_plots(self.out, self.out / PLOTS_DIR, data, self.plot_format, self.plot_dpi)
+            plan = self.built.path if isinstance(self.built.path, Plan) else None
+            write_plots(self.out, self.out / PLOTS_DIR, data, self.plot_format, self.plot_dpi, plan)
         except Exception as exc:  # a figure is not worth the run
             self.plots_skipped = f"drawing them raised {type(exc).__name__}: {exc}"
             return False

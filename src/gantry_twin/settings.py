@@ -28,7 +28,7 @@ import numbers
 import re
 import reprlib
 from collections.abc import Callable, Sequence
-from dataclasses import fields
+from dataclasses import dataclass, fields
 from typing import Annotated, Any, TypeVar, dataclass_transform
 
 from pydantic import (
@@ -91,6 +91,18 @@ def fmt(x: float | None, none: str = "inf") -> str:
     return none if x is None else f"{x:g}"
 
 
+def signed_pct(x: float | None, decimals: int = 1, width: int = 0, unit: str = " %", none: str = "-") -> str:
+    """A signed percentage as every report and summary prints it: ``+1.2 %``, ``-0.4 %``; a value that rounds
+    to zero is ``0.0 %``, never ``-0.0 %`` (nor ``+0.0 %``); ``none`` for None or NaN. ``width`` pads the
+    number (not the unit) on the left, for columns."""
+    if x is None or x != x:
+        return f"{none:>{width}}"
+    text = f"{x:+.{decimals}f}"
+    if float(text) == 0.0:
+        text = f"{0.0:.{decimals}f}"
+    return f"{text:>{width}}{unit}"
+
+
 def interval(lo: float | None, hi: float | None, unit: str = "", lo_open: bool = False) -> str:
     """``[lo, hi] unit`` (``(lo, hi]`` when lo_open); None is unbounded."""
     left = "(" if lo_open else "["
@@ -119,6 +131,14 @@ def _type_error(value: Any, kind: str, allowed: str = "", article: str = "a") ->
     )
 
 
+@dataclass(frozen=True)
+class Allowed:
+    """What a field type allows, in the words of its errors: carried in the type's ``Annotated`` metadata for the
+    generated scenario reference (:mod:`gantry_twin.scenario.reference`); pydantic ignores it."""
+
+    text: str
+
+
 def Range(lo: float | None, hi: float | None, unit: str = "", *, lo_open: bool = False) -> Any:  # noqa: N802
     """A finite float in [lo, hi] (``(lo, hi]`` with lo_open; None: unbounded) whose error states the range."""
     allowed = interval(lo, hi, unit, lo_open)
@@ -138,7 +158,7 @@ def Range(lo: float | None, hi: float | None, unit: str = "", *, lo_open: bool =
             )
         return x
 
-    return Annotated[float, BeforeValidator(check)]
+    return Annotated[float, BeforeValidator(check), Allowed(allowed)]
 
 
 def _as_float(value: Any) -> float:
@@ -162,7 +182,7 @@ def Count(lo: int, hi: int) -> Any:  # noqa: N802
             )
         return int(value)
 
-    return Annotated[int, BeforeValidator(check)]
+    return Annotated[int, BeforeValidator(check), Allowed(f"an integer in [{lo}, {hi}]")]
 
 
 def Vector(component: Any, names: Sequence[str]) -> Any:  # noqa: N802
@@ -195,7 +215,19 @@ def Vector(component: Any, names: Sequence[str]) -> Any:  # noqa: N802
                 ) from None
         return tuple(out)
 
-    return Annotated[tuple[Any, ...], BeforeValidator(check)]
+    each = sorted({allowed_text(c) for c in per_item})
+    text = f"{count}" + (f", each in {each[0]}" if len(each) == 1 and each[0] else "")
+    if len(each) > 1:
+        text += ": " + ", ".join(f"{n} in {allowed_text(c)}" for n, c in zip(names, per_item, strict=True))
+    return Annotated[tuple[Any, ...], BeforeValidator(check), Allowed(text)]
+
+
+def allowed_text(kind: Any) -> str:
+    """The :class:`Allowed` text of a field type, or empty."""
+    for meta in reversed(getattr(kind, "__metadata__", ())):
+        if isinstance(meta, Allowed):
+            return meta.text
+    return ""
 
 
 def OrNamed(kind: Any, choices: dict[str, Any]) -> Any:  # noqa: N802
@@ -209,7 +241,7 @@ def OrNamed(kind: Any, choices: dict[str, Any]) -> Any:  # noqa: N802
             raise PydanticCustomError("literal_error", "Input should be {allowed}", {"allowed": allowed})
         return choices[value]
 
-    return Annotated[kind, BeforeValidator(by_name)]
+    return Annotated[kind, BeforeValidator(by_name), Allowed(allowed)]
 
 
 def _ordered(window: tuple[float, float]) -> tuple[float, float]:
@@ -232,7 +264,9 @@ Positive = Range(0.0, None, lo_open=True)
 NonNegative = Range(0.0, None)
 Seconds = Range(0.0, None, "s")
 #: A time window [start, end], s, end after start.
-Window = Annotated[Vector(Seconds, ("start", "end")), AfterValidator(_ordered)]
+Window = Annotated[
+    Vector(Seconds, ("start", "end")), AfterValidator(_ordered), Allowed("[start, end] s, start >= 0, end > start")
+]
 #: A frequency of the sampled system, Hz.
 Frequency = Range(0.0, FREQUENCY_MAX_HZ, "Hz", lo_open=True)
 
@@ -256,7 +290,7 @@ def _label(value: Any) -> str:
 
 
 #: A name that becomes one directory name (``runs/<name>/``): never a path (no '/', '..', leading '.' or '-').
-Label = Annotated[str, BeforeValidator(_label)]
+Label = Annotated[str, BeforeValidator(_label), Allowed(f"a label: {LABEL_RULE}")]
 
 
 def label_from(text: str) -> str:

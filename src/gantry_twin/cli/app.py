@@ -432,6 +432,9 @@ def _run(args: argparse.Namespace) -> int:
                 return EXIT_RUN_FAILED
             if args.out is None:
                 _point_latest(out)
+            if telemetry.rerun_observer is not None:  # the dashboard's estimates marked as summary.json judges them
+                estimates = outcome.summary.estimates or {}
+                telemetry.rerun_observer.mark_estimates({n: e.distrust for n, e in estimates.items() if e.distrust})
             print(format_summary(outcome.summary, outcome.wall_time_s, out, outcome.files), flush=True)
     if writer.plots_skipped is not None:
         print(f"{PROG}: note: no plots: {writer.plots_skipped}", file=sys.stderr)

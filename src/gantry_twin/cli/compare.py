@@ -8,7 +8,16 @@ from pathlib import Path
 
 from gantry_twin.outputs.files import atomic_write_dir, atomic_write_text
 from gantry_twin.outputs.rundirs import new_run_dir
-from gantry_twin.reports.compare import DEFAULT_SUBDIR, CompareError, as_json, labels, load_run, markdown, table
+from gantry_twin.reports.compare import (
+    DEFAULT_SUBDIR,
+    CompareError,
+    as_json,
+    labels,
+    load_run,
+    markdown,
+    program_plan,
+    table,
+)
 
 
 def add_arguments(parser: argparse.ArgumentParser, runs_dir: Path) -> None:
@@ -34,8 +43,11 @@ def command(args: argparse.Namespace) -> int:
     rows, notes = table(runs)
     drawn = []
     for run, label in zip(runs, labels(runs), strict=True):
+        plan, note = program_plan(run)
+        if note is not None:
+            notes.append(note)
         try:
-            series = read_series(run.directory, run.summary, label)
+            series = read_series(run.directory, run.summary, label, plan)
         except Exception as exc:  # a damaged trace: the table does not need it
             notes.append(
                 f"{run.column} ({run.directory}): trace.parquet unreadable ({type(exc).__name__}), not in the plots"

@@ -10,6 +10,7 @@ from gantry_twin.health.monitor import Alarm
 from gantry_twin.outputs.plots import run_label
 from gantry_twin.outputs.summary import Estimate, Health, RunSummary
 from gantry_twin.plant import AXES
+from gantry_twin.settings import signed_pct
 
 #: The printed summary lists the rms of each period when the run has at most this many (else the first and last).
 PERIODS_PRINTED = 12
@@ -61,12 +62,12 @@ def _true(e: Estimate) -> str:
 
 
 def _pct(e: Estimate) -> str:
-    return "      -" if e.error_pct is None else f"{e.error_pct:+7.2f} %"
+    return signed_pct(e.error_pct, 2, width=7)
 
 
 def trust_mark(e: Estimate) -> str:
     """``  (not trusted: why)`` after an estimate the run's own signals cannot vouch for; empty otherwise."""
-    return f"  (not trusted: {e.why})" if e.trustworthy is False else ""
+    return f"  ({e.distrust})" if e.distrust else ""
 
 
 def format_health(health: Health) -> list[str]:

@@ -163,6 +163,36 @@ class MoveTable:
         j = (dddu - c * c * du**3)[:, None] * tangent + (3.0 * c * du * ddu)[:, None] * normal
         return p, v, a, j
 
+    def nearest(self, k: np.ndarray, q: np.ndarray) -> np.ndarray:
+        """The point of move k[i] (its line segment or arc) nearest to q[i] (n, 2), m."""
+        start, end = self.start[k], self.end[k]
+        chord = end - start
+        length2 = np.einsum("ij,ij->i", chord, chord)
+        w = np.clip(np.einsum("ij,ij->i", q - start, chord) / np.where(length2 > 0, length2, 1.0), 0.0, 1.0)
+        line = start + w[:, None] * chord
+        rel = q - self.centre[k]
+        sweep = np.abs(self.sweep[k])
+        angle = np.mod(self.sign[k] * (np.arctan2(rel[:, 1], rel[:, 0]) - self.theta0[k]), 2.0 * np.pi)
+        on_arc = (angle <= sweep) | (sweep >= 2.0 * np.pi - 1e-12)
+        r = np.linalg.norm(rel, axis=1)
+        radial = np.where(r > 0, r, 1.0)
+        radius = np.where(self.is_arc[k], self.radius[k], 0.0)  # a line's inf radius is not used
+        on_circle = self.centre[k] + (radius / radial)[:, None] * np.where(
+            (r > 0)[:, None], rel, start - self.centre[k]
+        )
+        nearer_start = np.linalg.norm(q - start, axis=1) <= np.linalg.norm(q - end, axis=1)
+        ends = np.where(nearer_start[:, None], start, end)
+        arc = np.where(on_arc[:, None], on_circle, ends)
+        return np.where(self.is_arc[k][:, None], arc, line)
+
+    def polyline(self, k: int, step_rad: float = 0.02) -> np.ndarray:
+        """Points (m, 2) along move k, for drawing: a line's two ends, an arc every ``step_rad``."""
+        if not self.is_arc[k]:
+            return np.array([self.start[k], self.end[k]])
+        n = max(2, int(np.ceil(abs(self.sweep[k]) / step_rad)) + 1)
+        theta = self.theta0[k] + np.linspace(0.0, self.sweep[k], n)
+        return self.centre[k] + self.radius[k] * np.column_stack([np.cos(theta), np.sin(theta)])
+
     def distance(self, k: np.ndarray, q: np.ndarray) -> np.ndarray:
         """Exact distance of q[i] (n, 2) to move k[i] (its line segment or arc), m."""
         start, end = self.start[k], self.end[k]

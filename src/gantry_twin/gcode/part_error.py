@@ -66,10 +66,28 @@ class PartError:
 def distance_to_program(plan: Plan, move: np.ndarray, q_m: np.ndarray, neighbours: int = 2, rapids: bool = False):
     """Distance of q[i] to the programmed moves move[i] - neighbours .. move[i] + neighbours (feed moves only
     unless ``rapids``), m; NaN during a rapid (unless ``rapids``)."""
+    return _nearest_moves(plan, move, q_m, neighbours, rapids)[0]
+
+
+def nearest_on_program(plan: Plan, move: np.ndarray, q_m: np.ndarray, neighbours: int = 2, rapids: bool = False):
+    """(distance m (n,), nearest programmed point m (n, 2)) of q[i] among the moves :func:`distance_to_program`
+    measures against; NaN where it measures nothing (a rapid)."""
+    distance, k = _nearest_moves(plan, move, q_m, neighbours, rapids)
+    q = np.asarray(q_m, dtype=float).reshape(-1, 2)
+    point = np.full_like(q, np.nan)
+    found = k >= 0
+    if found.any():
+        point[found] = plan.table.nearest(k[found], q[found])
+    return distance, point
+
+
+def _nearest_moves(plan: Plan, move: np.ndarray, q_m: np.ndarray, neighbours: int, rapids: bool):
+    """The distance of each q[i] to its nearest counted move and that move's index (-1 and NaN: none)."""
     table = plan.table
     counted = np.array([rapids or not m.rapid for m in plan.moves])
     q = np.asarray(q_m, dtype=float).reshape(-1, 2)
     best = np.full(len(q), np.inf)
+    which = np.full(len(q), -1)
     own = counted[np.clip(move, 0, table.count - 1)]
     for offset in range(-neighbours, neighbours + 1):
         k = move + offset
@@ -77,8 +95,11 @@ def distance_to_program(plan: Plan, move: np.ndarray, q_m: np.ndarray, neighbour
         kk = np.clip(k, 0, table.count - 1)
         valid &= counted[kk] & own
         if valid.any():
-            best[valid] = np.minimum(best[valid], table.distance(kk[valid], q[valid]))
-    return np.where(np.isfinite(best), best, np.nan)
+            d = table.distance(kk[valid], q[valid])
+            closer = d < best[valid]
+            rows = np.flatnonzero(valid)[closer]
+            best[rows], which[rows] = d[closer], kk[valid][closer]
+    return np.where(np.isfinite(best), best, np.nan), which
 
 
 def part_error(

@@ -31,6 +31,7 @@ from gantry_twin.settings import (
     Vector,
     Window,
     quote,
+    signed_pct,
     validated,
 )
 
@@ -125,7 +126,7 @@ class Alarm:
     cleared_s: float | None = None
 
     def describe(self) -> str:
-        pct = "" if self.change_pct is None else f" ({self.change_pct:+.1f} %)"
+        pct = "" if self.change_pct is None else f" ({signed_pct(self.change_pct)})"
         return (
             f"t = {self.time_s:.2f} s: {self.parameter} {self.direction} {self.change:+.4g} {self.unit}{pct}: "
             f"estimate {self.estimate:.4g}, baseline {self.baseline:.4g}"

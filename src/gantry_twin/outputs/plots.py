@@ -18,7 +18,9 @@ Figures (units on every axis; the window of each figure in its title):
   and titled "not trusted: why";
 - ``contour.png``: the desired path, mm, and around it the contour error magnified: the points
   q_d + k eps_c n (n the unit normal to the left of the direction of travel, the side where eps_c > 0),
-  k in the legend.
+  k in the legend;
+- ``part.png`` (a part program's run, given its plan): the programmed part with the part error along it,
+  magnified and colour-coded, its worst blocks and corners marked (:mod:`gantry_twin.outputs.part_plot`).
 """
 
 from __future__ import annotations
@@ -33,6 +35,7 @@ from typing import Any
 
 import numpy as np
 
+from gantry_twin.outputs.part_plot import PartBins, PartSeries, fig_part
 from gantry_twin.outputs.summary import RunSummary
 from gantry_twin.plant import AXES, THETA_NAMES, short_label
 
@@ -82,14 +85,16 @@ class RunSeries:
     theta_hat: np.ndarray | None = None  # (n, 8)
     true_theta: np.ndarray | None = None  # (n, 8)
     notes: list[str] = field(default_factory=list)
+    part: PartSeries | None = None  # a part program's run: its part error (gantry_twin.outputs.part_plot)
 
 
 class _Bins:
     """Gathers the binned series of a trace read a block of rows at a time."""
 
-    def __init__(self, bin_size: int, theta: bool) -> None:
+    def __init__(self, bin_size: int, theta: bool, plan: Any = None) -> None:
         self.bin_size, self.theta = bin_size, theta
         self.parts: dict[str, list[np.ndarray]] = {}
+        self.part = PartBins(plan, bin_size) if plan is not None else None
 
     def _add(self, key: str, values: np.ndarray) -> None:
         self.parts.setdefault(key, []).append(values)
@@ -107,6 +112,8 @@ class _Bins:
                 i = _peaks(c[key], b)
                 self._add(f"t_{key}", t[i])
                 self._add(key, c[key][i] * scale)
+        if self.part is not None:
+            self.part.block(t, np.column_stack([c["x_m"], c["y_m"]]))
         if self.theta:
             first = np.arange(0, t.size, b)
             self._add("t_theta", t[first])
@@ -128,8 +135,9 @@ def _left_normal(x_m: np.ndarray, y_m: np.ndarray) -> np.ndarray:
         return np.column_stack([-ty / norm, tx / norm])
 
 
-def read_series(run_dir: Path, summary: RunSummary, label: str) -> RunSeries | None:
-    """A run's series binned for drawing, read from ``run_dir/trace.parquet`` (None if it has none)."""
+def read_series(run_dir: Path, summary: RunSummary, label: str, plan: Any = None) -> RunSeries | None:
+    """A run's series binned for drawing, read from ``run_dir/trace.parquet`` (None if it has none); ``plan``:
+    the run's part program (a :class:`~gantry_twin.gcode.sampling.Plan`), whose part error is drawn too."""
     import pyarrow.parquet as pq
 
     path = Path(run_dir) / "trace.parquet"
@@ -138,14 +146,14 @@ def read_series(run_dir: Path, summary: RunSummary, label: str) -> RunSeries | N
     pf = pq.ParquetFile(path)
     names = set(pf.schema_arrow.names)
     theta = all(f"theta_hat_{n}" in names for n in THETA_NAMES)
-    columns = list(_TRACE_COLUMNS)
+    columns = list(_TRACE_COLUMNS) + (["x_m", "y_m"] if plan is not None else [])
     if theta:
         columns += [f"theta_hat_{n}" for n in THETA_NAMES]
         columns += [f"true_theta_{n}" for n in THETA_NAMES if f"true_theta_{n}" in names]
     rows = pf.metadata.num_rows
     if rows == 0:
         return None
-    bins = _Bins(max(1, math.ceil(rows / PLOT_BINS)), theta)
+    bins = _Bins(max(1, math.ceil(rows / PLOT_BINS)), theta, plan)
     carry: dict[str, np.ndarray] | None = None
     for group in range(pf.metadata.num_row_groups):  # one at a time: memory bounded by a row group
         table = pf.read_row_group(group, columns=columns, use_threads=False)
@@ -167,6 +175,7 @@ def read_series(run_dir: Path, summary: RunSummary, label: str) -> RunSeries | N
         contour_m=bins.get("contour"),
         axial=[(bins.get(f"t_e_{a}_m"), bins.get(f"e_{a}_m")) for a in AXES],
         command=[(bins.get(f"t_u_{a}_v"), bins.get(f"u_{a}_v")) for a in AXES],
+        part=bins.part.series() if bins.part is not None else None,
     )
     if theta:
         series.t_theta_s, series.theta_hat = bins.get("t_theta"), bins.get("theta")
@@ -216,6 +225,12 @@ def fig_eps_c(plt: Any, runs: Sequence[RunSeries]) -> Any:
         c = runs[0].summary.contour_error_um
         what = "paper's window (second period)" if c is not None and c.paper_window else "metric window"
         ax.axvspan(*window, color="0.85", zorder=0, label=f"{what} [{window[0]:.2f}, {window[1]:.2f}] s")
+    part = runs[0].part
+    if part is not None:  # a program's rapids: eps_c there is not the part's (the part error leaves them out)
+        spans = [(part.plan.t0_s[k], part.plan.end_s[k]) for k, m in enumerate(part.plan.moves) if m.rapid]
+        for i, (a, b) in enumerate(spans):
+            label = f"rapid (G0) moves ({len(spans)})" if i == 0 else None
+            ax.axvspan(a, b, facecolor="none", edgecolor="tab:red", hatch="//", lw=0, alpha=0.4, label=label)
     ax.axhline(0.0, color="0.4", lw=0.5)
     ax.set(xlabel="time t (s)", ylabel="contour error eps_c (µm)")
     ax.set_title(_title(runs, "true contour error eps_c (largest |eps_c| of each bin)"), fontsize=9)
@@ -308,10 +323,14 @@ def fig_estimates(plt: Any, runs: Sequence[RunSeries]) -> Any | None:
             ax.set_facecolor("0.93")
             ax.patch.set_hatch("///")
             ax.patch.set_edgecolor("0.8")
-            ax.set_title(textwrap.shorten(doubt, 60, placeholder=" ..."), fontsize=7, color="0.35", pad=2)
+            ax.set_title(textwrap.shorten(doubt, 85, placeholder=" ..."), fontsize=6.5, color="0.35", pad=2)
+        window = runs[0].summary.estimates_window_s
+        if window is not None:  # where the summary's mean estimate is taken
+            label = f"estimates window [{window[0]:.2f}, {window[1]:.2f}] s" if j == 0 else None
+            ax.axvspan(*window, color="tab:green", alpha=0.08, zorder=0, label=label)
     for ax in axes[-1]:
         ax.set_xlabel("time t (s)")
-    axes[0, 0].legend(loc="upper right", fontsize=6)
+    axes[0, 0].legend(loc="best", fontsize=6)
     fig.suptitle(_title(runs, "parameter estimates theta^ (solid) and true values (dashed), volt units"), fontsize=9)
     return fig
 
@@ -320,8 +339,8 @@ def _distrust(runs: Sequence[RunSeries], name: str) -> str:
     """``not trusted: why`` when a run's summary.json does not trust its estimate of ``name``; empty otherwise."""
     for r in runs:
         e = (r.summary.estimates or {}).get(name)
-        if e is not None and e.trustworthy is False:
-            return f"not trusted: {e.why}" if len(runs) == 1 else f"{r.label}: not trusted: {e.why}"
+        if e is not None and e.distrust:
+            return e.distrust if len(runs) == 1 else f"{r.label}: {e.distrust}"
     return ""
 
 
@@ -341,9 +360,8 @@ def fig_contour(plt: Any, runs: Sequence[RunSeries]) -> Any:
     k = magnification(runs)
     fig, ax = plt.subplots(figsize=(6.5, 6.5))
     fig.subplots_adjust(left=0.13, right=0.97, bottom=0.09, top=0.9)
-    path = runs[0].contour_m
-    order = np.argsort(np.arctan2(path[:, 1] - path[:, 1].mean(), path[:, 0] - path[:, 0].mean()))
-    ax.plot(path[order, 0] * 1e3, path[order, 1] * 1e3, color="0.5", lw=0.8, label="desired path q_d")
+    path = runs[0].contour_m  # in the order of time: any path, closed or not
+    ax.plot(path[:, 0] * 1e3, path[:, 1] * 1e3, color="0.5", lw=0.8, label="desired path q_d")
     for r in runs:
         c = r.contour_m
         points = c[:, :2] + k * (r.eps_c_um * 1e-6)[:, None] * c[:, 2:4]
@@ -365,6 +383,10 @@ FIGURES: dict[str, Callable[[Any, Sequence[RunSeries]], Any]] = {
     "estimates.png": fig_estimates,
     "contour.png": fig_contour,
 }
+#: The figures of a part program's run besides (drawn when a run has a ``part``).
+PROGRAM_FIGURES: dict[str, Callable[[Any, Sequence[RunSeries]], Any]] = {
+    "part.png": lambda plt, runs: fig_part(plt, runs, runs[0].label if len(runs) == 1 else ""),
+}
 
 
 def pyplot() -> Any:
@@ -384,7 +406,7 @@ def draw(runs: Sequence[RunSeries], directory: Path, fmt: str = "png", dpi: floa
         raise ValueError(f"plot format {fmt!r}: expected one of {', '.join(PLOT_FORMATS)}")
     plt = pyplot()
     written = []
-    for png, draw_one in FIGURES.items():
+    for png, draw_one in {**FIGURES, **PROGRAM_FIGURES}.items():
         fig = draw_one(plt, runs)
         if fig is None:
             continue
@@ -395,12 +417,15 @@ def draw(runs: Sequence[RunSeries], directory: Path, fmt: str = "png", dpi: floa
     return written
 
 
-def write_plots(run_dir: Path, plots_dir: Path, summary: RunSummary, fmt: str = "png", dpi: float = DPI) -> list[str]:
-    """The figures of the run in ``run_dir`` (its trace.parquet, its summary ``summary``) into ``plots_dir``,
-    written as one directory (:func:`gantry_twin.outputs.files.atomic_write_dir`); the file names."""
+def write_plots(
+    run_dir: Path, plots_dir: Path, summary: RunSummary, fmt: str = "png", dpi: float = DPI, plan: Any = None
+) -> list[str]:
+    """The figures of the run in ``run_dir`` (its trace.parquet, its summary ``summary``; ``plan`` its part
+    program if it ran one) into ``plots_dir``, written as one directory
+    (:func:`gantry_twin.outputs.files.atomic_write_dir`); the file names."""
     from gantry_twin.outputs.files import atomic_write_dir
 
-    series = read_series(run_dir, summary, run_label(summary))
+    series = read_series(run_dir, summary, run_label(summary), plan)
     if series is None:
         raise FileNotFoundError(f"{run_dir}/trace.parquet: no trace to draw")
     names: list[str] = []

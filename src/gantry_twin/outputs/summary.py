@@ -70,6 +70,12 @@ class Estimate(Model):
     bias_bound_pct: float | None = None
     fit_gap_pct: float | None = None
 
+    @property
+    def distrust(self) -> str:
+        """``not trusted: why`` when the run's own signals cannot vouch for the estimate, else empty: the one
+        phrase the printed summary, the plots, compare, the report and the dashboard mark it with."""
+        return f"not trusted: {self.why}" if self.trustworthy is False else ""
+
 
 class Confidence(Model):
     """The sums the trust verdicts were judged from (:func:`gantry_twin.health.confidence.judge`)."""

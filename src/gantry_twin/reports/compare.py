@@ -25,12 +25,15 @@ from typing import Any
 from gantry_twin.outputs.rundirs import resolve_run
 from gantry_twin.outputs.summary import RunSummary, SummaryError
 from gantry_twin.plant import AXES, THETA_NAMES
+from gantry_twin.settings import signed_pct
 
 #: Where compare writes without --out: RUNS_DIR/compare/<UTC time>-<id>/ (RUNS_DIR of the command line).
 DEFAULT_SUBDIR = "compare"
 #: A run's label in the plots' legends is cut to this many characters.
 LABEL_CHARS = 48
 MISSING = "missing"
+#: An untrusted estimate's cell gives the reason in at most this many characters.
+DOUBT_CHARS = 80
 
 
 class CompareError(Exception):
@@ -81,6 +84,25 @@ def load_run(arg: str, column: str) -> Run:
     return Run(directory, summary, column)
 
 
+def program_plan(run: Run) -> tuple[Any, str | None]:
+    """The part program a run ran, read and planned again from the file its scenario.yaml names (for its part
+    figure), and a note when that cannot be done; (None, None) for a run of another contour."""
+    from gantry_twin.scenario import ScenarioError, load_scenario
+    from gantry_twin.scenario.schema import GcodeSpec
+
+    path = run.directory / "scenario.yaml"
+    if run.summary.part_error is None or not path.is_file():
+        return None, None
+    try:
+        contour = load_scenario(path).contour
+        if isinstance(contour, GcodeSpec):
+            return contour.plan(run.directory), None
+    except (ScenarioError, OSError, ValueError) as exc:
+        reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        return None, f"{run.column} ({run.directory}): its program cannot be planned again ({reason}), no part figure"
+    return None, None
+
+
 # ---------------------------------------------------------------------------
 # The table: one row per figure, a function of a run's summary giving its value (None: missing).
 
@@ -105,9 +127,10 @@ def _estimate(s: RunSummary, name: str) -> Any:
     e = _get(s, "estimates", name)
     if e is None:
         return None
-    pct = "" if e.error_pct is None else f" ({e.error_pct:+.2f} %)"
+    pct = "" if e.error_pct is None else f" ({signed_pct(e.error_pct, 2)})"
     true = "-" if e.true is None else f"{e.true:.4f}"
-    return f"{e.estimate:.5f} / {true}{pct}"
+    doubt = f"; {textwrap.shorten(e.distrust, DOUBT_CHARS, placeholder=' ...')}" if e.distrust else ""
+    return f"{e.estimate:.5f} / {true}{pct}{doubt}"
 
 
 def _periods(s: RunSummary) -> Any:
@@ -116,6 +139,23 @@ def _periods(s: RunSummary) -> Any:
         return None
     worst = max(range(len(rms)), key=lambda i: rms[i])
     return f"{rms[0]:.3f} / {rms[-1]:.3f} / {rms[worst]:.3f} (period {worst})"
+
+
+def _metric_window(s: RunSummary) -> Any:
+    c = s.contour_error_um
+    if c is None:
+        return None
+    return _window(c.window_s) + (" (the paper's)" if c.paper_window else "")
+
+
+def _worst_corner(s: RunSummary) -> Any:
+    corners = _get(s, "part_error", "worst_corners")
+    if corners is None:
+        return None
+    if not corners:
+        return "-"
+    c = corners[0]
+    return f"line {c.line} ({c.kind}): {c.max_um:.3f} at {1e3 * c.speed_m_s:.1f} mm/s, t = {c.time_s:.3f} s"
 
 
 def _alarms(s: RunSummary) -> Any:
@@ -132,7 +172,7 @@ ROWS: list[tuple[str, str, Callable[[RunSummary], Any]]] = [
     ("--set overrides", "overrides", lambda s: None if s.overrides is None else " ".join(s.overrides) or "-"),
     ("duration (s)", "duration_s", lambda s: s.duration_s),
     ("status", "status", lambda s: s.status),
-    ("paper's window window_s (s)", "contour_error_um", lambda s: _window(_get(s, "contour_error_um", "window_s"))),
+    ("metric window window_s (s)", "contour_error_um", _metric_window),
     ("eps_c rms over window_s (um)", "contour_error_um", lambda s: _get(s, "contour_error_um", "rms")),
     ("eps_c max over window_s (um)", "contour_error_um", lambda s: _get(s, "contour_error_um", "max")),
     ("whole run [window_s start, end] (s)", "whole_run", lambda s: _window(_get(s, "whole_run", "window_s"))),
@@ -160,6 +200,15 @@ ROWS: list[tuple[str, str, Callable[[RunSummary], Any]]] = [
         for a in AXES
     ],
     ("eps_c rms per period: first / last / largest (um)", "contour_error_per_period_um", _periods),
+    ("part error max, to the programmed geometry (um)", "part_error", lambda s: _get(s, "part_error", "max_um")),
+    ("part error rms (um)", "part_error", lambda s: _get(s, "part_error", "rms_um")),
+    ("worst corner: part error (um), speed, time", "part_error", _worst_corner),
+    ("cycle time (s)", "part_error", lambda s: _get(s, "part_error", "cycle_time_s")),
+    (
+        "feed achieved (mm/s)",
+        "part_error",
+        lambda s: None if s.part_error is None else 1e3 * s.part_error.feed_achieved_m_s,
+    ),
     ("estimates window (s)", "estimates", lambda s: _window(s.estimates_window_s)),
     *[(f"{n} estimate / true (error)", "estimates", lambda s, n=n: _estimate(s, n)) for n in THETA_NAMES],
     ("health alarms", "health", _alarms),
@@ -184,6 +233,8 @@ def _why_absent(s: RunSummary, section: str) -> str | None:
         return "- (failed run)"
     if section == "estimates" and s.contour_error_um is not None and s.estimates is None:
         return "- (not estimated)"
+    if section == "part_error" and s.part_error is None:
+        return "- (not a part program)"
     return None
 
 

@@ -16,7 +16,6 @@ estimates are the mean of theta^ over the last period of the 30 s run.
 
 from __future__ import annotations
 
-import io
 import json
 import math
 import time
@@ -28,11 +27,13 @@ from typing import Any
 import numpy as np
 
 from gantry_twin.metrics import contour_metrics, error_pct, steady_estimates, steady_true_parameters
-from gantry_twin.outputs.files import atomic_write, atomic_write_text
+from gantry_twin.outputs.files import atomic_write_text
 from gantry_twin.outputs.plots import envelope
-from gantry_twin.plant import THETA_NAMES, THETA_UNITS, short_label
-from gantry_twin.run import execute
+from gantry_twin.plant import THETA_NAMES, short_label
+from gantry_twin.reports.paper_figures import write_figures
+from gantry_twin.run import execute, summarise
 from gantry_twin.scenario import build, load_scenario, shipped
+from gantry_twin.settings import signed_pct
 from gantry_twin.theta import NOMINAL_THETA
 
 SET_SCENARIOS = {1: "no_load", 2: "load_5kg", 3: "step_disturbance"}
@@ -85,6 +86,8 @@ PAPER_ESTIMATES: dict[int, dict[str, tuple[float, ...]]] = {
 }
 #: The physical parameters the paper's Tables 3-4 report (dN is left out, as there).
 TABLE_PARAMS = THETA_NAMES[:6]
+#: After an estimate in Tables 3-4 that its run's trust verdict does not vouch for (the reasons under the table).
+DISTRUST_MARK = "†"
 _TABLE_INDEX = range(len(TABLE_PARAMS))
 #: Figure sampling: eps_c keeps the largest |value| of each bin; estimates every n-th sample.
 EPS_BIN = 10
@@ -124,6 +127,10 @@ class CaseResult:
     eps_c_um: np.ndarray = field(repr=False)
     t_theta_s: np.ndarray | None = field(default=None, repr=False)
     theta_hat: np.ndarray | None = field(default=None, repr=False)
+    #: The estimates summary.json would not trust (name -> ``not trusted: why``, :attr:`Estimate.distrust`).
+    distrust: dict[str, str] = field(default_factory=dict)
+    #: The scenario's disturbance events: (start s, end s or None, what), for the figures.
+    disturbances: list[tuple[float, float | None, str]] = field(default_factory=list)
 
 
 def paper_matrix(
@@ -171,6 +178,7 @@ def run_case(case: Case) -> CaseResult:
     est = steady_estimates(trace, scenario.estimate_window_s)
     t_eps, eps = envelope(trace.t_s[: trace.filled], trace.eps_c_m[: trace.filled] * 1e6, EPS_BIN)
     theta = trace.controller_state.get("theta_hat")
+    verdicts = summarise(built, trace).estimates or {}  # the trust verdicts, as summary.json gives them
     return CaseResult(
         case=case,
         rms_um=metrics.rms_um,
@@ -185,7 +193,19 @@ def run_case(case: Case) -> CaseResult:
         eps_c_um=eps,
         t_theta_s=None if theta is None else trace.t_s[::THETA_EVERY].copy(),
         theta_hat=None if theta is None else theta[::THETA_EVERY].copy(),
+        distrust={name: e.distrust for name, e in verdicts.items() if e.distrust},
+        disturbances=disturbance_intervals(scenario),
     )
+
+
+def disturbance_intervals(scenario: Any) -> list[tuple[float, float | None, str]]:
+    """Each disturbance event of a scenario: (start s, end s or None: to the end, ``+0.6 V step on Y``)."""
+    out = []
+    for axis in ("x", "y"):
+        for e in getattr(scenario.disturbance, axis):
+            size = {"step": "value_v", "ramp": "to_v", "sine": "amplitude_v"}[e.type]
+            out.append((e.start_s, e.end_s, f"{getattr(e, size):+g} V {e.type} on {axis.upper()}"))
+    return out
 
 
 def run_matrix(cases: Sequence[Case], jobs: int = 1, progress: bool = False) -> list[CaseResult]:
@@ -212,18 +232,6 @@ def _fmt(x: float | None, digits: int = 2) -> str:
     return "-" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:.{digits}f}"
 
 
-def signed(x: float, digits: int = 1) -> str:
-    """``+1.2``, ``-0.4`` with ``digits`` decimals; a value that rounds to zero is ``0.0`` (``0``), never
-    ``-0.0`` or ``+0.0``."""
-    text = f"{x:+.{digits}f}"
-    return f"{0.0:.{digits}f}" if float(text) == 0.0 else text
-
-
-def signed_pct(x: float, digits: int = 1) -> str:
-    """``+1.2 %``, ``-0.4 %``; a value that rounds to zero is ``0.0 %``, never ``-0.0 %`` (:func:`signed`)."""
-    return signed(x, digits) + " %"
-
-
 def provenance(command: str, wall_time_s: float, version: str, now_s: float | None = None) -> str:
     """The report's provenance line: the gantry-twin version, the UTC date, the command line and the wall time."""
     import time
@@ -248,6 +256,7 @@ def _contour_table(by_key: dict[tuple[int, str, str], CaseResult], contour: str,
 def _estimate_table(by_key: dict[tuple[int, str, str], CaseResult], set_id: int) -> list[str]:
     head = "| | " + " | ".join(TABLE_PARAMS) + " |"
     lines = [head, "|---" * (len(TABLE_PARAMS) + 1) + "|"]
+    doubts: list[str] = []
     paper = PAPER_ESTIMATES[set_id]
     lines.append("| *paper:* nominal theta_iN | " + " | ".join(f"{v:g}" for v in paper["nominal"]) + " |")
     lines.append("| *paper:* circle theta_iC | " + " | ".join(f"{v:g}" for v in paper["circle"]) + " |")
@@ -264,10 +273,18 @@ def _estimate_table(by_key: dict[tuple[int, str, str], CaseResult], set_id: int)
         for contour, r in zip(CONTOURS, runs, strict=True):
             if r is None or r.estimates is None:
                 continue
-            cells = [f"{r.estimates[i]:.4f} ({signed_pct(error_pct(r.estimates[i], true[i]))})" for i in _TABLE_INDEX]
+            cells = [
+                f"{r.estimates[i]:.4f} ({signed_pct(error_pct(r.estimates[i], true[i]))})"
+                + (f" {DISTRUST_MARK}" if THETA_NAMES[i] in r.distrust else "")
+                for i in _TABLE_INDEX
+            ]
             lines.append(f"| {name}: {contour} | " + " | ".join(cells) + " |")
+            doubts += [f"{name}, {contour}: {n} {why}" for n, why in r.distrust.items() if n in TABLE_PARAMS]
         worst = [max(abs(error_pct(r.estimates[i], true[i])) for r in runs_ok) for i in _TABLE_INDEX]
         lines.append(f"| {name}: max deviation % | " + " | ".join(f"{w:.1f} %" for w in worst) + " |")
+    if doubts:
+        why = "the run's own signals cannot vouch for the estimate (summary.json's trust verdict, docs/health.md)"
+        lines += ["", f"{DISTRUST_MARK}: {why}:", "", *[f"- {d}" for d in doubts]]
     return lines
 
 
@@ -321,90 +338,6 @@ def findings(by_key: dict[tuple[int, str, str], CaseResult]) -> list[tuple[bool,
     return out
 
 
-def _figures(by_key: dict[tuple[int, str, str], CaseResult], out: Path) -> list[tuple[str, str]]:
-    """Write :func:`figures` as PNG files into ``out``; (file name, caption) of each."""
-    import matplotlib.pyplot as plt
-
-    made: list[tuple[str, str]] = []
-    for fig, name, caption in figures(by_key):
-        buffer = io.BytesIO()
-        fig.savefig(buffer, format="png", dpi=110)
-        plt.close(fig)
-        data = buffer.getvalue()
-        atomic_write(out / name, lambda fh, data=data: fh.write(data))
-        made.append((name, caption))
-    return made
-
-
-def figures(by_key: dict[tuple[int, str, str], CaseResult]) -> list[tuple[Any, str, str]]:
-    """The report's figures (matplotlib, Agg) as (figure, file name, caption); every axis label gives its unit.
-
-    Figs. 2 and 3 share one y scale across the controllers they compare;
-    the estimate plots (Figs. 4 and 5) keep a 10 % margin around the
-    estimates and the true value.
-    """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    made: list[tuple[Any, str, str]] = []
-
-    def save(fig: Any, name: str, caption: str) -> None:
-        made.append((fig, name, caption))
-
-    for fig_no, set_id, contour, labels in ((2, 3, "circle", ("C1", "C2")), (3, 2, "ellipse", ("C1", "C2", "C3"))):
-        runs = [(c, by_key.get((set_id, contour, c))) for c in labels]
-        runs = [(c, r) for c, r in runs if r is not None]
-        if not runs:
-            continue
-        fig, axes = plt.subplots(
-            len(runs), 1, figsize=(7, 1.9 * len(runs) + 0.6), sharex=True, sharey=True, squeeze=False
-        )
-        t_end = min(10.0, max(float(r.t_eps_s[-1]) for _, r in runs))
-        for ax, (c, r) in zip(axes[:, 0], runs, strict=True):
-            keep = r.t_eps_s <= t_end
-            ax.plot(r.t_eps_s[keep], r.eps_c_um[keep], lw=0.6)
-            ax.set_ylabel(f"{c} eps_c [um]")
-            ax.grid(alpha=0.3)
-        axes[-1, 0].set_xlabel("t [s]")
-        fig.suptitle(f"Fig. {fig_no}: {contour} contouring errors, Set {set_id}")
-        fig.tight_layout()
-        save(
-            fig,
-            f"fig{fig_no}_set{set_id}_{contour}_contour_error.png",
-            f"Fig. {fig_no}: {contour} contouring error vs time, Set {set_id} (largest |eps_c| per 2 ms)",
-        )
-
-    for fig_no, set_id, axis in ((4, 1, 1), (5, 2, 0)):
-        runs = [(c, by_key.get((set_id, "circle", c))) for c in ("C2", "C2r")]
-        runs = [(c, r) for c, r in runs if r is not None and r.theta_hat is not None]
-        if not runs:
-            continue
-        names = [THETA_NAMES[axis + 2 * k] for k in range(4)]
-        fig, axes = plt.subplots(4, 1, figsize=(7, 8), sharex=True)
-        for k, (ax, name) in enumerate(zip(axes, names, strict=True)):
-            j = axis + 2 * k
-            for c, r in runs:
-                ax.plot(r.t_theta_s, r.theta_hat[:, j], lw=0.9, label=CONTROLLERS[c][2])
-            ax.axhline(runs[0][1].true_theta[j], ls="--", color="k", lw=0.9, label="true (model)")
-            ax.set_ylabel(f"{name} [{THETA_UNITS[j]}]")
-            ax.margins(y=0.1)
-            ax.ticklabel_format(axis="y", useOffset=False)
-            ax.grid(alpha=0.3)
-        axes[0].legend(fontsize=7, loc="best")
-        axes[-1].set_xlabel("t [s]")
-        label = "Y" if axis == 1 else "X"
-        fig.suptitle(f"Fig. {fig_no}: {label}-axis parameter estimates, Set {set_id} circle (DIARC)")
-        fig.tight_layout()
-        save(
-            fig,
-            f"fig{fig_no}_set{set_id}_{label.lower()}_estimates.png",
-            f"Fig. {fig_no}: {label}-axis estimates vs time, Set {set_id} circle; true value dashed",
-        )
-    return made
-
-
 def write_report(
     results: Sequence[CaseResult],
     out: Path,
@@ -422,7 +355,7 @@ def write_report(
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     by_key = {(r.case.set_id, r.case.contour, r.case.label): r for r in results}
-    figures = _figures(by_key, out)
+    figures = write_figures(by_key, out, {label: c[2] for label, c in CONTROLLERS.items()})
     checks = findings(by_key)
     lines = [
         "# gantry-twin: reproduction of Hu, Yao, Wang (Automatica 2010), Tables 1-4 and Fig. 2-5",
@@ -481,6 +414,7 @@ def write_report(
             "true_theta": r.true_theta,
             "estimates": r.estimates,
             "estimates_window_s": list(r.estimates_window_s),
+            "not_trusted": r.distrust,
         }
         for r in results
     ]

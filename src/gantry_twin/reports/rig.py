@@ -28,19 +28,12 @@ import numpy as np
 from gantry_twin.contours import reference
 from gantry_twin.metrics import error_pct
 from gantry_twin.outputs.files import atomic_write, atomic_write_text
+from gantry_twin.outputs.plots import DPI
 from gantry_twin.plant import THETA_NAMES, PlantSettings
-from gantry_twin.reports.paper import (
-    CONTOURS,
-    CONTROLLERS,
-    PAPER_CONTOUR_UM,
-    SET_SCENARIOS,
-    Case,
-    CaseResult,
-    signed,
-    signed_pct,
-)
+from gantry_twin.reports.paper import CONTOURS, CONTROLLERS, PAPER_CONTOUR_UM, SET_SCENARIOS, Case, CaseResult
 from gantry_twin.run import execute
 from gantry_twin.scenario import BuiltRun, ScenarioError, build, load_scenario, shipped
+from gantry_twin.settings import signed_pct
 
 LABELS = ("C1", "C2", "C3")
 #: The override that makes the ideal twin: the paper's model (models/gantry.xml), Coulomb friction, no offset
@@ -124,7 +117,7 @@ def matrix_table(rig: dict[Key, CaseResult], ideal: dict[Key, CaseResult]) -> li
                     f"{paper[0]:.2f} / {paper[1]:.2f}",
                     f"{r.rms_um:.2f} / {r.max_um:.2f}",
                     f"{c.rms_um:.2f} / {c.max_um:.2f}",
-                    f"{signed(err[0], 0)} / {signed(err[1], 0)}",
+                    f"{signed_pct(err[0], 0, unit='')} / {signed_pct(err[1], 0, unit='')}",
                 ]
                 role = "fit" if (contour, set_id) in FIT_CELLS else "validation"
                 lines.append(f"| {contour} | {set_id} | {label} | " + " | ".join(cells) + f" | {role} |")
@@ -173,7 +166,7 @@ def acceptance(rig: dict[Key, CaseResult]) -> list[tuple[bool | None, str]]:
                     ok = all(abs(e) <= ESTIMATE_PCT[THETA_NAMES[i].rstrip("12")] for i, e in enumerate(errs))
                     ok = ok and all(abs(d) <= DN_TOL_V for d in dn)
                     text += ", " + ", ".join(
-                        f"{THETA_NAMES[i]} {signed(d, 4)} V" for i, d in zip((6, 7), dn, strict=True)
+                        f"{THETA_NAMES[i]} {signed_pct(d, 4, unit=' V')}" for i, d in zip((6, 7), dn, strict=True)
                     )
                     out.append((ok, f"DIARC recommended, {contour} Set {set_id}: {text}"))
                 else:
@@ -281,7 +274,7 @@ def section(
     atomic_write_text(out / RIG_JSON, json.dumps({"overrides": list(rig_overrides), "runs": cells}, indent=2) + "\n")
     fig = spike_figure(spike_series(overrides, rig_overrides))
     buffer = io.BytesIO()
-    fig.savefig(buffer, format="png", dpi=110)
+    fig.savefig(buffer, format="png", dpi=DPI)
     plt.close(fig)
     data = buffer.getvalue()
     atomic_write(out / SPIKE_FILE, lambda fh: fh.write(data))

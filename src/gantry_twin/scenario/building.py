@@ -62,7 +62,7 @@ def build(scenario: Scenario, source: str = "<scenario>") -> BuiltRun:
     payload_body = changes is not None and bool(changes.payload_change)
     plant = _plant(scenario, payload_body, source)
     path = _contour_path(scenario, source)
-    scenario = _follow_the_plan(scenario, path, plant.timestep_s)
+    scenario = _follow_the_plan(scenario, path, plant.timestep_s, source)
     _check_travel(plant, path, source)
     _check_samples(scenario, plant.timestep_s, source)
     kwargs = controller_options(scenario, source)
@@ -79,13 +79,17 @@ def build(scenario: Scenario, source: str = "<scenario>") -> BuiltRun:
     )
 
 
-def _follow_the_plan(scenario: Scenario, path: Contour, timestep_s: float) -> Scenario:
+def _follow_the_plan(scenario: Scenario, path: Contour, timestep_s: float, source: str = "") -> Scenario:
     """A part program's run lasts its plan (whole samples); its default windows are the whole program (contour
-    error) and its second half (estimates). Other contours keep the scenario as it is."""
+    error) and its second half (estimates); its file is named by its absolute path (so that the run's
+    scenario.yaml finds it from anywhere: compare plans it again). Other contours keep the scenario as it is."""
     if not isinstance(scenario.contour, GcodeSpec):
         return scenario
     d = max(math.ceil(float(path.duration_s) / timestep_s), 2) * timestep_s
     update: dict[str, object] = {"duration_s": d}
+    file = Path(scenario.contour.file)
+    if not file.is_absolute() and Path(source).is_file():
+        update["contour"] = scenario.contour.model_copy(update={"file": str((Path(source).parent / file).resolve())})
     if scenario.window_s is None:
         update["window_s"] = (0.0, d)
     if scenario.estimates_window_s is None:

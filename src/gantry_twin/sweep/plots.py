@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from gantry_twin.outputs.files import atomic_write, atomic_write_text
+from gantry_twin.outputs.plots import DPI, THETA_UNITS
 from gantry_twin.sweep.points import STATUS_OK, Plan
 
 SUMMARY_FILE = "summary.md"
@@ -29,6 +30,32 @@ MAX_SERIES = 8
 MAX_TICKS = 16
 #: Best and worst points listed in summary.md.
 LISTED = 5
+
+
+#: A name's unit from its ending (the package's names carry their units), longest endings first.
+UNIT_SUFFIXES = (
+    ("_v_s_m", "V/(m/s)"), ("_ns_m", "N s/m"), ("_rad_s", "rad/s"), ("_m_s2", "m/s²"), ("_m_s", "m/s"),
+    ("_n_m", "N/m"), ("_s_m", "s/m"), ("_um", "µm"), ("_mm", "mm"), ("_kg", "kg"), ("_rad", "rad"), ("_hz", "Hz"),
+    ("_pct", "%"), ("_v", "V"), ("_n", "N"), ("_m", "m"), ("_s", "s"),
+)  # fmt: skip
+
+
+def unit_of(name: str) -> str:
+    """The unit a field path or metric name carries (``payload.mass_kg``: kg, ``estimate_M1``: V s²/m), or ''."""
+    last = name.rsplit(".", 1)[-1]
+    for prefix in ("estimate_", "true_"):
+        if last.startswith(prefix) and last[len(prefix) :].rstrip("12") in THETA_UNITS:
+            return THETA_UNITS[last[len(prefix) :].rstrip("12")]
+    for suffix, unit in UNIT_SUFFIXES:
+        if last.lower().endswith(suffix):
+            return unit
+    return ""
+
+
+def axis_label(name: str) -> str:
+    """``name (unit)``: a field path or metric as the axes name it, with its unit when its name says one."""
+    unit = unit_of(name)
+    return f"{name} ({unit})" if unit else name
 
 
 def _numeric(values: Sequence[Any]) -> bool:
@@ -43,7 +70,7 @@ def _save(fig: Any, path: Path) -> None:
     import matplotlib.pyplot as plt
 
     buffer = io.BytesIO()
-    fig.savefig(buffer, format="png", dpi=110)
+    fig.savefig(buffer, format="png", dpi=DPI)
     plt.close(fig)
     atomic_write(path, lambda fh: fh.write(buffer.getvalue()))
 
@@ -139,8 +166,9 @@ def metric_plot(plan: Plan, rows: list[dict[str, Any]], field: str, metric: str,
             ax.plot(order, true, color=dots.get_color(), **style)
     if labels is not None:
         _set_ticks(ax.xaxis, tick_labels(labels), rotation=45 if len(labels) > 4 else 0)
-    ax.set_xlabel(field)
-    ax.set_ylabel(metric + (" (true dashed)" if true_column else ""))
+    ax.set_xlabel(axis_label(field))
+    true_mark = "a wide bar" if labels is not None else "dashed"
+    ax.set_ylabel(axis_label(metric) + (f"; true value: {true_mark}" if true_column else ""))
     ax.grid(alpha=0.3)
     if ax.get_legend_handles_labels()[1]:
         ax.legend(fontsize=7)
@@ -179,9 +207,9 @@ def heat_map(plan: Plan, rows: list[dict[str, Any]], fx: str, fy: str, metric: s
             _set_ticks(ax.xaxis, tick_labels(xlabels), rotation=45 if len(xlabels) > 4 else 0)
         if ylabels is not None:
             _set_ticks(ax.yaxis, tick_labels(ylabels))
-    fig.colorbar(shown, ax=ax, label=metric + (" (mean)" if fx in grid and fy in grid else ""))
-    ax.set_xlabel(fx)
-    ax.set_ylabel(fy)
+    fig.colorbar(shown, ax=ax, label=axis_label(metric) + (", mean per cell" if fx in grid and fy in grid else ""))
+    ax.set_xlabel(axis_label(fx))
+    ax.set_ylabel(axis_label(fy))
     ax.set_title(f"{metric} over {fx} and {fy}")
     name = f"{metric}_{fx}_x_{fy}.png"
     _save(fig, out / name)

@@ -15,6 +15,7 @@ import math
 import os
 import re
 import sys
+import textwrap
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -24,6 +25,8 @@ import pyarrow as pa
 import rerun as rr
 
 from gantry_twin.contours import reference
+from gantry_twin.gcode.part_error import distance_to_program
+from gantry_twin.gcode.sampling import Plan
 from gantry_twin.plant import THETA_NAMES, THETA_UNITS
 from gantry_twin.telemetry.dashboard import (
     ERROR_MAGNIFICATION,
@@ -53,6 +56,10 @@ _X_RGB, _Y_RGB = (31, 119, 180), (214, 39, 40)
 _EPS_C_STYLE, _EPS_N_STYLE = ((230, 120, 30), 4.0), ((30, 30, 120), 1.0)
 #: Margin of a plot's range when data leaves it (a larger step than the first range's, so it is re-sent rarely).
 WIDEN_MARGIN = 0.25
+#: A part program's part error (distance to the programmed lines and arcs), green; its programmed geometry, black.
+_PART_STYLE, _PROGRAM_RGB, _RAPID_RGB = ((40, 160, 60), 1.5), (20, 20, 20), (170, 170, 170)
+#: An estimate's panel title gives the reason it is not trusted in at most this many characters.
+DOUBT_CHARS = 70
 
 
 def unit_in_entity(unit: str) -> str:
@@ -197,6 +204,7 @@ class RerunObserver:
         step = max(1, samples // 4000)
         times_s = np.append(np.arange(0, samples, step), samples - 1) * ts
         self._desired_mm = reference(run.path, run.timing, times_s).q_d * 1e3
+        self._plan = run.path if isinstance(run.path, Plan) else None  # a part program: its part error too
         self.recording.send_recording_name(f"{run.controller_name}, {run.duration_s:g} s")
         self._log_static_scene(run)
 
@@ -263,6 +271,15 @@ class RerunObserver:
         rec.log(
             "contour_mm/xy/desired", rr.LineStrips2D([self._desired_mm], colors=[_TRUE_RGB], radii=[-1.5]), static=True
         )
+        if self._plan is not None:  # the programmed lines and arcs (to scale), rapids apart
+            table = self._plan.table
+            for entity, rapid, colour, radius in (
+                ("contour_mm/xy/programmed", False, _PROGRAM_RGB, -1.0),
+                ("contour_mm/xy/rapids", True, _RAPID_RGB, -0.75),
+            ):
+                strips = [table.polyline(k) * 1e3 for k, m in enumerate(self._plan.moves) if m.rapid == rapid]
+                if strips:
+                    rec.log(entity, rr.LineStrips2D(strips, colors=[colour], radii=[radius]), static=True)
 
     @property
     def _actual_entity(self) -> str:
@@ -281,6 +298,8 @@ class RerunObserver:
 
         lines("errors/contour/eps_c_um", ["eps_c (true)"], [_EPS_C_STYLE[0]], _EPS_C_STYLE[1])
         lines("errors/contour/eps_n_um", ["eps_n (approx.)"], [_EPS_N_STYLE[0]], _EPS_N_STYLE[1])
+        if self._plan is not None:
+            lines("errors/contour/part_um", ["part error (to the program)"], [_PART_STYLE[0]], _PART_STYLE[1])
         lines("errors/axial/e_x_um", ["e_x"], [_X_RGB])
         lines("errors/axial/e_y_um", ["e_y"], [_Y_RGB])
         lines("inputs/u_x_V", ["u_x"], [_X_RGB])
@@ -311,6 +330,23 @@ class RerunObserver:
             extra.append("estimates/gamma_lambda_max")
             self._titles["estimates/gamma_lambda_max"] = panel_name("lambda_max(Gamma)", "-")  # as in the paper
         self._plots = [e for e, _ in self._estimates] + extra
+
+    def mark_estimates(self, distrust: dict[str, str]) -> None:
+        """Title each estimate whose name is a key of ``distrust`` with its reason (``not trusted: why``, as
+        summary.json judges it after the run), send the layout again, and log the verdicts as a text document
+        (``estimates/verdicts``). Call it after the run, before :meth:`close`."""
+        if self._run is None or not self._styled:
+            return
+        for entity, i in self._estimates:
+            name = THETA_NAMES[i] if i < len(THETA_NAMES) else f"theta{i + 1}"
+            if name in distrust:
+                why = textwrap.shorten(distrust[name], DOUBT_CHARS, placeholder=" ...")
+                self._titles[entity] = f"{self._titles.get(entity, name)} ({why})"
+        lines = [f"- {name}: {why}" for name, why in distrust.items()] or ["every estimate trusted"]
+        self.recording.log(
+            "estimates/verdicts", rr.TextDocument("\n".join(lines), media_type=rr.MediaType.MARKDOWN), static=True
+        )
+        self._send_blueprint()
 
     def _show(self, origin: str, *values: np.ndarray) -> None:
         """Widen plot ``origin``'s y range if ``values`` (finite ones) leave it (:meth:`_send` re-sends the layout)."""
@@ -352,6 +388,9 @@ class RerunObserver:
 
         scalars("errors/contour/eps_c_um", trace.eps_c_m[rows] * 1e6)
         scalars("errors/contour/eps_n_um", trace.eps_n_m[rows] * 1e6)
+        if self._plan is not None:  # NaN during a rapid: a gap in the line
+            t, q = trace.t_s[rows], trace.q_m[rows]
+            scalars("errors/contour/part_um", distance_to_program(self._plan, self._plan.sample(t).move, q) * 1e6)
         scalars("errors/axial/e_x_um", trace.e_m[rows, 0] * 1e6)
         scalars("errors/axial/e_y_um", trace.e_m[rows, 1] * 1e6)
         scalars("inputs/u_x_V", trace.u_v[rows, 0])

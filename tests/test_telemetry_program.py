@@ -1,0 +1,86 @@
+"""The dashboard of a part program's run: the programmed part drawn, the part error logged; estimates that
+summary.json does not trust are titled so."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import rerun as rr
+import rerun.blueprint as rrb
+
+from gantry_twin import Plant, TimingLaw, create, simulate
+from gantry_twin.gcode import parse_program, plan_program
+from gantry_twin.telemetry import RerunObserver, theta_entity
+
+from .helpers import read_rrd, run_main, scalars
+from .test_dashboard import _views
+from .test_gcode_planner import distance_to_moves
+from .test_part_figures import PART
+
+
+@pytest.fixture(scope="module")
+def program_recording(tmp_path_factory):
+    """DIARC on the short part, recorded to a file, with every blueprint the observer sent."""
+    path = tmp_path_factory.mktemp("rrd") / "part.rrd"
+    plan = plan_program(parse_program(PART))
+    sent: list[rrb.Blueprint] = []
+    observer = RerunObserver.to_file(path)
+    send = observer.recording.send_blueprint
+    observer.recording.send_blueprint = lambda blueprint, **kwargs: (sent.append(blueprint), send(blueprint, **kwargs))
+    trace = simulate(Plant(), plan, TimingLaw(1.0), create("diarc"), plan.duration_s, observers=[observer])
+    observer.mark_estimates({"M1": "not trusted: a reason", "B2": "not trusted: another"})
+    observer.close()
+    return plan, trace, path, sent
+
+
+def test_the_part_error_is_logged_as_the_distance_to_the_programmed_geometry(program_recording):
+    plan, trace, path, _ = program_recording
+    data = read_rrd(path)
+    part = scalars(data, "errors/contour/part_um")[:, 0]
+    np.testing.assert_array_equal(data["errors/contour/part_um"]["time_ns"], np.rint(trace.t_s * 1e9).astype(int))
+    brute = distance_to_moves(trace.q_m, [m for m in plan.moves if not m.rapid])
+    assert part == pytest.approx(brute * 1e6, abs=1e-3)  # um
+    assert part.max() > 1.0  # the machine is off the part somewhere (not a line of zeros)
+
+
+def test_the_programmed_part_is_drawn_to_scale(program_recording):
+    plan, _, path, _ = program_recording
+    static = {}
+    for chunk in rr.chunk.RrdReader(path).stream().to_chunks():
+        if chunk.is_static:
+            static.setdefault(chunk.entity_path.lstrip("/"), []).append(chunk.to_record_batch())
+    (batch,) = static["contour_mm/xy/programmed"]
+    column = next(name for name in batch.schema.names if name.endswith("strips"))
+    strips = batch.column(column).to_pylist()[0]
+    assert len(strips) == len(plan.moves)
+    points = np.array([p for s in strips for p in s])  # mm
+    assert distance_to_moves(points * 1e-3, plan.moves) == pytest.approx(0.0, abs=1e-8)  # float32 mm
+    assert points[:, 0].min() == pytest.approx(-40.0) and points[:, 1].max() == pytest.approx(60.0, abs=1e-3)
+
+
+def test_untrusted_estimates_are_titled_with_their_reason(program_recording):
+    _, _, _, sent = program_recording
+    titles = {str(v.origin): str(v.name) for v in _views(sent[-1].root_container)}
+    assert titles[theta_entity("M1")].endswith("(not trusted: a reason)")
+    assert titles[theta_entity("B2")].endswith("(not trusted: another)")
+    assert "not trusted" not in titles[theta_entity("M2")]
+
+
+def test_a_saved_run_marks_the_estimates_summary_json_does_not_trust(tmp_path, capsys):
+    rrd = tmp_path / "r.rrd"
+    argv = ["run", "--set", "duration_s=0.5", "--out", str(tmp_path / "r"), "--no-plots", "--save", str(rrd)]
+    code, _, err = run_main([*argv, "--no-progress"], capsys)
+    assert code == 0, err
+    from gantry_twin.outputs.summary import RunSummary
+
+    estimates = RunSummary.read(tmp_path / "r" / "summary.json").estimates
+    untrusted = [n for n, e in estimates.items() if e.distrust]
+    assert untrusted  # a 0.5 s run cannot vouch for every estimate
+    texts = []
+    for chunk in rr.chunk.RrdReader(rrd).stream().to_chunks():
+        if chunk.entity_path == "/estimates/verdicts":
+            batch = chunk.to_record_batch()
+            texts += [v for name in batch.schema.names if name.endswith("text") for v in batch.column(name).to_pylist()]
+    ((text,),) = texts  # one document, one string
+    for name in untrusted:
+        assert f"- {name}: {estimates[name].distrust}" in text
