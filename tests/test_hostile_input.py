@@ -172,6 +172,7 @@ def _make(directory: Path, files: dict[str, object]) -> None:
     directory.mkdir()
     for name, content in files.items():
         path = directory / name
+        path.parent.mkdir(parents=True, exist_ok=True)
         if isinstance(content, Link):
             path.symlink_to(content.target)
         elif isinstance(content, Fifo):

@@ -49,6 +49,7 @@ from gantry_twin.cli.common import (  # noqa: F401 -- the exit codes: tests and 
     BadInput,
     checked_out,
     failed,
+    writable_out,
 )
 from gantry_twin.cli.printing import format_health, format_summary, touched_end_stop, travel_warnings
 from gantry_twin.cli.progress import ProgressBar, add_progress_arguments, progress_bar, progress_wanted  # noqa: F401 -- ProgressBar: tests
@@ -362,7 +363,8 @@ def _monitor_log(args: argparse.Namespace) -> int:
         else new_run_dir(checked_out(RUNS_DIR / f"{Path(args.log).stem}-monitor"))
     )
     try:
-        data = monitor_log_command(args, None if args.scenario is None else _scenario_path(args.scenario), out)
+        with writable_out(out):  # before the replay compiles and runs; removed again, empty, on bad input
+            data = monitor_log_command(args, None if args.scenario is None else _scenario_path(args.scenario), out)
     except ValueError as exc:
         raise BadInput(str(exc).splitlines()[0]) from None
     if args.out is None:
@@ -428,6 +430,9 @@ def _run(args: argparse.Namespace) -> int:
             if args.out is None:
                 _point_latest(out)
             print(format_summary(outcome.summary, outcome.wall_time_s, out, outcome.files), flush=True)
+    if telemetry.recording_failed is not None:  # e.g. a full disk: the run's files are complete, the recording not
+        print(f"{PROG}: {telemetry.recording_failed}; the run's results are in {out}/", file=sys.stderr)
+        return EXIT_RUN_FAILED
     if writer.plots_skipped is not None:
         print(f"{PROG}: note: no plots: {writer.plots_skipped}", file=sys.stderr)
     for line in travel_warnings(outcome.summary):

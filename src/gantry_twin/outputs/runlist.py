@@ -52,7 +52,7 @@ def _latest_target(scenario_dir: Path) -> Path | None:
         return None
     try:
         return resolve_run(scenario_dir / LATEST).resolve()
-    except OSError:
+    except (OSError, ValueError):  # ValueError: a ``latest`` text file that names no run (InputFileError)
         return None
 
 
