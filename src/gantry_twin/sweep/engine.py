@@ -129,9 +129,13 @@ def check_workers(workers: int | None) -> None:
 
 def check_scheduler(address: str | None) -> None:
     """ClusterError unless ``address`` is None or looks like ``[tcp://]host:port`` (before any connection)."""
-    if address is not None and not _ADDRESS.fullmatch(address):
-        shown = address if len(address) <= 40 else address[:40] + "..."
+    if address is None:
+        return
+    shown = address if len(address) <= 40 else address[:40] + "..."
+    if not _ADDRESS.fullmatch(address):
         raise ClusterError(f"--scheduler {shown!r}: not an address; give [tcp://]HOST:PORT, e.g. tcp://head:8786")
+    if not 1 <= int(address.rsplit(":", 1)[1]) <= 65535:
+        raise ClusterError(f"--scheduler {shown!r}: the port must be 1 to 65535")
 
 
 @contextlib.contextmanager
