@@ -201,6 +201,11 @@ CASES = [
     Case("report_rig_not_json", {"rig.json": "overrides: [a=1]\n"}, RIG),
     Case("report_rig_overrides_not_a_list", {"rig.json": '{"overrides": "plant.model=rig"}'}, RIG),
     Case("report_rig_override_unknown_field", {"rig.json": '{"overrides": ["plant.nosuch=1"]}'}, RIG),
+    # validate and runs
+    Case("validate_fifo", {"s.yaml": Fifo()}, ("validate", "s.yaml")),
+    Case("validate_dev_zero", {"s.yaml": Link("/dev/zero")}, ("validate", "s.yaml")),
+    Case("validate_binary_then_good", {"s.yaml": "{}\n", "t.yaml": BINARY}, ("validate", "t.yaml", "s.yaml")),
+    Case("runs_prune_keep_negative", {}, ("runs", "--prune", "--keep", "-1")),
     # --save (run and monitor): never into something that is not a regular file.
     Case("save_to_fifo", {"r.rrd": Fifo()}, (*SAVE, "r.rrd")),
     Case("save_to_directory", {"r.rrd/x": "x"}, (*SAVE, "r.rrd")),

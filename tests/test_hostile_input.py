@@ -166,6 +166,7 @@ class Outcome(NamedTuple):
     cpu_s: float  # user + system seconds of the same
     peak_rss_mb: float  # measured, or for a forked child: start-up's peak + the child's growth
     written: list[str]
+    child_wall_s: float = 0.0  # the forked child's (or fresh process's) own wall time, start-up not included
 
 
 def _make(directory: Path, files: dict[str, object]) -> None:
@@ -229,6 +230,7 @@ def run_children(cases: list[Case], root: Path, mode: str) -> dict[str, Outcome]
             startup["cpu_s"] + r["cpu_s"],
             (startup["rss_kib"] + added_kib) / 1024.0,
             [p.name for p in d.iterdir() if p.name not in befores[case.id]],
+            r["wall_s"],
         )
     return outcomes
 

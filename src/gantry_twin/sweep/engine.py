@@ -142,12 +142,13 @@ def check_scheduler(address: str | None) -> None:
         raise ClusterError(f"--scheduler {shown!r}: the port must be 1 to 65535")
 
 
-def probe_scheduler(address: str, timeout_s: float = CONNECT_TIMEOUT_S) -> None:
+def probe_scheduler(address: str, timeout_s: float | None = None) -> None:
     """ClusterError unless a ``tcp://`` (or bare ``host:port``) address answers as a Dask scheduler within
     ``timeout_s``: a scheduler sends its handshake as soon as it accepts, a frame whose first 8 bytes are its
     length (little-endian). Dask's own connect bounds only the TCP connect: a server that accepts and says nothing
     kept it waiting for ever, and an HTTP server's reply read as a length asked for 3 EiB (MemoryError). Other
     protocols (tls, ws, ucx) are left to Dask's timeout."""
+    timeout_s = CONNECT_TIMEOUT_S if timeout_s is None else timeout_s
     protocol, _, rest = address.rpartition("://")
     if protocol not in ("", "tcp"):
         return
