@@ -307,3 +307,17 @@ def test_the_case_files_are_what_they_say():
         for p in root.iterdir():
             p.unlink()
         root.rmdir()
+
+
+def test_serve_web_without_the_viewer_binary_exit_2_one_line_nothing_written(tmp_path, capsys, monkeypatch):
+    """Once a FileNotFoundError traceback (exit 1) from starting the missing binary."""
+    from .helpers import run_main
+
+    monkeypatch.setenv("RERUN_CLI_PATH", str(tmp_path / "no-rerun"))
+    out = tmp_path / "out"
+    code, stdout, err = run_main(["run", "--set", "duration_s=0.01", "--out", str(out), "--serve-web"], capsys)
+    assert code == 2 and stdout == ""
+    assert err.strip().splitlines() == [
+        f"gantry-twin: error: RERUN_CLI_PATH {tmp_path / 'no-rerun'}: not an executable file (the rerun viewer binary)"
+    ]
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
