@@ -229,7 +229,8 @@ def test_scheduler_that_is_not_one_exit_2_within_the_connect_timeout(tmp_path, k
     assert o.cpu_s < TIME_LIMIT_S  # waiting costs no CPU
     # Ended by the timeout (silent servers) or at once (an HTTP reply), never later; slack for the sweep's planning.
     assert o.child_wall_s < CONNECT_TIMEOUT_S + WAIT_SLACK_S, o.child_wall_s
-    assert (o.child_wall_s >= CONNECT_TIMEOUT_S) == (kind != "http_first"), o.child_wall_s
+    if kind != "http_first":  # a silent server is waited for, the whole timeout and no more
+        assert o.child_wall_s >= CONNECT_TIMEOUT_S, o.child_wall_s
     assert o.written == []
 
 
