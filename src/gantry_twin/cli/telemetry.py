@@ -127,7 +127,10 @@ class TelemetryObservers(list):
         except Exception as error:  # noqa: BLE001 -- rerun's own RuntimeError: the file writer stopped (disk full)
             self.recording_failed = f"--save {self.save}: recording not written ({shorten(str(error), 80)})"
         finally:
-            self.rerun_observer.close()
+            if self.recording_failed:  # flushed once and failed: detach without the observer's warning about it
+                self.rerun_observer.recording.disconnect()
+            else:
+                self.rerun_observer.close()
         if tmp is None:
             return
         if not complete or self.recording_failed:
