@@ -410,9 +410,9 @@ def _run(args: argparse.Namespace) -> int:
     out = _out_dir(args, scenario)
     with _writer(out, built, args) as writer:
         telemetry = telemetry_observers(args)  # checks every option before anything runs
-        _announce_large_trace(built)
-        notice = compile_notice(built.controller, PROG)  # a line, and a count of seconds, if the loop compiles first
-        with telemetry:
+        with telemetry:  # at once: an interrupt from here on removes --save's temporary
+            _announce_large_trace(built)
+            notice = compile_notice(built.controller, PROG)  # a line, and seconds, if the loop compiles first
             try:
                 outcome = writer.run([notice, progress_bar(args), *telemetry])
             except Exception as exc:  # the run or the writing failed: not the user's input

@@ -203,11 +203,13 @@ def telemetry_observers(
                 save_tmp = temporary_path(save)
                 sinks.append(rr.FileSink(save_tmp))
             recording.set_sinks(*sinks)
-        except (RuntimeError, OSError) as error:
+        except BaseException as error:  # an interrupt too: no temporary left behind
             if server is not None:
                 server.stop()
             if save_tmp is not None:
                 save_tmp.unlink(missing_ok=True)
+            if not isinstance(error, (RuntimeError, OSError)):
+                raise
             raise TelemetryError(f"--save: cannot write {quote(str(save))}: {shorten(str(error))}") from None
         rerun_observer = RerunObserver(recording)
         observers.append(rerun_observer)
