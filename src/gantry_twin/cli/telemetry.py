@@ -121,31 +121,31 @@ class TelemetryObservers(list):
 
     def _finish_recording(self, complete: bool) -> None:
         tmp, self.save_tmp = self.save_tmp, None
+        committed = False
         try:
-            if tmp is not None and complete:
-                self.rerun_observer.recording.flush(timeout_sec=SAVE_FLUSH_TIMEOUT_S)  # raises if a write failed
-        except Exception as error:  # noqa: BLE001 -- rerun's own RuntimeError: the file writer stopped (disk full)
-            self.recording_failed = f"--save {self.save}: recording not written ({shorten(str(error), 80)})"
-        finally:
-            if self.recording_failed:  # flushed once and failed: detach without the observer's warning about it
-                self.rerun_observer.recording.disconnect()
-            else:
-                self.rerun_observer.close()
-        if tmp is None:
-            return
-        if not complete or self.recording_failed:
-            with contextlib.suppress(FileNotFoundError):
-                tmp.unlink()  # never a truncated recording under its final name; an earlier FILE.rrd stays
-            return
-        try:
-            commit_file(tmp, self.save)
-        except OSError as error:
-            with contextlib.suppress(FileNotFoundError):
-                tmp.unlink()
-            self.recording_failed = f"--save {self.save}: recording not written ({error.strerror or error})"
-            return
-        size = self.save.stat().st_size
-        print(f"recording written to {self.save} ({size / 1e6:.1f} MB)", file=self.out, flush=True)
+            try:
+                if tmp is not None and complete:
+                    self.rerun_observer.recording.flush(timeout_sec=SAVE_FLUSH_TIMEOUT_S)  # raises if a write failed
+            except Exception as error:  # noqa: BLE001 -- rerun's own RuntimeError: the file writer stopped (disk full)
+                self.recording_failed = f"--save {self.save}: recording not written ({shorten(str(error), 80)})"
+            finally:
+                if self.recording_failed:  # flushed once and failed: detach without the observer's warning about it
+                    self.rerun_observer.recording.disconnect()
+                else:
+                    self.rerun_observer.close()
+            if tmp is not None and complete and not self.recording_failed:
+                try:
+                    commit_file(tmp, self.save)
+                    committed = True
+                except OSError as error:
+                    self.recording_failed = f"--save {self.save}: recording not written ({error.strerror or error})"
+        finally:  # whatever stopped it (an interrupt while flushing too): never a partial recording left anywhere
+            if tmp is not None and not committed:
+                with contextlib.suppress(FileNotFoundError):
+                    tmp.unlink()  # an earlier FILE.rrd stays as it was
+        if committed:
+            size = self.save.stat().st_size
+            print(f"recording written to {self.save} ({size / 1e6:.1f} MB)", file=self.out, flush=True)
 
     def __enter__(self) -> TelemetryObservers:
         return self
