@@ -166,12 +166,14 @@ class Outcome(NamedTuple):
     cpu_s: float  # user + system seconds of the same
     peak_rss_mb: float  # measured, or for a forked child: start-up's peak + the child's growth
     written: list[str]
+    child_wall_s: float = 0.0  # the forked child's (or fresh process's) own wall time, start-up not included
 
 
 def _make(directory: Path, files: dict[str, object]) -> None:
     directory.mkdir()
     for name, content in files.items():
         path = directory / name
+        path.parent.mkdir(parents=True, exist_ok=True)
         if isinstance(content, Link):
             path.symlink_to(content.target)
         elif isinstance(content, Fifo):
@@ -228,6 +230,7 @@ def run_children(cases: list[Case], root: Path, mode: str) -> dict[str, Outcome]
             startup["cpu_s"] + r["cpu_s"],
             (startup["rss_kib"] + added_kib) / 1024.0,
             [p.name for p in d.iterdir() if p.name not in befores[case.id]],
+            r["wall_s"],
         )
     return outcomes
 
@@ -256,7 +259,8 @@ def test_nothing_written_beside_the_cases(hostile_root, outcomes):
 
 def documented_answers() -> dict[str, str]:
     """case id -> the one-line answer, from the table in docs/hostile-input.md (``<cores>``: this machine's)."""
-    rows = re.findall(r"^\| `([^`]+)` \| .* \| `(.*)` \|$", DOC.read_text(encoding="utf-8"), flags=re.MULTILINE)
+    text = DOC.read_text(encoding="utf-8").split("## The other commands", 1)[0]  # that table: test_hostile_commands
+    rows = re.findall(r"^\| `([^`]+)` \| .* \| `(.*)` \|$", text, flags=re.MULTILINE)
     return {case: answer.replace("<cores>", str(machine_cores())) for case, answer in rows}
 
 

@@ -84,7 +84,7 @@ def test_estimate_checks_use_the_issue_limits():
 @pytest.mark.parametrize(
     ("text", "fragment"),
     [
-        (None, "cannot read the rig file"),
+        (None, "no such file; give a rig file"),
         ("{", "not JSON"),
         ('{"parameters": {}}', "overrides: must be a non-empty list"),
         ('{"overrides": ["plant.friction.model=lugre", 3]}', "overrides: must be a non-empty list"),

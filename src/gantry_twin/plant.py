@@ -43,6 +43,7 @@ from gantry_twin.friction import (
     lugre_parameters,
     steady_bristle_m,
 )
+from gantry_twin.inputs import check_input_file
 from gantry_twin.plant_effects import (
     ForceRipple,
     InputOffset,
@@ -56,6 +57,8 @@ from gantry_twin.theta import AXES, THETA_NAMES, THETA_UNITS, Axis  # noqa: F401
 #: cover payloads up to about 5.5 kg; heavier loads run but the estimates of
 #: M1, M2 then sit on their upper bounds.
 PAYLOAD_MAX_KG = 20
+#: Largest MJCF model file compiled (models/gantry.xml is 8 KB; meshes are files of their own), bytes.
+MODEL_MAX_BYTES = 1 << 20
 #: Payload offsets from the mount site are limited to the X slider's top plate
 #: (metres, per component); the offset does not change a slide joint's mass.
 PAYLOAD_OFFSET_MAX_M = (0.10, 0.10, 0.20)
@@ -153,6 +156,16 @@ class PlantSettings:
         return name + (", with plant overrides" if any(v is not None for v in given) else "")
 
 
+def model_file(model_path: Path | None) -> str:
+    """The MJCF file to compile: ``model_path`` through the input door (a regular file of at most
+    :data:`MODEL_MAX_BYTES`: a FIFO, a device or a huge file is refused, unopened, with InputFileError, a
+    ValueError), or the shipped model."""
+    if model_path is None:
+        return str(default_model_path())
+    check_input_file(model_path, "a MuJoCo model file (MJCF XML)", MODEL_MAX_BYTES)
+    return str(model_path)
+
+
 def build_spec(
     payload: Payload | None = None,
     model_path: Path | None = None,
@@ -167,7 +180,7 @@ def build_spec(
     LuGre numerics (:func:`file_properties`) or else its Coulomb friction).
     The model file's timestep stays the control sample.
     """
-    spec = mujoco.MjSpec.from_file(str(model_path or default_model_path()))
+    spec = mujoco.MjSpec.from_file(model_file(model_path))
     apply_friction(spec, friction or file_properties(spec).friction or Friction(), AXES)
     if payload is None and payload_body:
         payload = Payload()
@@ -214,7 +227,7 @@ class Plant:
         for LuGre parameters outside their physical range.
         """
         self.payload = payload or Payload()
-        own = file_properties(mujoco.MjSpec.from_file(str(model_path or default_model_path())))
+        own = file_properties(mujoco.MjSpec.from_file(model_file(model_path)))
         self.friction = friction or own.friction or Friction()
         #: The static input offset dN(q) and the force ripple, applied by the loop (:func:`plant_input_v`).
         self.offset = offset or own.offset or InputOffset()

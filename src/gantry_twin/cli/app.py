@@ -49,6 +49,7 @@ from gantry_twin.cli.common import (  # noqa: F401 -- the exit codes: tests and 
     BadInput,
     checked_out,
     failed,
+    writable_out,
 )
 from gantry_twin.cli.printing import format_health, format_summary, touched_end_stop, travel_warnings
 from gantry_twin.cli.progress import ProgressBar, add_progress_arguments, progress_bar, progress_wanted  # noqa: F401 -- ProgressBar: tests
@@ -367,7 +368,8 @@ def _monitor_log(args: argparse.Namespace) -> int:
         else new_run_dir(checked_out(RUNS_DIR / f"{Path(args.log).stem}-monitor"))
     )
     try:
-        data = monitor_log_command(args, None if args.scenario is None else _scenario_path(args.scenario), out)
+        with writable_out(out):  # before the replay compiles and runs; removed again, empty, on bad input
+            data = monitor_log_command(args, None if args.scenario is None else _scenario_path(args.scenario), out)
     except ValueError as exc:
         raise BadInput(str(exc).splitlines()[0]) from None
     if args.out is None:
@@ -413,9 +415,9 @@ def _run(args: argparse.Namespace) -> int:
     out = _out_dir(args, scenario)
     with _writer(out, built, args) as writer:
         telemetry = telemetry_observers(args)  # checks every option before anything runs
-        _announce_large_trace(built)
-        notice = compile_notice(built.controller, PROG)  # a line, and a count of seconds, if the loop compiles first
-        with telemetry:
+        with telemetry:  # at once: an interrupt from here on removes --save's temporary
+            _announce_large_trace(built)
+            notice = compile_notice(built.controller, PROG)  # a line, and seconds, if the loop compiles first
             try:
                 outcome = writer.run([notice, progress_bar(args), *telemetry])
             except Exception as exc:  # the run or the writing failed: not the user's input
@@ -436,6 +438,9 @@ def _run(args: argparse.Namespace) -> int:
                 estimates = outcome.summary.estimates or {}
                 telemetry.rerun_observer.mark_estimates({n: e.distrust for n, e in estimates.items() if e.distrust})
             print(format_summary(outcome.summary, outcome.wall_time_s, out, outcome.files), flush=True)
+    if telemetry.recording_failed is not None:  # e.g. a full disk: the run's files are complete, the recording not
+        print(f"{PROG}: {telemetry.recording_failed}; the run's results are in {out}/", file=sys.stderr)
+        return EXIT_RUN_FAILED
     if writer.plots_skipped is not None:
         print(f"{PROG}: note: no plots: {writer.plots_skipped}", file=sys.stderr)
     for line in travel_warnings(outcome.summary):

@@ -10,7 +10,10 @@ from pathlib import Path
 from gantry_twin.calibration import calibration_file, load_calibration, plan
 from gantry_twin.calibration.driver import FIT_FILE, run_calibration
 from gantry_twin.calibration.fit import Evaluation
-from gantry_twin.sweep.engine import ClusterError
+from gantry_twin.calibration.spec import EVALUATIONS_MAX
+from gantry_twin.cli.common import writable_out
+from gantry_twin.settings import shorten
+from gantry_twin.sweep.engine import ClusterError, check_scheduler, check_workers
 
 
 class CalibrateError(ValueError):
@@ -21,7 +24,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("spec", help="calibration YAML file or shipped calibration name (calibrations/)")
     parser.add_argument("--out", metavar="DIR", type=Path, help="output directory (default: runs/calibrations/<spec>/)")
     where = parser.add_mutually_exclusive_group()
-    where.add_argument("--workers", metavar="N", type=int, help="local worker processes (default: os.cpu_count())")
+    where.add_argument(
+        "--workers", metavar="N", type=int, help="local worker processes, at most the machine's cores (the default)"
+    )
     where.add_argument(
         "--scheduler", metavar="ADDRESS", help="use the running Dask cluster at ADDRESS (tcp://host:8786)"
     )
@@ -41,15 +46,17 @@ def command(args: argparse.Namespace) -> int:
 
 
 def _calibrate(args: argparse.Namespace) -> int:
-    for name in ("workers", "evaluations"):
-        value = getattr(args, name)
-        if value is not None and value < 1:
-            raise CalibrateError(f"--{name}: must be a positive integer, got {value}")
+    if args.evaluations is not None and not 1 <= args.evaluations <= EVALUATIONS_MAX:
+        shown = shorten(str(args.evaluations), 24)
+        raise CalibrateError(f"--evaluations: must be 1 to {EVALUATIONS_MAX} (the spec's limit), got {shown}")
+    try:  # before the spec is read or any cluster started (a typo must not start 10**20 processes)
+        check_workers(args.workers)
+        check_scheduler(args.scheduler)
+    except ClusterError as exc:
+        raise CalibrateError(str(exc)) from None
     path = calibration_file(args.spec)
     made = plan(load_calibration(path), str(path))  # every target's scenario checked before anything runs
     out = args.out or Path("runs") / "calibrations" / path.stem
-    if out.exists() and not out.is_dir():
-        raise CalibrateError(f"--out {out}: exists and is not a directory")
     progress = sys.stderr.isatty() if args.progress is None else args.progress
     made_by = f"gantry-twin calibrate {shlex.quote(str(args.spec))} --out {shlex.quote(str(out))}"
     if args.evaluations is not None:
@@ -60,12 +67,13 @@ def _calibrate(args: argparse.Namespace) -> int:
             values = " ".join(f"{k}={v:.4g}" for k, v in e.values.items())
             print(f"{e.index + 1:4d} cost {e.cost:.5f} | {values}", file=sys.stderr, flush=True)
 
-    try:
-        fit = run_calibration(made, out, made_by, args.workers, args.scheduler, args.evaluations, show)
-    except ClusterError as exc:
-        raise CalibrateError(str(exc)) from None
-    except OSError as exc:
-        raise CalibrateError(f"--out {out}: cannot write there ({exc.strerror or exc})") from None
+    with writable_out(out):  # before the cluster starts; removed again, empty, if the cluster refuses
+        try:
+            fit = run_calibration(made, out, made_by, args.workers, args.scheduler, args.evaluations, show)
+        except ClusterError as exc:
+            raise CalibrateError(str(exc)) from None
+        except OSError as exc:
+            raise CalibrateError(f"--out {out}: cannot write there ({exc.strerror or exc})") from None
     best = fit.best
     print(f"{len(fit.evaluations)} evaluations in {fit.wall_time_s:.1f} s; best #{best.index} cost {best.cost:.5f}")
     for name, value in best.values.items():

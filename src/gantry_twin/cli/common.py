@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
+import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 
 PROG = "gantry-twin"
@@ -26,6 +29,28 @@ def checked_out(out: Path) -> Path:
     if out.exists() and not out.is_dir():
         raise BadInput(f"--out {out}: exists and is not a directory")
     return out
+
+
+@contextlib.contextmanager
+def writable_out(out: Path) -> Iterator[Path]:
+    """:func:`checked_out`, made, and a file can be made in it (BadInput otherwise): for a command that would start
+    workers, a cluster or minutes of work before its first file (a read-only folder found before, not after). A
+    directory made here is removed again if the command then fails with it still empty (nothing left behind)."""
+    checked_out(out)
+    made = [d for d in (out, *out.parents) if not d.exists()]  # deepest first
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=out):
+            pass
+    except OSError as exc:
+        raise BadInput(f"--out {out}: cannot write there ({exc.strerror or exc})") from None
+    try:
+        yield out
+    except BaseException:
+        for directory in made:
+            with contextlib.suppress(OSError):
+                directory.rmdir()  # only if empty
+        raise
 
 
 def failed(what: str, exc: Exception) -> int:

@@ -22,7 +22,7 @@ import yaml
 from gantry_twin.outputs.files import atomic_write_text
 from gantry_twin.plant import AXES, Plant
 from gantry_twin.sysid.identify import Identified, IdentifySettings, UnphysicalFit, identify, plant_xml
-from gantry_twin.sysid.logs import Log, read_log
+from gantry_twin.sysid.logs import Log, check_sample_period, read_log
 from gantry_twin.sysid.lugre import LuGreFit, identify_lugre
 from gantry_twin.sysid.replay import WINDOW_S, Replay, replay, write_figures
 
@@ -59,6 +59,9 @@ def command(args: argparse.Namespace) -> int:
         if args.out.exists() and not args.out.is_dir():
             raise ValueError(f"--out {args.out}: exists and is not a directory")
         logs = [read_log(p) for p in args.logs]
+        machine_s = Plant().timestep_s
+        for log in logs:  # a log at its own period is taken; t_s in ms or us (1000x, 10^6x the machine's) is not
+            check_sample_period(log.path, log.sample_period_s, machine_s, exact=False)
         result = identify(logs, settings)
         lugre = identify_lugre(logs, result) if args.friction == "lugre" else None
         note = "gantry-twin identify from " + ", ".join(str(p) for p in args.logs)

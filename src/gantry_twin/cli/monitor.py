@@ -14,24 +14,7 @@ from gantry_twin.outputs.files import atomic_write_text
 from gantry_twin.outputs.summary import RunSummary, log_summary, summary_json
 from gantry_twin.plant import Plant
 from gantry_twin.scenario import apply_overrides, controller_options, load_scenario, make_monitor, validate_data
-from gantry_twin.sysid.logs import read_log
-
-#: A log's sample period may differ from the machine's by this fraction (the clock of a logger, rounding of t_s).
-PERIOD_MATCH = 0.01
-#: What a period this many times the machine's suggests t_s was written in.
-_UNIT_GUESSES = ((1e3, "t_s looks like milliseconds"), (1e6, "t_s looks like microseconds"))
-
-
-def check_sample_period(path: str, period_s: float, machine_s: float) -> None:
-    """ValueError (exit 2) unless the log's sample period is the machine's (DIARC's estimator runs at that rate)."""
-    if abs(period_s - machine_s) <= PERIOD_MATCH * machine_s:
-        return
-    ratio = period_s / machine_s
-    guess = next((why for factor, why in _UNIT_GUESSES if abs(ratio / factor - 1.0) <= PERIOD_MATCH), "")
-    raise ValueError(
-        f"--log {path}: its sample period is {period_s:.6g} s (t_s in seconds), not the machine's "
-        f"{machine_s * 1e3:g} ms" + (f": {guess}; give t_s in seconds" if guess else "; give a log sampled at it")
-    )
+from gantry_twin.sysid.logs import check_sample_period, read_log
 
 
 def monitor_log_command(args: argparse.Namespace, scenario_path: Path | None, out: Path) -> RunSummary:
@@ -59,7 +42,7 @@ def monitor_log_command(args: argparse.Namespace, scenario_path: Path | None, ou
         )
     monitor = make_monitor(scenario, controller, source)
     log = read_log(args.log)
-    check_sample_period(args.log, log.sample_period_s, Plant().timestep_s)
+    check_sample_period(f"--log {args.log}", log.sample_period_s, Plant().timestep_s)
     end = float(log.t_s[-1])
     lo, hi = scenario.monitor.baseline_window_s
     if scenario.monitor.baseline_summary is None and hi > end + 1e-9:
@@ -71,6 +54,9 @@ def monitor_log_command(args: argparse.Namespace, scenario_path: Path | None, ou
     replay_compile_notice(PROG)  # a line if the estimator's replay compiles first
     report = monitor_log(log, controller, monitor)
     summary = log_summary(log, report, (end - min(ESTIMATE_WINDOW_S, 0.5 * log.duration_s), end))
-    out.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(out / "summary.json", summary_json(summary))
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(out / "summary.json", summary_json(summary))
+    except OSError as exc:
+        raise ValueError(f"--out {out}: cannot write there ({exc.strerror or exc})") from None
     return summary

@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from gantry_twin.cli.common import EXIT_OK, EXIT_RUN_FAILED, PROG, BadInput, checked_out, failed
+from gantry_twin.cli.common import EXIT_OK, EXIT_RUN_FAILED, PROG, BadInput, checked_out, failed, writable_out
 from gantry_twin.cli.progress import add_progress_arguments, progress_wanted
 from gantry_twin.scenario import ScenarioError
 
@@ -52,24 +52,25 @@ def command(args: argparse.Namespace) -> int:
     path = sweep_file(args.file)
     out = checked_out(args.out or args.runs_dir / "sweeps" / path.stem)
     plan = plan_sweep(load_sweep(path), str(path))  # every point checked before anything runs
-    if args.fresh and out.is_dir():
-        moved = set_aside(out)
-        if moved:
-            print(f"{PROG}: {moved}", file=sys.stderr, flush=True)
-    elif not args.resume and existing_results(out):
-        again = f"{PROG} sweep {args.file}" + (f" --out {args.out}" if args.out else "")
-        raise BadInput(
-            f"--out {out}: holds an earlier sweep's results.parquet; to finish it: {again} --resume; "
-            f"to start afresh (the earlier files moved aside): {again} --fresh"
-        )
-    try:
-        done = run_sweep(plan, out, args.workers, args.scheduler, args.resume, progress_wanted(args))
-    except ClusterError as exc:
-        raise BadInput(str(exc)) from None
-    except ScenarioError:  # e.g. --resume on another sweep's results: refused before anything runs (exit 2)
-        raise
-    except Exception as exc:
-        return failed("sweep", exc)
+    with writable_out(out):  # before the cluster starts (a read-only --out found in milliseconds, not after)
+        if args.fresh and out.is_dir():
+            moved = set_aside(out)
+            if moved:
+                print(f"{PROG}: {moved}", file=sys.stderr, flush=True)
+        elif not args.resume and existing_results(out):
+            again = f"{PROG} sweep {args.file}" + (f" --out {args.out}" if args.out else "")
+            raise BadInput(
+                f"--out {out}: holds an earlier sweep's results.parquet; to finish it: {again} --resume; "
+                f"to start afresh (the earlier files moved aside): {again} --fresh"
+            )
+        try:
+            done = run_sweep(plan, out, args.workers, args.scheduler, args.resume, progress_wanted(args))
+        except ClusterError as exc:
+            raise BadInput(str(exc)) from None
+        except ScenarioError:  # e.g. --resume on another sweep's results: refused before anything runs (exit 2)
+            raise
+        except Exception as exc:
+            return failed("sweep", exc)
     print(
         f"{done.total} points: {done.done_before} done before, {done.ran} run now ({done.failed} failed) "
         f"in {done.wall_time_s:.1f} s ({done.startup_s:.1f} s starting the workers); results in {done.results}",

@@ -4,6 +4,7 @@ from gantry_twin.controllers.arc import DARC, DIARC, DRC
 from gantry_twin.controllers.base import (
     Controller,
     Measurement,
+    PluginError,
     ReferenceSample,
     RunContext,
     available,
@@ -30,6 +31,7 @@ __all__ = [
     "Controller",
     "EstimatorSettings",
     "Measurement",
+    "PluginError",
     "ReferenceSample",
     "RunContext",
     "available",

@@ -13,6 +13,8 @@ from the log kernel, so the two cannot disagree.
 
 from __future__ import annotations
 
+import functools
+import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 from importlib.metadata import entry_points
@@ -21,7 +23,7 @@ from typing import Any, NamedTuple, Protocol, runtime_checkable
 import numpy as np
 
 from gantry_twin._jit import reference
-from gantry_twin.settings import quote
+from gantry_twin.settings import quote, shorten
 
 ENTRY_POINT_GROUP = "gantry_twin.controllers"
 
@@ -157,23 +159,52 @@ def unregister(name: str) -> None:
 def available() -> list[str]:
     """Names of the built-in, registered and entry-point controllers."""
     names = set(_REGISTRY)
-    names.update(ep.name for ep in entry_points(group=ENTRY_POINT_GROUP))
+    names.update(_entry_point_names(tuple(sys.path)))
     return sorted(names)
 
 
+@functools.lru_cache(maxsize=8)
+def _entry_point_names(path: tuple[str, ...]) -> frozenset[str]:
+    """The entry-point controllers' names on this import path: scanning every installed distribution takes
+    some 50 ms, once per path (a sweep of 2000 points validates each point's controller name)."""
+    return frozenset(ep.name for ep in entry_points(group=ENTRY_POINT_GROUP))
+
+
+class PluginError(ValueError):
+    """A plug-in controller that cannot be imported or made: its module raised (or is missing), or its factory
+    raised something other than TypeError / ValueError, or called ``sys.exit()``. One line saying which."""
+
+
+def _why(exc: BaseException) -> str:
+    first = str(exc).splitlines()[0] if str(exc) else ""
+    return f"{type(exc).__name__}: {shorten(first, 100)}" if first else type(exc).__name__
+
+
 def factory_for(name: str) -> ControllerFactory:
-    """The factory registered as ``name`` (registry first, then entry points)."""
+    """The factory registered as ``name`` (registry first, then entry points); PluginError if its module raises."""
     if name in _REGISTRY:
         return _REGISTRY[name]
     for ep in entry_points(group=ENTRY_POINT_GROUP):
         if ep.name == name:
-            return ep.load()
+            try:
+                return ep.load()
+            except (Exception, SystemExit) as exc:  # a missing module, one that raises or exits at import
+                raise PluginError(f"the plug-in of controller {quote(name)} cannot be imported ({_why(exc)})") from None
     raise KeyError(f"unknown controller {quote(name)}; available: {', '.join(available())}")
 
 
 def create(name: str, **options: Any) -> Controller:
-    """Instantiate the controller registered as ``name`` with keyword options."""
-    controller = factory_for(name)(**options)
+    """Instantiate the controller registered as ``name`` with keyword options.
+
+    TypeError and ValueError from its factory are the options' fault and pass through; anything else it raises,
+    ``sys.exit()`` included (never an exit 0 of the program), is a PluginError."""
+    factory = factory_for(name)
+    try:
+        controller = factory(**options)
+    except (TypeError, ValueError):
+        raise
+    except (Exception, SystemExit) as exc:
+        raise PluginError(f"controller {quote(name)} raised {_why(exc)} while being made") from None
     if not isinstance(controller, Controller):
         raise TypeError(f"controller {quote(name)} does not implement reset/update/state_for_logging")
     return controller

@@ -18,6 +18,7 @@ import pyarrow as pa
 import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 
+from gantry_twin.inputs import InputFileError, check_input_file
 from gantry_twin.outputs.files import atomic_write
 from gantry_twin.outputs.rundirs import resolve_run
 from gantry_twin.outputs.tracefile import TRACE_FILE
@@ -33,13 +34,20 @@ class ExportError(Exception):
 def trace_path(run: str | Path) -> Path:
     """The trace.parquet of ``run`` (a run directory, ``runs/<name>`` or its ``latest`` as ``compare`` takes them,
     or the file itself); ExportError if there is none."""
-    path = resolve_run(Path(run))
+    try:
+        path = resolve_run(Path(run))
+    except InputFileError as exc:  # a ``latest`` text file that is not one
+        raise ExportError(f"RUN {exc}") from None
     if path.is_dir():
         if not (path / TRACE_FILE).is_file():
             raise ExportError(f"RUN {path}: no {TRACE_FILE} in it (a run written with outputs.trace: false?)")
         return path / TRACE_FILE
     if not path.exists():
         raise ExportError(f"RUN {path}: no such run directory or file")
+    try:  # a FIFO would block the open, a device read without end: refused before either
+        check_input_file(path, f"a run's directory or its {TRACE_FILE}")
+    except InputFileError as exc:
+        raise ExportError(f"RUN {path}: {exc}") from None
     return path
 
 

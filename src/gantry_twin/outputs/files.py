@@ -127,6 +127,25 @@ def commit(fh: IO[bytes], tmp: Path, path: Path) -> None:
     _fsync_dir(path.parent)
 
 
+def temporary_path(path: Path) -> Path:
+    """A new, empty, closed temporary beside ``path`` (:func:`temporary_file`) for a writer that opens it by name
+    (rerun's recording); :func:`commit_file` renames it to ``path``, or unlink it."""
+    with signals_held():
+        fh, tmp = temporary_file(path)
+        fh.close()
+    return tmp
+
+
+def commit_file(tmp: Path, path: Path) -> None:
+    """:func:`commit` for a temporary written and closed by someone else: fsync, rename to ``path``, fsync the
+    directory (``NotRegularFileError`` if ``path`` has become a FIFO, device, socket or directory)."""
+    with open(tmp, "rb") as fh:
+        os.fsync(fh.fileno())
+    check_replaceable(path)
+    os.replace(tmp, path)
+    _fsync_dir(path.parent)
+
+
 def discard(fh: IO[bytes] | None, tmp: Path | None) -> None:
     """Close and remove a temporary file (whatever state it is in)."""
     if fh is not None:

@@ -19,10 +19,14 @@ import secrets
 import time
 from pathlib import Path
 
+from gantry_twin.inputs import InputFileError, read_input_file
 from gantry_twin.outputs.files import atomic_write_text
+from gantry_twin.settings import quote
 
 #: The name of the pointer to a name's last complete run.
 LATEST = "latest"
+#: Largest ``latest`` text file read: a run directory's name is some 30 characters.
+LATEST_MAX_BYTES = 4096
 #: The time part of a run directory's name (UTC).
 STAMP_FORMAT = "%Y%m%dT%H%M%SZ"
 
@@ -59,10 +63,17 @@ def point_latest(run_dir: Path) -> Path:
 
 def resolve_run(path: Path) -> Path:
     """The run directory a path names: the directory itself, ``latest`` (link or text file), or a directory
-    holding ``latest`` (``runs/<name>``). The result may lack summary.json: the caller checks."""
+    holding ``latest`` (``runs/<name>``). The result may lack summary.json: the caller checks. InputFileError
+    when a ``latest`` text file is not a regular file of at most LATEST_MAX_BYTES naming a directory beside it."""
     path = Path(path)
-    if path.is_file() and path.name == LATEST:  # the text-file form
-        return path.parent / path.read_text(encoding="utf-8").strip()
+    if path.is_file() and path.name == LATEST:  # the text-file form: one directory name and a newline
+        try:
+            name = read_input_file(path, "a run directory's name and a newline", LATEST_MAX_BYTES).strip()
+        except InputFileError as exc:
+            raise InputFileError(f"{path}: {exc}") from None
+        if not name or "/" in name or "\0" in name or name in (".", ".."):
+            raise InputFileError(f"{path}: holds {quote(name)}, not the name of a run directory beside it")
+        return path.parent / name
     if path.is_dir() and not (path / "summary.json").exists() and (path / LATEST).exists():
         return resolve_run(path / LATEST)
     return path

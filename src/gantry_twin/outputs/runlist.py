@@ -11,6 +11,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from gantry_twin.inputs import read_input_file
 from gantry_twin.outputs.rundirs import LATEST, STAMP_FORMAT, resolve_run
 
 #: A run directory's name: ``<UTC time>-<six hex digits>`` (gantry_twin.outputs.rundirs).
@@ -42,8 +43,9 @@ def _size(path: Path) -> int:
 
 def _status(run_dir: Path) -> str:
     try:
-        return str(json.loads((run_dir / "summary.json").read_text(encoding="utf-8")).get("status", "incomplete"))
-    except (OSError, ValueError, AttributeError):
+        text = read_input_file(run_dir / "summary.json", "a run's summary.json")  # a FIFO or /dev/zero: refused
+        return str(json.loads(text).get("status", "incomplete"))
+    except (OSError, ValueError, AttributeError, RecursionError):  # ValueError: InputFileError and bad JSON too
         return "incomplete"
 
 
@@ -52,7 +54,7 @@ def _latest_target(scenario_dir: Path) -> Path | None:
         return None
     try:
         return resolve_run(scenario_dir / LATEST).resolve()
-    except OSError:
+    except (OSError, ValueError):  # ValueError: a ``latest`` text file that names no run (InputFileError)
         return None
 
 

@@ -8,6 +8,7 @@ run twice gives the same bytes; the wall-clock time lives in
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -224,7 +225,7 @@ class RunSummary(Model):
         except InputFileError as exc:
             raise SummaryError(path, str(exc)) from None
         try:
-            return cls.model_validate_json(text)
+            summary = cls.model_validate_json(text)
         except ValidationError as exc:
             error = exc.errors()[0]
             if error["type"] == "json_invalid":
@@ -236,6 +237,22 @@ class RunSummary(Model):
             ) from None
         except RecursionError:
             raise SummaryError(path, "is nested too deeply to be a run's summary.json") from None
+        where = _not_finite(summary.as_dict())
+        if where is not None:  # JSON has no NaN or Infinity; a summary.json written here never holds them
+            raise SummaryError(path, f"{where}: NaN or Infinity is not a number a run's summary.json holds")
+        return summary
+
+
+def _not_finite(data: Any, where: str = "") -> str | None:
+    """The path (``a.b[2]``) of the first NaN or infinite number in JSON-like ``data``, else None."""
+    if isinstance(data, float) and not math.isfinite(data):
+        return where or "(top level)"
+    items = data.items() if isinstance(data, dict) else enumerate(data) if isinstance(data, list) else ()
+    for key, value in items:
+        found = _not_finite(value, f"{where}[{key}]" if isinstance(key, int) else f"{where}.{key}".lstrip("."))
+        if found is not None:
+            return found
+    return None
 
 
 class SummaryError(ValueError):

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from gantry_twin.inputs import InputFileError
 from gantry_twin.outputs.rundirs import resolve_run
 from gantry_twin.outputs.summary import RunSummary, SummaryError
 from gantry_twin.plant import AXES, THETA_NAMES
@@ -72,6 +73,8 @@ def load_run(arg: str, column: str) -> Run:
         directory = resolve_run(path)
     except OSError as exc:
         raise CompareError(f"{arg}: cannot read it ({exc.strerror or exc})") from None
+    except InputFileError as exc:  # a ``latest`` text file that is not one
+        raise CompareError(str(exc)) from None
     if not directory.is_dir():
         raise CompareError(f"{arg}: not a run directory (expected a directory holding summary.json)")
     summary_path = directory / "summary.json"

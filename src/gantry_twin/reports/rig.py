@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from gantry_twin.contours import reference
+from gantry_twin.inputs import InputFileError, read_input_file
 from gantry_twin.metrics import error_pct
 from gantry_twin.outputs.files import atomic_write, atomic_write_text
 from gantry_twin.outputs.plots import DPI
@@ -64,12 +65,14 @@ Key = tuple[int, str, str]
 
 def load_rig(path: Path) -> list[str]:
     """The scenario overrides that make the rig plant: FILE's ``overrides``, a list of ``field=value`` strings."""
-    try:
-        data = json.loads(Path(path).read_text())
-    except OSError as exc:
-        raise ScenarioError(str(path), "", f"cannot read the rig file ({exc.strerror or exc})") from None
+    try:  # the input door: a regular file (a FIFO or /dev/zero refused unopened) of at most 256 KiB, UTF-8
+        data = json.loads(read_input_file(path, "a rig file (JSON with 'overrides')"))
+    except InputFileError as exc:
+        raise ScenarioError(str(path), "", str(exc)) from None
     except json.JSONDecodeError as exc:
         raise ScenarioError(str(path), "", f"not JSON ({exc.msg}, line {exc.lineno})") from None
+    except RecursionError:
+        raise ScenarioError(str(path), "", "not a rig file: JSON nested too deeply") from None
     overrides = data.get("overrides") if isinstance(data, dict) else None
     if not isinstance(overrides, list) or not overrides or not all(isinstance(o, str) for o in overrides):
         raise ScenarioError(str(path), "overrides", "must be a non-empty list of 'field=value' strings")

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from gantry_twin.contours import Contour, Ellipse, TimingLaw
-from gantry_twin.controllers import Controller, EstimatorSettings, create
+from gantry_twin.controllers import Controller, EstimatorSettings, PluginError, create
 from gantry_twin.estimation import FRICTION_SLOPE_S_M
 from gantry_twin.faults import PlantChanges
 from gantry_twin.friction import FrictionError
@@ -68,6 +68,8 @@ def build(scenario: Scenario, source: str = "<scenario>") -> BuiltRun:
     kwargs = controller_options(scenario, source)
     try:
         controller = create(scenario.controller.name, **kwargs)
+    except PluginError as exc:  # its module is missing, raised at import, or its factory raised or exited
+        raise ScenarioError(source, "controller.name", shorten(str(exc), 200)) from None
     except (TypeError, ValueError) as exc:
         first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         name = scenario.controller.name

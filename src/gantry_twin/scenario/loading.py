@@ -11,7 +11,7 @@ from typing import Any
 import yaml
 from pydantic import ValidationError
 
-from gantry_twin.controllers import ArcGains
+from gantry_twin.controllers import ArcGains, PluginError
 from gantry_twin.controllers.base import factory_for
 from gantry_twin.inputs import InputFileError, read_input_file
 from gantry_twin.scenario.errors import ScenarioError, raise_validation
@@ -259,7 +259,10 @@ def controller_options(scenario: Scenario, source: str = "<scenario>") -> dict[s
     bounds (:meth:`ArcGains.theta0_in_bounds`).
     """
     given = scenario.controller.options
-    options = typed_options(factory_for(scenario.controller.name))
+    try:
+        options = typed_options(factory_for(scenario.controller.name))
+    except PluginError as exc:  # its module is missing or raises at import (made, it is building's to report)
+        raise ScenarioError(source, "controller.name", shorten(str(exc), 200)) from None
     if options is None:
         return dict(given)
     try:

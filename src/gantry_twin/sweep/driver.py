@@ -77,6 +77,7 @@ def run_sweep(
     """
     out = Path(out)
     started = time.perf_counter()
+    _remove_stale_temporaries(out)
     table = ResultsTable(plan, out / RESULTS_FILE)
     done_before = table.load() if resume else 0
     todo = [p for p in plan.points if not table.done(p)]
@@ -122,6 +123,19 @@ def run_sweep(
     return SweepOutcome(
         len(plan.points), done_before, len(todo), failed, wall, ready - started, finished - ready, table.path
     )
+
+
+def _remove_stale_temporaries(out: Path) -> None:
+    """The temporaries an earlier sweep in ``out`` left when it was killed (results.parquet's, the figures', a kept
+    run's files): those whose process is gone; a sweep still running in ``out`` keeps its own."""
+    from gantry_twin.outputs.files import remove_stale_temporaries
+
+    remove_stale_temporaries(out)
+    runs = out / RUNS_DIR
+    if runs.is_dir():
+        for directory in runs.iterdir():
+            if directory.is_dir() and not directory.is_symlink():
+                remove_stale_temporaries(directory)
 
 
 def _write_run_files(directory: Path, files: dict[str, bytes]) -> None:

@@ -22,6 +22,8 @@ import json
 import logging
 import os
 import re
+import socket
+import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import replace
 from typing import Any
@@ -40,6 +42,8 @@ WARM_UP_S = 0.01
 #: How long to wait for a scheduler to answer, and for a connected cluster to have a worker, s.
 CONNECT_TIMEOUT_S = 10.0
 WORKERS_TIMEOUT_S = 60.0
+#: A scheduler's handshake is a few hundred bytes; a first frame announced longer is not one.
+HANDSHAKE_MAX_BYTES = 1 << 20
 COMPILE_LOCK = ".compile.lock"
 #: Tasks submitted ahead per worker thread: every worker has its next point queued, the rest wait in the driver.
 IN_FLIGHT_PER_THREAD = 3
@@ -129,9 +133,45 @@ def check_workers(workers: int | None) -> None:
 
 def check_scheduler(address: str | None) -> None:
     """ClusterError unless ``address`` is None or looks like ``[tcp://]host:port`` (before any connection)."""
-    if address is not None and not _ADDRESS.fullmatch(address):
-        shown = address if len(address) <= 40 else address[:40] + "..."
+    if address is None:
+        return
+    shown = address if len(address) <= 40 else address[:40] + "..."
+    if not _ADDRESS.fullmatch(address):
         raise ClusterError(f"--scheduler {shown!r}: not an address; give [tcp://]HOST:PORT, e.g. tcp://head:8786")
+    if not 1 <= int(address.rsplit(":", 1)[1]) <= 65535:
+        raise ClusterError(f"--scheduler {shown!r}: the port must be 1 to 65535")
+
+
+def probe_scheduler(address: str, timeout_s: float | None = None) -> None:
+    """ClusterError unless a ``tcp://`` (or bare ``host:port``) address answers as a Dask scheduler within
+    ``timeout_s``: a scheduler sends its handshake as soon as it accepts, a frame whose first 8 bytes are its
+    length (little-endian). Dask's own connect bounds only the TCP connect: a server that accepts and says nothing
+    kept it waiting for ever, and an HTTP server's reply read as a length asked for 3 EiB (MemoryError). Other
+    protocols (tls, ws, ucx) are left to Dask's timeout."""
+    timeout_s = CONNECT_TIMEOUT_S if timeout_s is None else timeout_s
+    protocol, _, rest = address.rpartition("://")
+    if protocol not in ("", "tcp"):
+        return
+    host, _, port = rest.rpartition(":")
+    deadline = time.monotonic() + timeout_s
+    try:
+        with socket.create_connection((host.strip("[]"), int(port)), timeout=timeout_s) as sock:
+            head = b""
+            while len(head) < 8:
+                sock.settimeout(max(deadline - time.monotonic(), 0.001))
+                chunk = sock.recv(8 - len(head))
+                if not chunk:
+                    raise ClusterError(f"--scheduler {address}: closed the connection without a Dask handshake")
+                head += chunk
+    except TimeoutError:
+        raise ClusterError(
+            f"--scheduler {address}: no Dask handshake within {timeout_s:g} s (accepted, then silent: "
+            "not a Dask scheduler, or a stuck one)"
+        ) from None
+    except OSError as exc:
+        raise ClusterError(f"--scheduler {address}: cannot connect ({exc.strerror or exc})") from None
+    if int.from_bytes(head, "little") > HANDSHAKE_MAX_BYTES:
+        raise ClusterError(f"--scheduler {address}: answers, but not as a Dask scheduler (e.g. an HTTP server)")
 
 
 @contextlib.contextmanager
@@ -140,6 +180,7 @@ def open_client(workers: int | None = None, scheduler: str | None = None) -> Ite
     from distributed import Client, LocalCluster
 
     if scheduler is not None:
+        probe_scheduler(scheduler)
         try:
             client = Client(scheduler, timeout=CONNECT_TIMEOUT_S)
         except (OSError, TimeoutError) as exc:

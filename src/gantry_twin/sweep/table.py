@@ -104,9 +104,8 @@ class ResultsTable:
 
     def load(self) -> int:
         """Take the rows of an earlier run of this sweep (the same plan key) from the file; returns how many are
-        ``ok``. ScenarioError (exit 2, nothing changed) when the file holds another plan's results."""
-        for stale in self.path.parent.glob(f".{self.path.name}.*.part"):  # a write cut short by a killed driver
-            stale.unlink(missing_ok=True)
+        ``ok``. ScenarioError (exit 2, nothing changed) when the file holds another plan's results. (A killed
+        driver's temporaries, and only those of a process that is gone, are removed by ``run_sweep``.)"""
         if not self.path.is_file():
             return 0
         earlier = earlier_sweep(self.path).get("plan_key")

@@ -68,6 +68,28 @@ class LogError(ValueError):
     """A log that cannot be used: one line naming the file, the column and row, and what is wrong."""
 
 
+#: A log's sample period may differ from the machine's by this fraction (the clock of a logger, rounding of t_s).
+PERIOD_MATCH = 0.01
+#: What a period this many times the machine's suggests t_s was written in.
+_UNIT_GUESSES = ((1e3, "t_s looks like milliseconds"), (1e6, "t_s looks like microseconds"))
+
+
+def check_sample_period(label: str, period_s: float, machine_s: float, exact: bool = True) -> None:
+    """LogError (exit 2) unless the log's sample period is the machine's (``exact``: DIARC's estimator and the
+    monitor run at that rate), or else (``exact=False``, identification, which takes the log's own period) unless
+    it is 1000 or 10^6 times the machine's: t_s written in milliseconds or microseconds. ``label`` names the log."""
+    if abs(period_s - machine_s) <= PERIOD_MATCH * machine_s:
+        return
+    ratio = period_s / machine_s
+    guess = next((why for factor, why in _UNIT_GUESSES if abs(ratio / factor - 1.0) <= PERIOD_MATCH), "")
+    if not exact and not guess:
+        return
+    raise LogError(
+        f"{label}: its sample period is {period_s:.6g} s (t_s in seconds), not the machine's "
+        f"{machine_s * 1e3:g} ms" + (f": {guess}; give t_s in seconds" if guess else "; give a log sampled at it")
+    )
+
+
 @dataclass(frozen=True)
 class Log:
     """A validated log. t_s (N,) s; u_v (N, 2) volts; q_m (N, 2) encoder positions m; q_d_m (N, 2) or None."""

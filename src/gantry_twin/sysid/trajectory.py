@@ -31,6 +31,9 @@ COMMAND_BUDGET_V = 6.0
 #: The frequencies of the multisine, Hz, as multiples of 1 / duration: X takes the odd entries, Y the even.
 FREQUENCY_RANGE_HZ = (0.2, 5.0)
 FREQUENCIES_PER_AXIS = 8
+#: Longest trajectory, s: six times the default 20 s; its tables and the twin's run stay in bounded memory
+#: (the trajectory's samples are held at once: 1e5 s once asked for 12 GiB).
+DURATION_MAX_S = 120.0
 #: The payload, kg, of the heaviest machine the command budget is computed for.
 BUDGET_PAYLOAD_KG = 10.0
 #: The LuGre section (:class:`Plateaus`): its lowest and highest speed, m/s, the number of speeds (log-spaced),
@@ -192,8 +195,12 @@ def budget_theta() -> np.ndarray:
 
 def design(duration_s: float = 20.0, fade_s: float = 1.0, theta: np.ndarray | None = None) -> Multisine:
     """The multisine of the module docstring for a run of ``duration_s``, scaled to the limits."""
-    if not (math.isfinite(duration_s) and duration_s >= 4.0 * fade_s and fade_s > 0.0):
-        raise ValueError(f"duration_s: must be at least 4 fade_s = {4 * fade_s:g} s, got {duration_s:g}")
+    if not (math.isfinite(fade_s) and fade_s > 0.0):
+        raise ValueError(f"fade_s: must be a number > 0 s, got {fade_s:g}")
+    if not (math.isfinite(duration_s) and 4.0 * fade_s <= duration_s <= DURATION_MAX_S):
+        raise ValueError(
+            f"duration_s: must be in [4 fade_s = {4 * fade_s:g}, {DURATION_MAX_S:g}] s, got {duration_s:g}"
+        )
     theta = budget_theta() if theta is None else theta
     base = 1.0 / duration_s
     lo, hi = FREQUENCY_RANGE_HZ

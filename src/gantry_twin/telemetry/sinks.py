@@ -123,8 +123,14 @@ def rerun_binary() -> str:
     """The rerun viewer/server binary shipped with rerun-sdk (not the Python wrapper, which would
     leave the binary running when terminated)."""
     if "RERUN_CLI_PATH" in os.environ:
-        return os.environ["RERUN_CLI_PATH"]
-    import rerun_cli
+        given = os.environ["RERUN_CLI_PATH"]
+        if not (os.path.isfile(given) and os.access(given, os.X_OK)):
+            raise TelemetryError(f"RERUN_CLI_PATH {given}: not an executable file (the rerun viewer binary)")
+        return given
+    try:
+        import rerun_cli
+    except ImportError:
+        raise TelemetryError("the rerun viewer binary is not installed (pip install rerun-sdk)") from None
 
     folder = Path(rerun_cli.__file__).parent
     candidates = [folder / "Rerun.app" / "Contents" / "MacOS" / "Rerun", folder / "rerun", folder / "rerun.exe"]
