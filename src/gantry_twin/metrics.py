@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -142,12 +143,15 @@ class RunMetrics:
         run_window_s: tuple[float, float] | None = None,
         periods_s: tuple[float, float] | None = None,
         confidence: Any = None,
+        excluded_s: Sequence[tuple[float, float]] = (),
     ) -> None:
         """confidence: an Observer with ``verdicts(estimate)``
         (:class:`gantry_twin.health.confidence.EstimateConfidence`) fed the same chunks, or None (no
-        trustworthiness in the summary)."""
+        trustworthiness in the summary). excluded_s: time intervals [a, b) s whose samples count in no contour
+        figure (a part program's rapid moves, docs/gcode.md)."""
         self.contour_window_s, self.estimate_window_s = contour_window_s, estimate_window_s
         self.run_window_s, self.periods_s = run_window_s, periods_s
+        self.excluded_s = tuple((float(a), float(b)) for a, b in excluded_s)
         self.confidence = confidence
         self._eps_c: list[np.ndarray] = []
         self._theta = WindowMean(estimate_window_s)
@@ -170,6 +174,22 @@ class RunMetrics:
         periods = (scenario.timing_law().settled_s, scenario.period_s)
         return cls(window, scenario.estimate_window_s, (window[0], float(scenario.duration_s)), periods, confidence)
 
+    @classmethod
+    def for_program(cls, scenario: Any, rapids_s: Sequence[tuple[float, float]], confidence: Any = None) -> RunMetrics:
+        """The metrics of a part program's run: as :meth:`for_scenario`, its rapid moves ``rapids_s`` left out
+        of every contour figure, and no per-period figures (a program has no lap)."""
+        window = scenario.metric_window_s
+        return cls(
+            window, scenario.estimate_window_s, (window[0], float(scenario.duration_s)), None, confidence, rapids_s
+        )
+
+    def _counted(self, t: np.ndarray) -> np.ndarray:
+        """Which samples count in the contour figures: those outside every excluded interval."""
+        keep = np.ones(t.shape, dtype=bool)
+        for a, b in self.excluded_s:
+            keep &= ~((t >= a) & (t < b))
+        return keep
+
     def on_start(self, run: object, trace: Trace) -> None:
         pass
 
@@ -178,7 +198,8 @@ class RunMetrics:
         t = trace.t_s[rows]
         w = self.contour_window_s
         eps_c_m = trace.eps_c_m[rows]
-        self._eps_c.append(eps_c_m[(t >= w[0]) & (t < w[1])])
+        counted = self._counted(t)
+        self._eps_c.append(eps_c_m[(t >= w[0]) & (t < w[1]) & counted])
         theta = trace.controller_state.get("theta_hat")
         if theta is not None:
             self._estimated = True
@@ -187,14 +208,16 @@ class RunMetrics:
             if self.confidence is not None:
                 self.confidence.on_chunk(trace, start, stop)
         if self.run_window_s is not None:
-            self._whole_run(t, eps_c_m, trace.e_m[rows], trace.u_v[rows])
+            self._whole_run(t, eps_c_m, trace.e_m[rows], trace.u_v[rows], counted)
 
-    def _whole_run(self, t: np.ndarray, eps_c_m: np.ndarray, e_m: np.ndarray, u_v: np.ndarray) -> None:
+    def _whole_run(
+        self, t: np.ndarray, eps_c_m: np.ndarray, e_m: np.ndarray, u_v: np.ndarray, counted: np.ndarray
+    ) -> None:
         if t.size == 0:
             return
         self._max_abs_u_v = np.maximum(self._max_abs_u_v, np.abs(u_v).max(axis=0))
         a, b = self.run_window_s
-        inside = (t >= a) & (t < b)
+        inside = (t >= a) & (t < b) & counted
         eps_um = eps_c_m * 1e6
         if inside.any():
             sq = np.column_stack([eps_um[inside], e_m[inside] * 1e6]) ** 2

@@ -159,7 +159,7 @@ class RunWriter:
         #: Why the figures were not drawn (a run without trace, or the plotting raised), None if they were.
         self.plots_skipped: str | None = None
         scenario = built.scenario
-        self.metrics = RunMetrics.for_scenario(scenario, estimate_confidence(built))
+        self.metrics = run_metrics(built)
         self.travel = TravelWatch(built.plant)  # events, end_stop_contacts, saturation (gantry_twin.events)
         self.part = part_watch(built)  # a part program's error (gantry_twin.gcode), None for other contours
         self.trace: TraceWriter | None = None
@@ -328,14 +328,24 @@ def _summary(
 
 def summarise(built: BuiltRun, trace: Trace) -> RunSummary:
     """summary.json's content for a finished run's whole trace, as :class:`RunWriter` writes it (nothing written)."""
-    scenario = built.scenario
-    metrics = RunMetrics.for_scenario(scenario, estimate_confidence(built))
+    metrics = run_metrics(built)
     travel = TravelWatch(built.plant)
     part = part_watch(built)
     for observer in (metrics, travel, part):
         if observer is not None:
             observer.on_chunk(trace, trace.first, trace.filled)
     return _summary(built, trace, metrics, travel, part=part)
+
+
+def run_metrics(built: BuiltRun) -> RunMetrics:
+    """What summary.json judges a run by: its scenario's windows; a part program's rapid (G0) moves left out of
+    the contour figures (the part error leaves them out too; docs/gcode.md)."""
+    confidence = estimate_confidence(built)
+    if isinstance(built.path, Plan):
+        plan = built.path
+        rapids = [(plan.t0_s[k], plan.end_s[k]) for k, move in enumerate(plan.moves) if move.rapid]
+        return RunMetrics.for_program(built.scenario, rapids, confidence)
+    return RunMetrics.for_scenario(built.scenario, confidence)
 
 
 def part_watch(built: BuiltRun) -> PartErrorWatch | None:

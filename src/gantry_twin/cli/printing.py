@@ -22,8 +22,9 @@ def format_summary(summary: RunSummary, wall_time_s: float, out: Path | None = N
     lines = [f"{run_label(summary)}: {summary.duration_s:g} s simulated ({summary.steps} steps) in {wall_time_s:.1f} s"]
     if c is not None:
         lines.append(
-            f"contour error eps_c over [{c.window_s[0]:.3f}, {c.window_s[1]:.3f}] s (window_s): "
-            f"rms {c.rms:.3f} um, max {c.max:.3f} um"
+            f"contour error eps_c over [{c.window_s[0]:.3f}, {c.window_s[1]:.3f}] s (window_s"
+            + ("; rapid moves left out" if summary.part_error is not None else "")
+            + f"): rms {c.rms:.3f} um, max {c.max:.3f} um"
         )
     lines += whole_run_lines(summary)
     if summary.estimates is not None and summary.estimates_window_s is not None:

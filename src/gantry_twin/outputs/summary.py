@@ -336,8 +336,9 @@ def run_summary(
 
 
 def whole_run_summary(whole: WholeRunMetrics) -> dict[str, Any]:
-    """The ``whole_run`` and ``contour_error_per_period_um`` sections (docs/cli.md)."""
-    return {
+    """The ``whole_run`` and ``contour_error_per_period_um`` sections (docs/cli.md); the latter only for a run
+    with periods (not a part program's)."""
+    out: dict[str, Any] = {
         "whole_run": {
             "window_s": list(whole.window_s),
             "contour_error_um": {"rms": whole.contour_rms_um, "max": whole.contour_max_um},
@@ -345,12 +346,14 @@ def whole_run_summary(whole: WholeRunMetrics) -> dict[str, Any]:
             "command_window_s": list(whole.command_window_s),
             "max_abs_command_v": dict(zip(AXES, whole.max_abs_command_v, strict=True)),
         },
-        "contour_error_per_period_um": {
+    }
+    if whole.period_s > 0.0:
+        out["contour_error_per_period_um"] = {
             "start_s": whole.periods_start_s,
             "period_s": whole.period_s,
             "rms": list(whole.period_rms_um),
-        },
-    }
+        }
+    return out
 
 
 def health_summary(report: Any) -> dict[str, Any]:
