@@ -31,6 +31,7 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 from gantry_twin.cli import calibrate as calibrate_command
+from gantry_twin.cli import tune as tune_command
 from gantry_twin.cli import compare as compare_command
 from gantry_twin.cli import excite as excite_command
 from gantry_twin.cli import export as export_command
@@ -114,7 +115,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(
         dest="command",
         required=True,
-        metavar="{run,monitor,validate,report,sweep,calibrate,scenarios,sweeps,runs,export,compare,identify,excite}",
+        metavar="{run,monitor,validate,report,sweep,calibrate,tune,scenarios,sweeps,runs,export,compare,identify,excite}",
         parser_class=_Parser,
     )
 
@@ -196,6 +197,9 @@ def build_parser() -> argparse.ArgumentParser:
     calibrate = sub.add_parser("calibrate", help="fit the plant to a machine's measured contour errors")
     calibrate_command.add_arguments(calibrate)
     calibrate.set_defaults(func=calibrate_command.command)
+    tune = sub.add_parser("tune", help="tune a controller, robust over an ensemble of plants (docs/tune.md)")
+    tune_command.add_arguments(tune)
+    tune.set_defaults(func=tune_command.command)
 
     scenarios = sub.add_parser("scenarios", help="list the shipped scenarios, one line each")
     scenarios.set_defaults(func=_scenarios)
