@@ -17,8 +17,8 @@ from typing import Any
 
 from gantry_twin.outputs.signals import stop_signals_interrupt
 from gantry_twin.scenario import ScenarioError
-from gantry_twin.sweep.engine import open_stream
-from gantry_twin.tune.goals import TrialRuns, goal_values, run_trial
+from gantry_twin.sweep.engine import in_order, open_stream
+from gantry_twin.tune.goals import TrialRuns, goal_values, run_metrics, run_trial
 from gantry_twin.tune.plan import TunePlan
 from gantry_twin.tune.results import ATTR_CONSTRAINTS, ATTR_ERROR, ATTR_F, ATTR_METRICS, write_trials
 
@@ -133,13 +133,9 @@ def run_tune(
             load_if_exists=True,
         )
         baseline = study.user_attrs.get(ATTR_BASELINE)
-        if baseline is None:
-            everything = [c.__class__(c.name, c.metric, "soft", c.limit, c.cases) for c in plan.checks(_ones(plan))]
-            args = [(baseline_cases, nominal_source, everything, len(baseline_cases))]
-            for _, result, error in stream(run_trial, args, progress=False, total=1):
-                if error is not None:
-                    raise error
-                baseline = result.metrics
+        if baseline is None:  # the baseline's runs, one task per case, spread over the workers
+            args = [(resolved, str(case.path)) for resolved, case in zip(baseline_cases, plan.cases, strict=True)]
+            baseline = in_order(stream(run_metrics, args, progress=False, total=len(args)), len(args))
             study.set_user_attr(ATTR_BASELINE, baseline)
             study.set_user_attr("spec_source", plan.source)
         _fail_stale(study)
@@ -185,13 +181,6 @@ def run_tune(
     return TuneOutcome(
         done_before, ran, failed, time.perf_counter() - started, time.perf_counter() - marks, study, baseline
     )
-
-
-def _ones(plan: TunePlan) -> list[dict[str, float]]:
-    """Stand-in baseline for the baseline's own run (its relative limits are not judged)."""
-    from gantry_twin.tune.spec import METRICS
-
-    return [dict.fromkeys(METRICS, 1.0) for _ in plan.cases]
 
 
 def _tell(study: Any, trial: Any, result: TrialRuns | None, error: Exception | None, checks: list, soft: int) -> Any:
