@@ -32,8 +32,12 @@ BAD = {
     "trials 0": (GOOD + "optimiser: {trials: 0}\n", "optimiser.trials"),
     "unknown scenario": (GOOD.replace("no_load_circle", "no_such_scenario"), "scenarios[0].scenario"),
     "design value the schema refuses": (GOOD.replace("high: 100000", "high: 1000000"), "kp_v_m"),
-    "a design field also set": (GOOD.replace("plant.model: paper}", "plant.model: paper, payload.mass_kg: 1}")
-                                .replace("controller.options.kp_v_m.0", "payload.mass_kg"), "also in set"),
+    "a design field also set": (
+        GOOD.replace("plant.model: paper}", "plant.model: paper, payload.mass_kg: 1}").replace(
+            "controller.options.kp_v_m.0", "payload.mass_kg"
+        ),
+        "also in set",
+    ),
 }
 
 
@@ -52,8 +56,13 @@ def test_a_bad_spec_is_one_line_exit_2_nothing_written(tmp_path, capsys, case):
 
 @pytest.mark.parametrize(
     ("option", "names"),
-    [(["--trials", "0"], "--trials"), (["--trials", "-3"], "--trials"), (["--seed", "-1"], "--seed"),
-     (["--workers", "0"], "--workers"), (["--scheduler", "not an address"], "--scheduler")],
+    [
+        (["--trials", "0"], "--trials"),
+        (["--trials", "-3"], "--trials"),
+        (["--seed", "-1"], "--seed"),
+        (["--workers", "0"], "--workers"),
+        (["--scheduler", "not an address"], "--scheduler"),
+    ],
 )
 def test_bad_options_are_exit_2_nothing_written(tmp_path, capsys, option, names):
     spec = tmp_path / "good.yaml"

@@ -31,13 +31,13 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 from gantry_twin.cli import calibrate as calibrate_command
-from gantry_twin.cli import tune as tune_command
 from gantry_twin.cli import compare as compare_command
 from gantry_twin.cli import excite as excite_command
 from gantry_twin.cli import export as export_command
 from gantry_twin.cli import identify as identify_command
 from gantry_twin.cli import runs as runs_command
 from gantry_twin.cli import sweep as sweep_command
+from gantry_twin.cli import tune as tune_command
 from gantry_twin.cli.common import (  # noqa: F401 -- the exit codes: tests and callers take them from here
     EXIT_ALARM,
     EXIT_BAD_INPUT,

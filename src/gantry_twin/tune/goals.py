@@ -90,8 +90,8 @@ class TrialRuns:
 
 
 def run_trial(cases: list[dict[str, Any]], source: str, checks: list[Check], nominal: int) -> TrialRuns:
-    """Run a trial's cases in order; after the first ``nominal`` ones (the nominal plant on every scenario),
-    stop if a hard goal is already broken there (the worst case over the ensemble can only be worse)."""
+    """Run a trial's cases in order; after the first ``nominal`` ones (the nominal plant's runs), stop if a hard
+    goal is already broken there (the worst case over the ensemble can only be worse)."""
     started = time.perf_counter()
     metrics: list[dict[str, float] | None] = [None] * len(cases)
     hard = [c for c in checks if c.kind == "hard"]

@@ -5,8 +5,9 @@ A case is one scenario on one ensemble member (and, for a goal with its own
 ``set``, the scenario's, the member's, the goal's and last the design's
 values, applied as ``gantry-twin run --set`` applies them and validated and
 built as ``gantry-twin run`` builds them (:mod:`gantry_twin.sweep.points`).
-The first cases are the nominal member (``ensemble[0]``) on every scenario:
-a trial runs them first and stops when a hard goal already fails there.
+The first cases are the nominal member's (``ensemble[0]``) on every scenario,
+a goal's own runs on it included: a trial runs them first and stops when a
+hard goal already fails there.
 """
 
 from __future__ import annotations
@@ -84,21 +85,27 @@ def _cases(spec: TuneSpec, paths: list[Path]) -> tuple[list[Case], int, list[tup
         return Case(label, s, m, g, paths[s], overrides)
 
     scenarios = range(len(spec.scenarios))
-    cases = [make(s, 0, None) for s in scenarios]
-    nominal = len(cases)
-    cases += [make(s, m, None) for m in range(1, len(spec.ensemble)) for s in scenarios]
-
-    def members(goal: Goal) -> range:
-        return range(1) if goal.members == "nominal" else range(len(spec.ensemble))
-
+    cases = [make(s, m, None) for m in range(len(spec.ensemble)) for s in scenarios]
     for g, goal in enumerate(spec.goals):
         if goal.set:
-            cases += [make(s, m, g) for m in members(goal) for s in scenarios]
+            cases += [make(s, m, g) for m in _members(spec, goal) for s in scenarios]
+    cases.sort(key=lambda c: c.member != 0)  # the nominal member's runs first (stable: scenario 0 first of all)
+    nominal = sum(c.member == 0 for c in cases)
     goal_cases = []
     for g, goal in enumerate(spec.goals):
-        want = g if goal.set else None
-        goal_cases.append(tuple(i for i, c in enumerate(cases) if c.goal == want and c.member in members(goal)))
+        want, members = (g if goal.set else None), _members(spec, goal)
+        goal_cases.append(tuple(i for i, c in enumerate(cases) if c.goal == want and c.member in members))
     return cases, nominal, goal_cases
+
+
+def _members(spec: TuneSpec, goal: Goal) -> list[int]:
+    """The ensemble members a goal is judged on (indices)."""
+    if goal.members == "all":
+        return list(range(len(spec.ensemble)))
+    if goal.members == "nominal":
+        return [0]
+    names = [m.name for m in spec.ensemble]
+    return [names.index(n) for n in goal.members]
 
 
 def _at(data: Any, field: str) -> Any:

@@ -238,7 +238,7 @@ def write_summary(
         )
     lines += [
         "",
-        "## Goals (f <= 1 met; binding: the tuned design's hard goals with f > 0.9)",
+        "## Goals (f <= 1 met; binding: the tuned design's hard goals with f > 0.9; limit 0: f = 1 + worst)",
         "",
         "| goal | kind | metric | limit | baseline f | tuned f | binds |",
         "|---|---|---|---|---|---|---|",
@@ -246,7 +246,8 @@ def write_summary(
     tuned_f = best.user_attrs[ATTR_F] if best is not None else [None] * len(checks)
     for c, g, bf, tf in zip(checks, plan.spec.goals, base_f, tuned_f, strict=True):
         limit = f"{c.limit:.4g}" + (f" ({g.limit:g} x baseline)" if g.relative else "")
-        binds = "yes" if c.kind == "hard" and tf is not None and tf > 0.9 else ""
+        # a goal of "none at all" (limit 0) is met at f = 1 exactly and binds only when broken
+        binds = "yes" if c.kind == "hard" and tf is not None and tf > (1.0 if c.limit == 0 else 0.9) else ""
         lines.append(f"| {c.name} | {c.kind} | {c.metric} | {limit} | {_fmt(bf)} | {_fmt(tf)} | {binds} |")
     lines += [
         "",

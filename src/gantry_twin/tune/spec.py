@@ -100,7 +100,7 @@ class Goal(Model):
     """One goal, normalised as systune's: f = worst / limit over its runs (f = 1 + worst for a limit of 0), f <= 1
     met. soft: minimised; hard: a constraint. relative: the limit is a multiple of the baseline design's worst.
     set / members: the goal is judged on extra runs with these fields set (e.g. one more sample of delay), on the
-    nominal member or on all."""
+    nominal member, on all, or on the members named."""
 
     metric: str
     limit: Range(0.0, None)
@@ -108,7 +108,7 @@ class Goal(Model):
     name: str | None = None
     relative: bool = False
     set: dict[str, Any] = {}
-    members: Literal["all", "nominal"] = "all"
+    members: Literal["all", "nominal"] | list[str] = "all"
 
     @model_validator(mode="after")
     def _check(self) -> Goal:
@@ -165,6 +165,12 @@ class TuneSpec(Model):
         for i, d in enumerate(self.design):
             if d.field in self.set:
                 raise rule(f"design[{i}].field", f"{d.field!r} is also in set (a field is either set or designed)")
+        names = [m.name for m in self.ensemble]
+        for i, g in enumerate(self.goals):
+            if isinstance(g.members, list):
+                unknown = [n for n in g.members if n not in names]
+                if unknown or not g.members:
+                    raise rule(f"goals[{i}].members", f"name ensemble members ({', '.join(names)}), got {g.members}")
         soft = [g for g in self.goals if g.kind == "soft"]
         if not 1 <= len(soft) <= 2:
             raise rule("goals", f"give one or two soft goals (minimised), got {len(soft)}")
