@@ -66,10 +66,25 @@ def finished(out: Path) -> int:
 
 
 def _driver(spec: Path, out: Path, *args: str) -> subprocess.Popen:
+    """The driver in a process of its own, its output to files (a pipe nobody reads would block it)."""
     argv = [sys.executable, "-m", "gantry_twin.cli", "tune", str(spec), "--out", str(out), "--no-progress", *args]
-    return subprocess.Popen(
-        argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=os.environ.copy(), start_new_session=True
-    )
+    log = spec.parent / "driver.log"
+    with open(log, "wb") as fh:
+        return subprocess.Popen(
+            argv, stdout=fh, stderr=subprocess.STDOUT, env=os.environ.copy(), start_new_session=True
+        )
+
+
+def until(driver: subprocess.Popen, condition):  # noqa: ANN001, ANN201
+    """``condition``, failing at once (with the driver's output) if the driver has exited."""
+
+    def check():  # noqa: ANN202
+        if driver.poll() is not None:
+            log = Path(driver.args[4]).parent / "driver.log"
+            raise AssertionError(f"the driver exited ({driver.returncode}): {log.read_text()[-2000:]}")
+        return condition()
+
+    return check
 
 
 @pytest.mark.slow
@@ -82,12 +97,12 @@ def test_a_worker_killed_mid_trial_and_the_study_completes(tmp_path, scheduler):
     driver = _driver(spec, out, "--scheduler", scheduler)
     try:
         with Client(scheduler, timeout=30) as client:
-            wait_for(lambda: finished(out) >= 1, "the first trial")
+            wait_for(until(driver, lambda: finished(out) >= 1), "the first trial")
             busy = wait_for(lambda: [w for w, keys in client.processing().items() if keys], "a busy worker")[0]
             pid = client.run(os.getpid, workers=[busy])[busy]
             os.kill(pid, signal.SIGKILL)
-            stdout, stderr = driver.communicate(timeout=DEADLINE_S)
-            assert driver.returncode == 0, stderr
+            driver.wait(timeout=DEADLINE_S)
+            assert driver.returncode == 0, (tmp_path / "driver.log").read_text()[-2000:]
             assert pid not in client.run(os.getpid).values()
     finally:
         if driver.poll() is None:
@@ -109,7 +124,7 @@ def test_killed_driver_then_resume_runs_only_the_remaining_trials(tmp_path, caps
     driver = _driver(spec, out, "--workers", "2")
     children: list = []
     try:
-        wait_for(lambda: finished(out) >= 2, "two trials")
+        wait_for(until(driver, lambda: finished(out) >= 2), "two trials")
         children = psutil.Process(driver.pid).children(recursive=True)
         os.kill(driver.pid, signal.SIGKILL)
         driver.wait(timeout=30)
