@@ -96,3 +96,12 @@ def test_the_shipped_tunes_plan():
         assert plan.cases[0].scenario == 0 and plan.cases[0].goal is None
         # every plant is named in the spec, never the scenario's default
         assert all("plant.model" in m.set for m in plan.spec.ensemble)
+
+
+def test_an_unreachable_scheduler_is_exit_2_nothing_written(tmp_path, capsys):
+    spec = tmp_path / "good.yaml"
+    spec.write_text(GOOD)
+    out = tmp_path / "out"
+    code, _, err = run_main(["tune", str(spec), "--out", str(out), "--scheduler", "tcp://127.0.0.1:9"], capsys)
+    assert code == 2 and "cannot connect" in err and len(err.strip().splitlines()) == 1, err
+    assert not out.exists()
