@@ -197,9 +197,7 @@ def build_parser() -> argparse.ArgumentParser:
     calibrate = sub.add_parser("calibrate", help="fit the plant to a machine's measured contour errors")
     calibrate_command.add_arguments(calibrate)
     calibrate.set_defaults(func=calibrate_command.command)
-    tune = sub.add_parser("tune", help="tune a controller, robust over an ensemble of plants (docs/tune.md)")
-    tune_command.add_arguments(tune)
-    tune.set_defaults(func=tune_command.command)
+    tune_command.register(sub)
 
     scenarios = sub.add_parser("scenarios", help="list the shipped scenarios, one line each")
     scenarios.set_defaults(func=_scenarios)

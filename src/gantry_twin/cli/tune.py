@@ -13,6 +13,13 @@ from gantry_twin.tune import TuneError, best_trial, check_out, load_tune, plan_t
 from gantry_twin.tune.spec import TRIALS_MAX
 
 
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``tune`` to the subcommands."""
+    parser = sub.add_parser("tune", help="tune a controller, robust over an ensemble of plants (docs/tune.md)")
+    add_arguments(parser)
+    parser.set_defaults(func=command)
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("spec", help="tune YAML file or shipped tune name (tunes/)")
     parser.add_argument("--out", metavar="DIR", type=Path, help="output directory (default: runs/tunes/<spec>/)")
