@@ -45,6 +45,7 @@ from gantry_twin.friction import (
 )
 from gantry_twin.inputs import check_input_file
 from gantry_twin.plant_effects import (
+    Amplifier,
     ForceRipple,
     InputOffset,
     file_properties,
@@ -125,6 +126,7 @@ class PlantSettings:
     friction: Friction | None = None
     offset: InputOffset | None = None
     ripple: ForceRipple | None = None
+    amplifier: Amplifier | None = None
 
     @model_validator(mode="before")
     @classmethod
@@ -217,13 +219,15 @@ class Plant:
         friction: Friction | None = None,
         offset: InputOffset | None = None,
         ripple: ForceRipple | None = None,
+        amplifier: Amplifier | None = None,
     ) -> None:
         """payload_body: always build the payload body (even at 0 kg) so its mass can change during a run.
 
         friction, offset, ripple: the friction model (:mod:`gantry_twin.friction`),
         the static input offset and the force ripple; None: the model file's
         own (:func:`file_properties`; models/gantry.xml: Coulomb friction, no
-        offset, no ripple). Raises :class:`gantry_twin.friction.FrictionError`
+        offset, no ripple). amplifier: the computation delay and current loop
+        (:class:`Amplifier`; None: neither). Raises :class:`gantry_twin.friction.FrictionError`
         for LuGre parameters outside their physical range.
         """
         self.payload = payload or Payload()
@@ -232,6 +236,8 @@ class Plant:
         #: The static input offset dN(q) and the force ripple, applied by the loop (:func:`plant_input_v`).
         self.offset = offset or own.offset or InputOffset()
         self.ripple = ripple or own.ripple or ForceRipple()
+        #: The computation delay and the current loop between command and motor (applied by the loop).
+        self.amplifier = amplifier or Amplifier()
         self.spec = build_spec(self.payload, model_path, payload_body, self.friction)
         #: The control sample period Ts, s (the file's timestep); substeps: physics steps per sample.
         self.timestep_s = float(self.spec.option.timestep)

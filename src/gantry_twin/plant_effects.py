@@ -1,8 +1,11 @@
-"""The rig's plant properties beyond the rigid body: a static input offset and a force ripple per axis, and
-the MJCF numerics that carry them and the rig's LuGre friction (models/rig.xml; docs/rig-plant.md).
+"""The plant's properties beyond the rigid body: a static input offset and a force ripple per axis, and
+the MJCF numerics that carry them and the rig's LuGre friction (models/rig.xml; docs/rig-plant.md); the
+amplifier between the DAC and the motor force: a computation delay and a first-order current loop
+(:class:`Amplifier`, docs/equations.md "The amplifier").
 
-Both act through the disturbance motors at the true position, every sample
-(:func:`plant_input_v`); the controller never sees them.
+The offset and the ripple act through the disturbance motors at the true
+position, every sample (:func:`plant_input_v`); the amplifier acts on the
+control motors' input (:func:`amplifier_output`). The controller never sees them.
 """
 
 from __future__ import annotations
@@ -15,7 +18,7 @@ import numpy as np
 
 from gantry_twin._jit import kernel
 from gantry_twin.friction import Friction, LuGreAxis
-from gantry_twin.settings import Range, fmt, rule, validated
+from gantry_twin.settings import Count, Range, fmt, rule, validated
 from gantry_twin.theta import AXES
 
 # ---------------------------------------------------------------------------
@@ -128,6 +131,61 @@ def plant_input_v(table, axis, q_m):
         amplitude = table[axis, 3 + 2 * k]
         if amplitude != 0.0:
             out += amplitude * math.sin((k + 1) * w + table[axis, 4 + 2 * k])
+    return out
+
+
+# ---- the amplifier: computation delay and current loop (docs/equations.md, "The amplifier") -----------
+
+#: Largest computation delay, control samples (2 ms at Ts = 0.2 ms), and largest current-loop time constant, s.
+DELAY_MAX_SAMPLES = 10
+CURRENT_TAU_MAX_S = 0.01
+
+
+@validated("amplifier")
+class Amplifier:
+    """What lies between the controller's command and the motor force, both off by default.
+
+    delay_samples: the command computed from the measurement of sample k
+    reaches the motor at sample k + n (the loop's own is n = 0: the command
+    acts during the sample it was computed in). current_tau_s: the time
+    constant of the amplifier's current loop, a first-order lag from the
+    command to the force (0: none), sampled exactly: i(k) = i(k-1) +
+    (1 - exp(-Ts / tau)) (u(k - n) - i(k-1)), held during sample k (the
+    current at the end of the sample; a unit step from rest gives
+    1 - exp(-(k + 1) Ts / tau)). Both start from 0 V. Typical values (a DSP
+    board that computes within one sample; an amplifier's current loop of
+    about 1-2 kHz bandwidth, tau 0.1-0.2 ms), not the rig's measured ones.
+    """
+
+    delay_samples: Count(0, DELAY_MAX_SAMPLES) = 0
+    current_tau_s: Range(0.0, CURRENT_TAU_MAX_S, "s") = 0.0
+
+    def current_gain(self, timestep_s: float) -> float:
+        """1 - exp(-Ts / tau) per sample of Ts s; 1 (the command itself) without a current loop."""
+        return 1.0 if self.current_tau_s == 0.0 else -math.expm1(-timestep_s / self.current_tau_s)
+
+    def state(self) -> np.ndarray:
+        """The amplifier's state, (delay_samples + 1, 2), zero: the pending commands, newest first, then the
+        current, V."""
+        return np.zeros((self.delay_samples + 1, 2))
+
+
+@kernel(inline=True)
+def amplifier_output(delay, gain, state, axis, u_v):
+    """The motor input of one axis this sample, V, for the clipped command ``u_v``: the command of ``delay``
+    samples ago through the current loop of gain 1 - exp(-Ts / tau) (:class:`Amplifier`); updates ``state``.
+
+    With delay 0 and gain 1 it returns ``u_v`` itself (the loop as it is without an amplifier).
+    """
+    out = u_v
+    if delay > 0:
+        out = state[delay - 1, axis]
+        for r in range(delay - 1, 0, -1):
+            state[r, axis] = state[r - 1, axis]
+        state[0, axis] = u_v
+    if gain < 1.0:
+        out = state[delay, axis] + gain * (out - state[delay, axis])
+        state[delay, axis] = out
     return out
 
 

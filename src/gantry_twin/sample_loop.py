@@ -28,7 +28,7 @@ from gantry_twin.faults import (
     cogging_force,
     sensor_glitches,
 )
-from gantry_twin.plant_effects import plant_input_v
+from gantry_twin.plant_effects import amplifier_output, plant_input_v
 from gantry_twin.sensing import encoder_measure
 
 
@@ -59,7 +59,8 @@ mj_step = load_mj_step()
 class PlantIO(NamedTuple):
     """What the loop touches in MuJoCo: raw pointers, views into mjData, indices, the DAC limits (2,) V,
     physics steps per sample, the plant's own input offset and force ripple
-    (:func:`gantry_twin.plant_effects.input_table`).
+    (:func:`gantry_twin.plant_effects.input_table`), the amplifier's delay (samples), current-loop gain per
+    sample and state (:class:`gantry_twin.plant_effects.Amplifier`).
     """
 
     model_address: int
@@ -74,6 +75,9 @@ class PlantIO(NamedTuple):
     u_max_v: np.ndarray
     substeps: int
     input_table: np.ndarray
+    delay_samples: int
+    current_gain: float
+    amplifier_state: np.ndarray
 
 
 class Recording(NamedTuple):
@@ -124,8 +128,9 @@ def measure_sample(plant, encoder, sample, changes, k):
 
 @kernel(internal=True)
 def record_and_step(plant, recording, k, sample, changes):
-    """Check the command; record the sample (row k of the recording); hold u (clipped) and the disturbance
-    (+ cogging, + the plant's own offset and ripple at the true position); mj_step ``plant.substeps`` times.
+    """Check the command; record the sample (row k of the recording); hold u (clipped, through the amplifier's
+    delay and current loop) and the disturbance (+ cogging, + the plant's own offset and ripple at the true
+    position); mj_step ``plant.substeps`` times.
 
     Returns False if the command is not finite.
     """
@@ -140,7 +145,7 @@ def record_and_step(plant, recording, k, sample, changes):
         recording.q_m[k, i] = q_true[i]
         recording.q_meas_m[k, i] = position[i]
         recording.u_v[k, i] = u
-        ctrl[motors[i]] = u
+        ctrl[motors[i]] = amplifier_output(plant.delay_samples, plant.current_gain, plant.amplifier_state, i, u)
         if changes.cogging[i, 0] != 0.0:
             ctrl[disturbances[i]] = disturbance_v[k, i] + cogging_force(changes.cogging, i, q_true[i])
         else:

@@ -290,6 +290,9 @@ class _Loop:
             u_max,
             plant.substeps,
             np.ascontiguousarray(plant.input_table()),
+            int(plant.amplifier.delay_samples),
+            float(plant.amplifier.current_gain(plant.timestep_s)),
+            plant.amplifier.state(),
         )
         self.encoder, self.changes, self.compiled = sensor, changes, compiled
         if compiled is not None:

@@ -37,6 +37,7 @@ from gantry_twin.cli import export as export_command
 from gantry_twin.cli import identify as identify_command
 from gantry_twin.cli import runs as runs_command
 from gantry_twin.cli import sweep as sweep_command
+from gantry_twin.cli import tune as tune_command
 from gantry_twin.cli.common import (  # noqa: F401 -- the exit codes: tests and callers take them from here
     EXIT_ALARM,
     EXIT_BAD_INPUT,
@@ -114,7 +115,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(
         dest="command",
         required=True,
-        metavar="{run,monitor,validate,report,sweep,calibrate,scenarios,sweeps,runs,export,compare,identify,excite}",
+        metavar="{run,monitor,validate,report,sweep,calibrate,tune,scenarios,sweeps,runs,export,compare,identify,excite}",
         parser_class=_Parser,
     )
 
@@ -196,6 +197,7 @@ def build_parser() -> argparse.ArgumentParser:
     calibrate = sub.add_parser("calibrate", help="fit the plant to a machine's measured contour errors")
     calibrate_command.add_arguments(calibrate)
     calibrate.set_defaults(func=calibrate_command.command)
+    tune_command.register(sub)
 
     scenarios = sub.add_parser("scenarios", help="list the shipped scenarios, one line each")
     scenarios.set_defaults(func=_scenarios)

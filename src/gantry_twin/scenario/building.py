@@ -115,7 +115,12 @@ def _plant(scenario: Scenario, payload_body: bool, source: str) -> Plant:
     """The compiled plant: the shipped model (``plant.model``), or ``plant.file`` (relative to the scenario file),
     with the scenario's friction, offset and ripple where given (else the file's own)."""
     settings = scenario.plant
-    properties = {"friction": settings.friction, "offset": settings.offset, "ripple": settings.ripple}
+    properties = {
+        "friction": settings.friction,
+        "offset": settings.offset,
+        "ripple": settings.ripple,
+        "amplifier": settings.amplifier,
+    }
     if settings.file is None:
         path = default_model_path(settings.model)
         return _with_friction(

@@ -24,7 +24,7 @@ import os
 import re
 import socket
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import replace
 from typing import Any
 
@@ -251,20 +251,22 @@ def _announce_compile(distinct: Sequence[dict[str, Any]], source: str) -> None:
 def run_tasks(
     client: Any,
     function: Callable[..., Any],
-    arguments: Sequence[tuple[Any, ...]],
+    arguments: Iterable[tuple[Any, ...]],
     progress: bool = False,
     desc: str = "sweep",
     total: int | None = None,
     initial: int = 0,
+    ahead: int = IN_FLIGHT_PER_THREAD,
 ) -> Iterator[tuple[int, Any, Exception | None]]:
     """Submit ``function(*args)`` for each args; yield (index, result, None) or (index, None, error) as they finish.
 
-    Impure submits: every call is its own task. At most
-    :data:`IN_FLIGHT_PER_THREAD` tasks per worker thread are submitted at a
-    time (a big sweep's scenarios are not all held by the scheduler, and an
-    interrupt has little to cancel); pending tasks are cancelled when the
-    caller stops early. The progress bar counts points done of ``total``
-    (``initial`` done before), with rate and ETA.
+    Impure submits: every call is its own task. At most ``ahead`` tasks
+    per worker thread are submitted at a time (a big sweep's scenarios are
+    not all held by the scheduler, and an interrupt has little to cancel);
+    ``arguments`` may be a lazy iterable, drawn from only when a task is
+    submitted (a tuner asks its next design when a worker is free); pending
+    tasks are cancelled when the caller stops early. The progress bar
+    counts points done of ``total`` (``initial`` done before), with rate and ETA.
     """
     from distributed import as_completed
     from tqdm import tqdm
@@ -281,10 +283,10 @@ def run_tasks(
             finished.add(future)
 
     threads = sum(client.nthreads().values()) or 1
-    for _ in range(IN_FLIGHT_PER_THREAD * threads):
+    for _ in range(ahead * threads):
         submit_next()
     bar = tqdm(
-        total=total if total is not None else len(arguments),
+        total=total if total is not None else len(arguments),  # type: ignore[arg-type]
         initial=initial,
         unit="point",
         desc=desc,
@@ -335,6 +337,24 @@ def run_batch(
         if on_ready is not None:
             on_ready()
         yield from run_tasks(client, function, arguments, progress, desc, total, initial)
+
+
+@contextlib.contextmanager
+def open_stream(
+    resolved: Sequence[dict[str, Any]], source: str, workers: int | None = None, scheduler: str | None = None
+) -> Iterator[Callable[..., Iterator[tuple[int, Any, Exception | None]]]]:
+    """:func:`run_tasks` on one cluster for a caller whose next task depends on the last results (a tuner's
+    trials): the cluster is opened and every worker warmed up for the ``resolved`` scenarios once; the yielded
+    ``stream(function, arguments, ahead=1, ...)`` is :func:`run_tasks` on it, ``arguments`` drawn lazily."""
+    with open_client(workers, scheduler) as client:
+        prepare_workers(client, resolved, source)
+
+        def stream(
+            function: Callable[..., Any], arguments: Iterable[tuple[Any, ...]], ahead: int = 1, **options: Any
+        ) -> Iterator[tuple[int, Any, Exception | None]]:
+            return run_tasks(client, function, arguments, ahead=ahead, **options)
+
+        yield stream
 
 
 @contextlib.contextmanager

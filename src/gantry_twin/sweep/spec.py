@@ -54,7 +54,8 @@ METRIC_GROUPS: dict[str, tuple[str, ...]] = {
 METRICS = tuple(name for group in METRIC_GROUPS.values() for name in group)
 
 
-def _field_path(value: str, where: str) -> str:
+def field_path(value: str, where: str) -> str:
+    """``value`` if it is a ``--set`` style field path, else a rule error at ``where`` (a sweep's, a tune's)."""
     if not isinstance(value, str) or not FIELD_PATH.match(value):
         raise rule(
             where, f"must be a scenario field path like payload.mass_kg or disturbance.y.0.value_v, got {value!r}"
@@ -72,7 +73,7 @@ class Axis(Model):
 
     @model_validator(mode="after")
     def _check(self) -> Axis:
-        _field_path(self.field, "field")
+        field_path(self.field, "field")
         given = [k for k in ("values", "linspace", "logspace") if getattr(self, k) is not None]
         if len(given) != 1:
             raise rule("values", f"give exactly one of values, linspace, logspace (got {', '.join(given) or 'none'})")
@@ -93,7 +94,7 @@ class Repeats(Model):
 
     @model_validator(mode="after")
     def _check(self) -> Repeats:
-        _field_path(self.field, "field")
+        field_path(self.field, "field")
         return self
 
 
@@ -113,7 +114,7 @@ class SweepSpec(Model):
     @model_validator(mode="after")
     def _check(self) -> SweepSpec:
         for key in self.set:
-            _field_path(key, f"set.{key}")
+            field_path(key, f"set.{key}")
         if not (self.axes or self.random or self.repeats):
             raise rule("axes", "a sweep needs axes, random or repeats (none given)")
         seen: dict[str, str] = {}
@@ -195,16 +196,19 @@ def _of_a_sweep(message: str) -> str:
 
 def scenario_path(spec: SweepSpec, source: str) -> Path:
     """The sweep's scenario: a path relative to the sweep file, or a shipped scenario's name."""
-    given = Path(spec.scenario)
+    return named_scenario(spec.scenario, source)
+
+
+def named_scenario(name: str, source: str, field: str = "scenario") -> Path:
+    """A scenario a spec file names (its ``field``): a path relative to the file, or a shipped scenario's name."""
+    given = Path(name)
     here = given if given.is_absolute() else Path(source).parent / given
     if here.is_file():
         return here
-    if "/" not in spec.scenario and shipped(spec.scenario).is_file():
-        return shipped(spec.scenario)
+    if "/" not in name and shipped(name).is_file():
+        return shipped(name)
     names = ", ".join(p.stem for p in shipped_scenarios())
-    raise ScenarioError(
-        source, "scenario", f"no file {here} and no shipped scenario {spec.scenario!r}; shipped: {names}"
-    )
+    raise ScenarioError(source, field, f"no file {here} and no shipped scenario {name!r}; shipped: {names}")
 
 
 def sweeps_dir() -> Path:
