@@ -24,6 +24,7 @@ SHORT = [word for override in OVERRIDES_SHORT for word in ("--set", override)]
 SUMMARY_KEYS = {
     "schema_version",
     "scenario",
+    "plant",
     "controller",
     "overrides",
     "controller_option",
@@ -271,7 +272,9 @@ def test_run_writes_scenario_summary_trace(tmp_path, capsys):
     assert summary["scenario"] == "load_5kg_ellipse" and summary["controller"] == "diarc"
     assert summary["steps"] == 1000 and summary["contour_error_um"]["window_s"] == [0.05, 0.2]
     assert set(summary["estimates"]) == {"M1", "M2", "B1", "B2", "Af1", "Af2", "dN1", "dN2"}
-    assert summary["estimates"]["dN1"]["error_pct"] is None
+    assert summary["plant"] == "rig plant (models/rig.xml)"  # the default machine
+    dn1 = summary["estimates"]["dN1"]
+    assert dn1["true"] == 0.0515 and dn1["error_pct"] == pytest.approx(100 * (dn1["estimate"] / 0.0515 - 1))
     assert json.loads((out / "run_info.json").read_text())["wall_time_s"] > 0
 
     table = pq.read_table(out / "trace.parquet")

@@ -243,8 +243,10 @@ def documented() -> dict[str, tuple[int, str]]:
 
 
 def matches(line: str, answer: str) -> bool:
-    """The answer as documented; ``<path>`` in it stands for this machine's absolute path of a case's file."""
-    return re.fullmatch(".*?".join(re.escape(part) for part in answer.split("<path>")), line) is not None
+    """The answer as documented; ``<path>`` in it stands for this machine's absolute path of a case's file,
+    ``<key>`` for a sweep plan's key (a digest of the resolved scenario: it changes with the schema)."""
+    parts = re.split(r"<path>|<key>", answer)
+    return re.fullmatch(".*?".join(re.escape(part) for part in parts), line) is not None
 
 
 class Ran(NamedTuple):

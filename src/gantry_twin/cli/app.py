@@ -22,10 +22,8 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import shlex
 import signal
 import sys
-import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, NoReturn
@@ -35,6 +33,7 @@ from gantry_twin.cli import compare as compare_command
 from gantry_twin.cli import excite as excite_command
 from gantry_twin.cli import export as export_command
 from gantry_twin.cli import identify as identify_command
+from gantry_twin.cli import report as report_command
 from gantry_twin.cli import runs as runs_command
 from gantry_twin.cli import sweep as sweep_command
 from gantry_twin.cli import tune as tune_command
@@ -159,30 +158,9 @@ def build_parser() -> argparse.ArgumentParser:
     _add_set(validate)
 
     report = sub.add_parser("report", help="run the paper's matrix and write a Markdown report with figures")
-    report.set_defaults(func=_report)
-    default_report = RUNS_DIR / "report"
-    report.add_argument(
-        "--out", metavar="DIR", type=Path, default=default_report, help=f"output directory (default: {default_report}/)"
-    )
-    report.add_argument(
-        "--workers", metavar="N", type=int, default=None, help="parallel worker processes (default: os.cpu_count())"
-    )
-    report.add_argument("--jobs", metavar="N", type=int, default=None, help=argparse.SUPPRESS)  # deprecated: --workers
+    report_command.add_arguments(report, RUNS_DIR)
     _add_set(report, "override a field in every scenario of the matrix, e.g. duration_s=10")
-    report.add_argument(
-        "--rig",
-        metavar="FILE",
-        type=Path,
-        default=None,
-        help="the rig twin's plant from a calibration: FILE's 'overrides' (a list of field=value strings, "
-        "the fit.json that gantry-twin calibrate writes), after each run's own",
-    )
-    report.add_argument(
-        "--no-ideal",
-        action="store_true",
-        help="skip the ideal twin's runs (plant.model=paper) and the paper / rig twin / ideal twin section",
-    )
-    add_progress_arguments(report)
+    report.set_defaults(func=report_command.command)
 
     identify = sub.add_parser("identify", help="identify M, B, Af (and LuGre) from logs; a plant file and a fit report")
     identify_command.add_arguments(identify)
@@ -463,43 +441,6 @@ def _point_latest(out: Path) -> None:
         point_latest(out)
     except OSError as exc:
         print(f"{PROG}: warning: {out.parent / LATEST} not updated ({exc.strerror or exc})", file=sys.stderr)
-
-
-def _report(args: argparse.Namespace) -> int:
-    from gantry_twin.reports import rig as rig_report
-    from gantry_twin.reports.paper import paper_matrix, provenance, run_matrix, write_report
-
-    started = time.monotonic()
-
-    workers, flag = args.workers, "--workers"
-    if args.jobs is not None:
-        print(f"{PROG}: warning: --jobs is deprecated, use --workers", file=sys.stderr)
-        if workers is None:
-            workers, flag = args.jobs, "--jobs"
-    if workers is not None and workers < 1:
-        raise BadInput(f"{flag}: must be a positive integer, got {workers}")
-    checked_out(args.out)
-    rig = rig_report.load_rig(args.rig) if args.rig is not None else ()
-    cases = paper_matrix((*args.overrides, *rig))  # validates every scenario before anything runs
-    plant = rig_report.plant_label(cases[0])
-    # The ideal twin beside the rig twin, unless told not to or the matrix runs on the ideal twin already.
-    ideal = (
-        []
-        if args.no_ideal or rig_report.is_ideal(cases[0])
-        else rig_report.rig_cases(paper_matrix(args.overrides, labels=rig_report.LABELS), rig_report.IDEAL)
-    )
-    try:
-        results = run_matrix([*cases, *ideal], jobs=workers or os.cpu_count() or 1, progress=progress_wanted(args))
-        results, ideal_results = results[: len(cases)], results[len(cases) :]
-        appendix = (
-            rig_report.section(ideal_results, results, rig, args.out, args.overrides, plant) if ideal_results else []
-        )
-        made_by = provenance(shlex.join([PROG, *args.argv]), time.monotonic() - started, package_version())
-        path = write_report(results, args.out, (*args.overrides, *rig), appendix, made_by, plant)
-    except Exception as exc:
-        return failed("report", exc)
-    print(f"report written to {path}")
-    return EXIT_OK
 
 
 if __name__ == "__main__":
