@@ -152,9 +152,10 @@ def record_and_step(plant, recording, k, sample, changes):
     return True
 
 
-@kernel(internal=True, nrt=False)
+@kernel(inline=True, internal=True, nrt=False)
 def no_log(params, state, out):
-    """The log of a controller that logs nothing."""
+    """The log of a controller that logs nothing (inlined: a kernel of its own would be compiled for every
+    controller's types, and numba's cache index of it would name them all, the classes of removed plug-ins too)."""
 
 
 @kernel(internal=True, nrt=False)
