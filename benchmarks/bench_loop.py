@@ -8,6 +8,9 @@ Prints, from one run on one machine:
   all four built-in controllers (pd, drc, darc, diarc), and a single DIARC
   run; then the load of all four from the filled cache. CPU seconds
   (``time.process_time``, all threads) and wall.
+* the README's first ``gantry-twin run`` (the default scenario) from an empty
+  cache against a second run: CPU seconds of the child process (user + sys,
+  all threads, ``os.wait4``) and wall (``--skip-first-run``: leave it out).
 * The loop's floor: for each controller, the closed loop's own commands
   (motor volts and disturbance, as recorded) replayed from its initial state
   with ``mujoco.rollout`` (MuJoCo's C loop, one thread), which steps the same
@@ -213,6 +216,30 @@ def compile_costs() -> None:
         print(f"  {label:<58}{result['first_runs_cpu_s']:7.2f} s CPU {result['first_runs_wall_s']:7.2f} s wall")
 
 
+def _cli_run(out: str, cache: str) -> tuple[float, float]:
+    """(CPU s of the child: user + sys, wall s) of ``gantry-twin run`` (the default scenario) into ``out``."""
+    env = dict(os.environ, PYTHONPATH=SRC + os.pathsep + os.environ.get("PYTHONPATH", ""), NUMBA_CACHE_DIR=cache)
+    command = [sys.executable, "-m", "gantry_twin", "run", "--out", out]
+    w0 = time.perf_counter()
+    child = subprocess.Popen(command, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    _, status, usage = os.wait4(child.pid, 0)
+    wall = time.perf_counter() - w0
+    if os.waitstatus_to_exitcode(status) != 0:
+        raise RuntimeError(f"{' '.join(command)} failed")
+    return usage.ru_utime + usage.ru_stime, wall
+
+
+def first_run_costs() -> None:
+    """The README's first ``gantry-twin run`` from an empty cache, then a second run, in fresh processes."""
+    with tempfile.TemporaryDirectory() as tmp:
+        cache = os.path.join(tmp, "numba")
+        (cold_cpu, cold_wall), (warm_cpu, warm_wall) = (_cli_run(os.path.join(tmp, f"run{i}"), cache) for i in (0, 1))
+    print(
+        f"gantry-twin run (default scenario), empty cache: {cold_cpu:.1f} s CPU {cold_wall:.1f} s wall; second run: "
+        f"{warm_cpu:.1f} s CPU {warm_wall:.1f} s wall; first / second {cold_cpu / warm_cpu:.2f}x CPU (target 2x)"
+    )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=4.0, help="simulated seconds per loop measurement")
@@ -220,6 +247,8 @@ def main() -> None:
     parser.add_argument("--skip-memory", action="store_true")
     parser.add_argument("--friction-only", action="store_true", help="only the Coulomb / LuGre comparison")
     parser.add_argument("--skip-compile", action="store_true", help="leave out the cold-compile measurements")
+    parser.add_argument("--skip-first-run", action="store_true", help="leave out the first gantry-twin run")
+    parser.add_argument("--only-compile", action="store_true", help="only the compile and first-run measurements")
     args = parser.parse_args()
     ts = 2e-4
     n = int(round(args.seconds / ts))
@@ -229,6 +258,10 @@ def main() -> None:
         return
     if not args.skip_compile:
         compile_costs()
+    if not args.skip_first_run:
+        first_run_costs()
+    if args.only_compile:
+        return
 
     _example_plugin()
     replays = {name: Replay(name, args.seconds) for name in CONTROLLERS}  # also loads (or compiles) every loop

@@ -15,7 +15,7 @@ import pytest
 
 from gantry_twin import Plant, SensingConfig, TimingLaw, circle, paper_ellipse, simulate
 from gantry_twin._jit import reference
-from gantry_twin.controllers import DIARC, DRC, PD, RECOMMENDED_ESTIMATOR, create
+from gantry_twin.controllers import DARC, DIARC, DRC, PD, RECOMMENDED_ESTIMATOR, create
 from gantry_twin.controllers.arc import diarc_step
 from gantry_twin.estimation import LeastSquaresSettings, least_squares_step
 from gantry_twin.linalg import EIGENVALUE_TOLERANCE, largest_eigenvalue, largest_eigenvalue_exact
@@ -272,7 +272,7 @@ def test_plant_changes_compiled_equals_reference_and_restore_the_model():
 
 def test_loop_needs_compiling_asks_the_cache_for_the_controllers_chunk_kernel(monkeypatch):
     """A compile is announced when numba's cache lacks this controller's chunk kernel (the cache check itself:
-    tests/test_compiling.py); a subclass with the same compiled step shares its kernel."""
+    tests/test_compiling.py); DRC, DARC and DIARC share one, and so does a subclass with the same compiled step."""
     import importlib
 
     from gantry_twin.controllers.base import compiled_step_of
@@ -286,7 +286,9 @@ def test_loop_needs_compiling_asks_the_cache_for_the_controllers_chunk_kernel(mo
         lambda function: function is chunk_kernel(DIARC.compiled),
     )
     assert not loop_needs_compiling(DIARC())
-    assert loop_needs_compiling(PD()) and loop_needs_compiling(DRC())  # their own chunk kernels are not cached
+    assert loop_needs_compiling(PD())  # its own chunk kernel is not cached
+    assert not loop_needs_compiling(DRC()) and not loop_needs_compiling(DARC())  # DIARC's kernel: one ARC loop
+    assert chunk_kernel(DRC.compiled) is chunk_kernel(DIARC.compiled) is not chunk_kernel(PD.compiled)
 
     class MyDIARC(DIARC):  # the same compiled step: the same kernel
         pass

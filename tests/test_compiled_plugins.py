@@ -96,3 +96,89 @@ def test_a_plugin_with_a_compiled_step_runs_compiled_and_bit_identical():
     np.testing.assert_array_equal(ca.state.integral_m_s, cb.state.integral_m_s)
     assert np.abs(ca.state.integral_m_s).max() > 0.0
     assert not np.allclose(a.u_v, 0.0)
+
+
+@numba.njit
+def allocating_step(params, state, t_s, q_m, dq_m_s, ref, u_v):
+    e = np.empty(2)  # an array allocated every sample: the loop needs numba's reference counting for this step
+    for i in range(2):
+        e[i] = q_m[i] - ref[REF_Q + i]
+    for i in range(2):
+        de = dq_m_s[i] - ref[REF_DQ + i]
+        u_v[i] = min(max(-params.kp_v_m * e[i] - params.kd_v_s_m * de, -params.u_max_v[i]), params.u_max_v[i])
+
+
+class AllocatingPD(PI):
+    compiled = CompiledStep(allocating_step)
+
+    def update(self, measurement, reference):  # noqa: ANN001, ANN201
+        self.updates += 1
+        u_v = np.zeros(2)
+        allocating_step.py_func(
+            self.params, self.state, measurement.t_s, measurement.q_m, measurement.dq_m_s, reference.row(), u_v
+        )
+        return u_v
+
+    def state_for_logging(self):  # noqa: ANN201
+        return {}
+
+
+@pytest.mark.skipif(not compiled_available(), reason="no compiled backend on this machine")
+def test_a_step_that_allocates_runs_compiled_with_reference_counting():
+    """The loop compiles without numba's reference counting; a step that allocates gets a loop compiled with it."""
+    from gantry_twin.sample_loop import chunk_kernel
+
+    controller = AllocatingPD()
+    compiled = simulate(Plant(), circle(), TimingLaw(2.0), controller, 0.05, backend="compiled")
+    reference = simulate(Plant(), circle(), TimingLaw(2.0), AllocatingPD(), 0.05, backend="reference")
+    assert controller.updates == 0
+    np.testing.assert_array_equal(compiled.u_v, reference.u_v)
+    np.testing.assert_array_equal(compiled.q_m, reference.q_m)
+    assert chunk_kernel(AllocatingPD.compiled, nrt=True).signatures  # the loop that ran
+    assert not chunk_kernel(AllocatingPD.compiled).signatures  # the one without reference counting did not compile
+
+
+SHARED = """
+import json, sys
+sys.path.insert(0, {root!r})
+from gantry_twin import Plant, TimingLaw, circle, simulate
+from gantry_twin.controllers import PD
+from gantry_twin.controllers.base import compiled_step_of
+from gantry_twin.sample_loop import chunk_kernel, measure_sample, record_and_step, record_log
+controller = PD()
+if sys.argv[1] == "plugin":
+    from tests.test_compiled_plugins import PI
+    controller = PI()
+simulate(Plant(), circle(), TimingLaw(2.0), controller, 0.01, backend="compiled")
+stats = {{k.__name__: [sum(k.stats.cache_hits.values()), sum(k.stats.cache_misses.values())]
+         for k in (measure_sample, record_and_step, record_log, chunk_kernel(compiled_step_of(controller)))}}
+print(json.dumps(stats))
+"""
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not compiled_available(), reason="no compiled backend on this machine")
+def test_a_plugin_compiles_only_its_own_loop_the_shared_kernels_load_from_the_cache(tmp_path):
+    """After any built-in loop has run on this install, a plug-in's first run compiles its chunk (with its step
+    inlined) and loads the plant's half of the loop from numba's cache instead of compiling it again."""
+    import json
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = str(Path(__file__).resolve().parent.parent)
+    env = {**os.environ, "PYTHONPATH": os.path.join(root, "src"), "NUMBA_CACHE_DIR": str(tmp_path / "numba")}
+
+    def run(which: str) -> dict:
+        code = SHARED.format(root=root)
+        out = subprocess.run([sys.executable, "-c", code, which], env=env, capture_output=True, text=True, check=True)
+        return json.loads(out.stdout.strip().splitlines()[-1])
+
+    first = run("pd")
+    assert all(misses == 1 for _, misses in first.values()), first  # an empty cache: everything compiles
+    plugin = run("plugin")
+    shared = {name: value for name, value in plugin.items() if not name.startswith("run_chunk")}
+    assert len(shared) == 3 and all(v == [1, 0] for v in shared.values()), plugin  # loaded, not compiled
+    (chunk,) = (value for name, value in plugin.items() if name.startswith("run_chunk"))
+    assert chunk == [0, 1]  # the plug-in's own loop compiles

@@ -9,12 +9,13 @@ and version of the kernel sources, then loaded from :func:`cache_dir`).
 with every kernel it calls also uncompiled, so the compiled loop can be
 checked against an implementation numba never touched.
 
-:func:`borrowed` hands a kernel its arrays without their reference counts:
-numba counts references to every array it binds, with an atomic increment
-and decrement per array per binding, and the loop's nested tuples of
-settings, state and scratch arrays bind dozens of arrays per sample. Called
-once at the top of a chunk kernel, on arrays the caller keeps alive, it
-removes that cost from everything the chunk calls.
+:func:`kernel` with ``nrt=False`` compiles without numba's reference
+counting: numba otherwise emits an atomic increment and decrement for every
+array each time a nested tuple of settings, state and scratch arrays is
+unpacked, passed or returned, which is most of the code it generates for the
+loop (and an atomic operation per array per binding at run time). Such a
+kernel may allocate no array; the arrays it receives from Python carry no
+reference-count owner, so the kernels it calls count nothing either.
 
 :func:`specialise` makes one copy of a template kernel per set of callees
 named as globals (the compiled loop takes a controller's step this way), each
@@ -35,10 +36,7 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 import numba
-from numba.core import cgutils
-from numba.core import types as nbtypes
 from numba.core.registry import CPUDispatcher
-from numba.extending import intrinsic, overload
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -82,7 +80,7 @@ def cache_dir() -> str:
 _CACHE_DIR = cache_dir()
 
 
-def kernel(function: F | None = None, *, inline: bool = False, internal: bool = False) -> Any:
+def kernel(function: F | None = None, *, inline: bool = False, internal: bool = False, nrt: bool = True) -> Any:
     """Compile ``function`` in nopython mode, cached on disk under :func:`cache_dir`.
 
     Each kernel compiles once per argument types and is cached on its own,
@@ -96,14 +94,16 @@ def kernel(function: F | None = None, *, inline: bool = False, internal: bool = 
     the nested tuples): for kernels that only other kernels call.
     docs/performance.md ("Compile") has the measurements behind this split.
     No kernel gets numba's C-callable wrapper (only first-class function
-    values need it).
+    values need it). ``nrt=False``: no reference counting (see the module
+    docstring); numba refuses to compile such a kernel if it allocates.
     """
     if function is None:
-        return lambda f: kernel(f, inline=inline, internal=internal)
+        return lambda f: kernel(f, inline=inline, internal=internal, nrt=nrt)
     saved = numba.config.CACHE_DIR
     numba.config.CACHE_DIR = _CACHE_DIR  # read once, when the dispatcher's cache is created
     try:
-        options = {"no_cpython_wrapper": True} if internal else {}
+        # _nrt explicit: numba otherwise inherits it from the first caller that compiles the kernel.
+        options: dict[str, bool] = {"_nrt": nrt, "no_cpython_wrapper": True} if internal else {"_nrt": nrt}
         return numba.njit(cache=True, inline="always" if inline else "never", no_cfunc_wrapper=True, **options)(
             function
         )
@@ -160,13 +160,16 @@ def _globals_for(module_globals: dict[str, Any]) -> dict[str, Any]:
     return env
 
 
-def specialise(template: Callable[..., Any], name: str, bindings: dict[str, Any], compiled: bool) -> Callable[..., Any]:
+def specialise(
+    template: Callable[..., Any], name: str, bindings: dict[str, Any], compiled: bool, nrt: bool = True
+) -> Callable[..., Any]:
     """A copy of kernel ``template`` whose globals ``bindings`` (name -> kernel or value) are replaced.
 
     compiled: a kernel cached on disk as ``<template>_<name>`` (``name``
     must identify the bindings, e.g. with a digest of their sources: numba
     keys its cache on the template's code and argument types only);
     otherwise the reference version, with every other kernel uncompiled.
+    nrt: as for :func:`kernel`.
     """
     py = getattr(template, "py_func", template)
     env = dict(py.__globals__ if compiled else _globals_for(py.__globals__))
@@ -174,7 +177,7 @@ def specialise(template: Callable[..., Any], name: str, bindings: dict[str, Any]
     function = types.FunctionType(py.__code__, env, py.__name__, py.__defaults__, py.__closure__)
     function.__qualname__ = f"{py.__qualname__}_{name}"
     function.__doc__, function.__module__ = py.__doc__, py.__module__
-    return kernel(function) if compiled else function
+    return kernel(function, nrt=nrt) if compiled else function
 
 
 def source_digest(*functions: Callable[..., Any]) -> str:
@@ -197,49 +200,3 @@ def _code_bytes(code: types.CodeType) -> bytes:
     for const in code.co_consts:
         parts.append(_code_bytes(const) if isinstance(const, types.CodeType) else repr(const).encode())
     return b"\0".join(parts)
-
-
-def borrowed(value):  # noqa: ANN001, ANN201 (numba compares this signature with its overload's)
-    """``value`` (an array, or a tuple of arrays, scalars and tuples) for use inside one kernel call.
-
-    Uncompiled this is the identity. Compiled, the arrays come back without
-    their reference-count owner, so numba's per-binding reference counting
-    (an atomic operation per array) becomes a test of a null pointer. Only
-    for arrays the caller keeps alive for the whole call (a kernel's own
-    arguments), and never to be returned or stored.
-    """
-    return value
-
-
-def _without_owner(context: Any, builder: Any, typ: Any, value: Any) -> Any:
-    if isinstance(typ, nbtypes.Array):
-        array = context.make_array(typ)(context, builder, value=value)
-        array.meminfo = cgutils.get_null_value(array.meminfo.type)
-        return array._getvalue()
-    if isinstance(typ, nbtypes.BaseTuple):
-        out = value
-        for i, member in enumerate(typ.types):
-            inner = _without_owner(context, builder, member, builder.extract_value(value, i))
-            out = builder.insert_value(out, inner, i)
-        return out
-    return value
-
-
-@intrinsic
-def _borrow(typingctx: Any, value: Any) -> Any:
-    def codegen(context: Any, builder: Any, signature: Any, args: Any) -> Any:
-        out = _without_owner(context, builder, signature.args[0], args[0])
-        context.nrt.incref(builder, signature.return_type, out)  # the result is a new reference (to non-arrays)
-        return out
-
-    return value(value), codegen
-
-
-#: The compiled form of :func:`borrowed`, for a template whose ``borrowed`` :func:`specialise` binds to it: an
-#: intrinsic, so no overload of the loop's nested tuple types compiles.
-borrow = _borrow
-
-
-@overload(borrowed)
-def _borrowed_compiled(value):  # noqa: ANN001, ANN202
-    return lambda value: _borrow(value)

@@ -15,6 +15,7 @@ import time
 from typing import TextIO
 
 from gantry_twin.controllers import Controller
+from gantry_twin.controllers.base import compiled_step_of
 from gantry_twin.simulate import loop_needs_compiling
 from gantry_twin.trace import RunInfo, Trace
 
@@ -113,10 +114,16 @@ def workers_compile_message(prog: str, loops: int) -> str:
 
 def batch_compile_notice(controllers: list[Controller], prog: str, stream: TextIO | None = None) -> bool:
     """Print :func:`workers_compile_message` if any of ``controllers``' loops will compile first; True if printed."""
-    loops = sum(loop_needs_compiling(c) for c in controllers)
+    loops = len({_loop_of(c) for c in controllers if loop_needs_compiling(c)})
     if loops:
         print(workers_compile_message(prog, loops), file=stream if stream is not None else sys.stderr, flush=True)
     return loops > 0
+
+
+def _loop_of(controller: Controller) -> object:
+    """What identifies a controller's compiled loop: its compiled step and log (DRC, DARC and DIARC share one)."""
+    compiled = compiled_step_of(controller)
+    return (compiled.step, compiled.log) if compiled is not None else id(controller)
 
 
 def _is_terminal(stream: TextIO) -> bool:

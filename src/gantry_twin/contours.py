@@ -304,7 +304,7 @@ def contour_error(
     return sign * distance, phi
 
 
-@kernel
+@kernel(nrt=False)
 def ellipse_contour_error(
     semi_x, semi_y, centre_x, centre_y, q, phi_guess, limit, iterations, tolerance_rad, eps_c, phi
 ):

@@ -213,7 +213,7 @@ def projection_work(p: int) -> ProjectionWork:
     )
 
 
-@kernel
+@kernel(nrt=False)
 def project_metric_into(y, gamma, lower, upper, max_iterations, x, work):
     """x = argmin over the box of (x - y)^T Gamma^-1 (x - y): the discrete eq. (16).
 
@@ -369,7 +369,7 @@ def least_squares_work(p: int, m: int, gamma: np.ndarray | None = None) -> Least
     )
 
 
-@kernel
+@kernel(nrt=False)
 def least_squares_update(theta, gamma, g, target, nu, kappa, rho_max, lower, upper, sample_period_s, work):
     """One sample of eq. (27)-(28) with projection; updates theta, gamma in place.
 

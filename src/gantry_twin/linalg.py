@@ -107,7 +107,7 @@ def cholesky_solve(a, n, b, x, factor):
     cholesky_substitute(factor, n, b, x)
 
 
-@kernel
+@kernel(nrt=False)
 def tridiagonalise(a, t, diag, off):
     """Householder reduction of symmetric a (p x p) to tridiagonal form (same eigenvalues).
 
@@ -160,7 +160,7 @@ def tridiagonalise(a, t, diag, off):
     diag[p - 1] = t[p - 1, p - 1]
 
 
-@kernel
+@kernel(nrt=False)
 def largest_eigenvalue_exact(a, upper_bound, t, diag, off):
     """lambda_max of a symmetric matrix a (p x p), exact to rounding.
 
@@ -201,7 +201,7 @@ def largest_eigenvalue_exact(a, upper_bound, t, diag, off):
 EIGENVALUE_TOLERANCE = 1e-10
 
 
-@kernel
+@kernel(nrt=False)
 def _orthonormalise(w, v):
     """v = Gram-Schmidt orthonormal basis of the two rows of w (2, p); False if they are dependent."""
     p = w.shape[1]
@@ -233,7 +233,7 @@ def _orthonormalise(w, v):
     return True
 
 
-@kernel
+@kernel(nrt=False)
 def largest_eigenvalue(a, v, w, t, diag, off, upper_bound=math.inf, iterations=12):
     """lambda_max of a symmetric positive definite a (p x p), certified to EIGENVALUE_TOLERANCE.
 
@@ -291,7 +291,10 @@ def largest_eigenvalue(a, v, w, t, diag, off, upper_bound=math.inf, iterations=1
     for i in range(p):
         v[0, i] = 1.0 / math.sqrt(p)
         v[1, i] = (1.0 if i % 2 == 0 else -1.0) / math.sqrt(p) + 1e-3 * i
-    _orthonormalise(v.copy(), v)
+    for r in range(2):
+        for i in range(p):
+            w[r, i] = v[r, i]
+    _orthonormalise(w, v)
     for _ in range(30):
         for r in range(2):
             for i in range(p):

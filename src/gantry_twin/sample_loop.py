@@ -16,9 +16,10 @@ from typing import NamedTuple
 import mujoco
 import numpy as np
 from numba import types
+from numba.core.errors import NumbaError
 from numba.core.registry import CPUDispatcher
 
-from gantry_twin._jit import borrow, borrowed, kernel, source_digest, specialise
+from gantry_twin._jit import kernel, source_digest, specialise
 from gantry_twin.controllers.base import (
     CompiledStep,
 )
@@ -115,7 +116,7 @@ class SampleWork(NamedTuple):
 STATUS_OK, STATUS_BAD_MEASUREMENT, STATUS_BAD_COMMAND = 0, 1, 2
 
 
-@kernel(internal=True)
+@kernel(internal=True, nrt=False)
 def measure_sample(plant, encoder, sample, changes, k):
     """The encoder's reading of sample k, glitches included; False if not finite."""
     q_true, dq_true = sample.q_true, sample.dq_true
@@ -126,7 +127,7 @@ def measure_sample(plant, encoder, sample, changes, k):
     return encoder_measure(encoder, q_true, dq_true, offset, hold, noise, sample.position, sample.velocity)
 
 
-@kernel(internal=True)
+@kernel(internal=True, nrt=False)
 def record_and_step(plant, recording, k, sample, changes):
     """Check the command; record the sample (row k of the recording); hold u (clipped, through the amplifier's
     delay and current loop) and the disturbance (+ cogging, + the plant's own offset and ripple at the true
@@ -156,12 +157,13 @@ def record_and_step(plant, recording, k, sample, changes):
     return True
 
 
-@kernel(internal=True)
+@kernel(inline=True, internal=True, nrt=False)
 def no_log(params, state, out):
-    """The log of a controller that logs nothing."""
+    """The log of a controller that logs nothing (inlined: a kernel of its own would be compiled for every
+    controller's types, and numba's cache index of it would name them all, the classes of removed plug-ins too)."""
 
 
-@kernel(internal=True)
+@kernel(internal=True, nrt=False)
 def record_log(recording, k, row):
     """Store the log row of the recording's row k into the log buffer (see :meth:`Trace.allocate_log`)."""
     log, sizes = recording.log, recording.log_sizes
@@ -177,7 +179,7 @@ def record_log(recording, k, row):
         at += size
 
 
-@kernel
+@kernel(nrt=False)
 def run_chunk(start, stop, plant, encoder, recording, sample, changes, params, state):
     """Samples [start, stop) of the run: changes -> measure -> control -> record -> mj_step; returns (status,
     sample index): (STATUS_OK, stop) or the failed status and the sample it failed at, nothing of it recorded.
@@ -185,9 +187,6 @@ def run_chunk(start, stop, plant, encoder, recording, sample, changes, params, s
     ``controller_step`` and ``controller_log`` are the controller's kernels,
     bound per controller by :func:`chunk_kernel` (compiled) or :func:`_python_chunk`.
     """
-    plant, encoder, recording, sample, changes, params, state = borrowed(
-        (plant, encoder, recording, sample, changes, params, state)
-    )
     t_s, rows, position, velocity = recording.t_s, recording.rows, sample.position, sample.velocity
     for k in range(start, stop):
         j = k - recording.first
@@ -202,26 +201,40 @@ def run_chunk(start, stop, plant, encoder, recording, sample, changes, params, s
     return STATUS_OK, stop
 
 
-_chunk_kernels: dict[CompiledStep, Callable[..., tuple[int, int]]] = {}
+_ChunkKey = tuple[Callable[..., object], Callable[..., object] | None, bool]
+_chunk_kernels: dict[_ChunkKey, Callable[..., tuple[int, int]]] = {}
 
 
-def chunk_kernel(compiled: CompiledStep) -> Callable[..., tuple[int, int]]:
+def chunk_kernel(compiled: CompiledStep, nrt: bool = False) -> Callable[..., tuple[int, int]]:
     """The compiled chunk function for a controller's compiled step (created once, compiled on first call).
 
     Its name carries a digest of the step's and log's source files, so an
     edited plug-in compiles anew; numba caches it on disk like every kernel.
+    nrt: with numba's reference counting, for a step or log that allocates
+    arrays (:func:`needs_reference_counting`); the built-in steps do not.
     """
-    found = _chunk_kernels.get(compiled)
+    key = (compiled.step, compiled.log, nrt)  # the layout is the Python side's (DRC, DARC and DIARC share a kernel)
+    found = _chunk_kernels.get(key)
     if found is None:
         log = compiled.log or no_log
         py = getattr(compiled.step, "py_func", compiled.step)
         name = re.sub(r"\W", "_", f"{py.__module__}_{py.__qualname__}_{source_digest(compiled.step, log)}")
+        name += "_nrt" if nrt else ""
         # The step's own code is inlined (it is typed once, in here: a separate compile would be finalised twice,
         # and each sample would pass every array of its tuples); what it calls (the law, the least squares, ...) and
         # the log are kernels compiled and cached once, which the chunk links. docs/performance.md, "Compile".
         step = kernel(py, inline=True)
         log = log if isinstance(log, CPUDispatcher) else kernel(log)
-        bindings = {"controller_step": step, "controller_log": log, "borrowed": borrow}
-        found = specialise(run_chunk, name, bindings, compiled=True)
-        _chunk_kernels[compiled] = found
+        bindings = {"controller_step": step, "controller_log": log}
+        # No reference counting in the chunk unless the step needs it: most of the code numba would generate for the
+        # chunk, and of its atomic operations per sample, counts the arrays of the nested tuples.
+        found = specialise(run_chunk, name, bindings, compiled=True, nrt=nrt)
+        _chunk_kernels[key] = found
     return found
+
+
+def needs_reference_counting(error: BaseException) -> bool:
+    """True if ``error``, raised by the first call of a chunk kernel without reference counting, is numba's refusal
+    to compile it (a step or log that allocates an array says so in several ways): then :func:`chunk_kernel` with
+    ``nrt=True`` compiles it, and reports any other compile error as before."""
+    return isinstance(error, NumbaError)

@@ -71,6 +71,7 @@ from gantry_twin.sample_loop import (
     SampleWork,
     chunk_kernel,
     mj_step,
+    needs_reference_counting,
     record_and_step,
     run_chunk,
 )
@@ -100,7 +101,15 @@ def loop_needs_compiling(controller: Controller) -> bool:
     compiled = compiled_step_of(controller)
     if compiled is None or not compiled_available():
         return False
-    return not is_cached(chunk_kernel(compiled))
+    return not any(is_cached(chunk_kernel(compiled, nrt)) for nrt in (False, True))
+
+
+def _chunk_for(compiled: CompiledStep) -> Callable[..., tuple[int, int]]:
+    """The chunk kernel to call: without reference counting, unless only the one with it is cached (a step that
+    allocates: the one without fails to compile, :func:`gantry_twin.sample_loop.needs_reference_counting`)."""
+    plain = chunk_kernel(compiled)
+    counted = chunk_kernel(compiled, nrt=True)
+    return counted if is_cached(counted) and not is_cached(plain) else plain
 
 
 def compiled_available() -> bool:
@@ -297,7 +306,7 @@ class _Loop:
         self.encoder, self.changes, self.compiled = sensor, changes, compiled
         if compiled is not None:
             self.params, self.state = controller.kernel_arguments()
-            self.function = chunk_kernel(compiled)
+            self.function = _chunk_for(compiled)
             log_row = np.zeros(compiled.log_size)
         else:
             self.params, self.state = None, None
@@ -319,9 +328,16 @@ class _Loop:
 
     def run(self, start: int, stop: int) -> tuple[int, SimulationError | None]:
         """Samples [start, stop): (stop, None), or (k, the error) if the run cannot go on at sample k."""
+        arguments = (self.plant, self.encoder, self.recording, self.sample, self.changes, self.params, self.state)
         try:
-            arguments = (self.plant, self.encoder, self.recording, self.sample, self.changes, self.params, self.state)
-            status, k = self.function(start, stop, *arguments)
+            try:
+                status, k = self.function(start, stop, *arguments)
+            except Exception as exc:
+                counted = None if self.compiled is None else chunk_kernel(self.compiled, nrt=True)
+                if counted is None or self.function is counted or not needs_reference_counting(exc):
+                    raise
+                self.function = counted  # the step allocates: compile it with reference counting
+                status, k = self.function(start, stop, *arguments)
         except (Exception, SystemExit) as exc:  # the controller's step raised (sys.exit() too): the first sample
             # not recorded is where
             recorded = ~np.isnan(self.trace.q_m[self.trace.rows(start, stop), 0])

@@ -107,7 +107,7 @@ def task_errors(alpha: np.ndarray, e: np.ndarray) -> np.ndarray:
     return np.stack([eps_n, eps_t], axis=-1)
 
 
-@kernel
+@kernel(nrt=False)
 def normal_errors(alpha, q_m, q_d_m, e_m, eps_n_m):
     """e = q - q_d (n, 2) m and eps_n, the first row of eps = T e (n,) m, for n samples (into e_m, eps_n_m)."""
     for k in range(alpha.shape[0]):

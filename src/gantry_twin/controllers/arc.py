@@ -12,11 +12,13 @@ in how theta^ (and for DIARC dc^) move after each sample:
 
 A controller's settings are an :class:`ArcParams` and its whole state an
 :class:`ArcState` of float64 arrays, both built by ``reset``. One sample is
-:func:`drc_step`, :func:`darc_step` or :func:`diarc_step`, numba kernels
-around the shared :func:`_law`: ``update()`` runs the plain-Python
-reference version, and each class offers the compiled one to the loop
-through the plug-in protocol (``compiled``, ``kernel_arguments``; see
-:mod:`gantry_twin.controllers.base`) like any other controller.
+:func:`drc_step`, :func:`darc_step` or :func:`diarc_step` around the shared
+:func:`_law`; :func:`arc_step` picks one by ``ArcParams.law``, and
+:func:`arc_log` the matching log. The three classes offer that one compiled
+step to the loop through the plug-in protocol (``compiled``,
+``kernel_arguments``; see :mod:`gantry_twin.controllers.base`) like any other
+controller, so their loops compile once, together (docs/performance.md,
+"Compile"); ``update()`` runs the plain-Python reference version.
 
 DIARC's estimator (settings, filtered regression, least squares) is in
 :mod:`gantry_twin.controllers.estimator`.
@@ -65,6 +67,9 @@ DARC_GAMMA = (10.0, 10.0, 10.0, 10.0, 1.0, 1.0, 10000.0, 10000.0)
 #: already crosses the whole theta box for a 0.1 mm/s sliding error: a relay, not an adaptation.
 Rates = Vector(Range(0.0, 1.0e8), THETA_NAMES)
 
+#: ArcParams.law: which controller's step :func:`arc_step` runs.
+LAW_DRC, LAW_DARC, LAW_DIARC = 0, 1, 2
+
 
 class ArcParams(NamedTuple):
     """Everything fixed during a run of DRC, DARC or DIARC (float64 arrays, SI/volts).
@@ -72,7 +77,8 @@ class ArcParams(NamedTuple):
     lam (2,) 1/s and ks (2,)
     V/(m/s): diagonals of Lambda and Ks; lower, upper (8,): theta bounds;
     u_max_v (2,); darc_gamma (8,): DARC's rates; gamma_d (2,), dc_max_v (2,):
-    DIARC's dc^ law; estimator: DIARC's (placeholders for the others).
+    DIARC's dc^ law; estimator: DIARC's (placeholders for the others);
+    law: LAW_DRC, LAW_DARC or LAW_DIARC.
     """
 
     sample_period_s: float
@@ -86,6 +92,7 @@ class ArcParams(NamedTuple):
     gamma_d: np.ndarray
     dc_max_v: np.ndarray
     estimator: EstimatorParams
+    law: int
 
 
 class ArcState(NamedTuple):
@@ -99,7 +106,7 @@ class ArcState(NamedTuple):
     law: LawWork
 
 
-@kernel(inline=True, internal=True)
+@kernel(inline=True, internal=True, nrt=False)
 def _law(params, state, q_m, dq_m_s, ref, u_v):
     """The shared law (eq. 13-14, 17, 21) with this controller's theta^ and dc^; the command into u_v (2,) V."""
     law = state.law
@@ -110,13 +117,13 @@ def _law(params, state, q_m, dq_m_s, ref, u_v):
     u_v[1] = law.u_v[1]
 
 
-@kernel
+@kernel(inline=True, nrt=False)
 def drc_step(params, state, t_s, q_m, dq_m_s, ref, u_v):
     """One 0.2 ms sample of DRC: the law with theta^ fixed; the command (volts) into u_v (2,)."""
     _law(params, state, q_m, dq_m_s, ref, u_v)
 
 
-@kernel
+@kernel(inline=True, nrt=False)
 def darc_step(params, state, t_s, q_m, dq_m_s, ref, u_v):
     """One 0.2 ms sample of DARC: the law, then the gradient step (eq. 8-9) driven by this sample's s_c."""
     _law(params, state, q_m, dq_m_s, ref, u_v)
@@ -128,7 +135,7 @@ def darc_step(params, state, t_s, q_m, dq_m_s, ref, u_v):
     project_box(theta, params.lower, params.upper, theta)
 
 
-@kernel
+@kernel(inline=True, nrt=False)
 def diarc_step(params, state, t_s, q_m, dq_m_s, ref, u_v):
     """One 0.2 ms sample of DIARC: theta^ from the data up to this sample (eq. 25-28), the law, then dc^ (eq. 21-22).
 
@@ -147,7 +154,19 @@ def diarc_step(params, state, t_s, q_m, dq_m_s, ref, u_v):
         dc[i] = clip(dc[i] + ts * gamma_d[i] * s_c[i], -dc_max[i], dc_max[i])
 
 
-@kernel(internal=True)
+@kernel(nrt=False)
+def arc_step(params, state, t_s, q_m, dq_m_s, ref, u_v):
+    """One 0.2 ms sample of the controller ``params.law`` names (DRC, DARC or DIARC); the command into u_v (2,) V."""
+    law = params.law
+    if law == LAW_DIARC:
+        diarc_step(params, state, t_s, q_m, dq_m_s, ref, u_v)
+    elif law == LAW_DARC:
+        darc_step(params, state, t_s, q_m, dq_m_s, ref, u_v)
+    else:
+        drc_step(params, state, t_s, q_m, dq_m_s, ref, u_v)
+
+
+@kernel(inline=True, internal=True, nrt=False)
 def log_theta(params, state, out):
     """DARC's log: theta_hat (8,)."""
     theta = state.theta
@@ -155,7 +174,7 @@ def log_theta(params, state, out):
         out[j] = theta[j]
 
 
-@kernel(internal=True)
+@kernel(inline=True, internal=True, nrt=False)
 def log_diarc(params, state, out):
     """DIARC's log: theta_hat (8,), dc_hat (2,), gamma_diag (8,), gamma_lambda_max."""
     theta, dc, gamma = state.theta, state.dc, state.estimator.gamma
@@ -167,11 +186,22 @@ def log_diarc(params, state, out):
     out[18] = state.estimator.clock[CLOCK_LAMBDA_MAX]
 
 
+@kernel(internal=True, nrt=False)
+def arc_log(params, state, out):
+    """The log of the controller ``params.law`` names: DIARC's :func:`log_diarc`, DARC's :func:`log_theta`; DRC none."""
+    law = params.law
+    if law == LAW_DIARC:
+        log_diarc(params, state, out)
+    elif law == LAW_DARC:
+        log_theta(params, state, out)
+
+
 def _vec(x: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(x, dtype=float)
 
 
 def _arc_params(
+    law: int,
     gains: ArcGains,
     sample_period_s: float,
     u_max_v: np.ndarray,
@@ -191,6 +221,7 @@ def _arc_params(
         np.zeros(2) if settings is None else np.asarray(settings.gamma_d, dtype=float),
         np.zeros(2) if settings is None else np.asarray(settings.dc_max_v, dtype=float),
         estimator if estimator is not None else placeholder_estimator(),
+        law,
     )
 
 
@@ -221,7 +252,7 @@ class ArcController:
         return ArcState(np.array(self.gains.theta0, dtype=float), np.zeros(2), np.zeros(2), est, law_work())
 
     def _make_params(self) -> ArcParams:
-        return _arc_params(self.gains, self.sample_period_s, self.u_max_v)
+        return _arc_params(LAW_DRC, self.gains, self.sample_period_s, self.u_max_v)
 
     def reset(self, context: RunContext) -> None:
         self.sample_period_s = float(context.sample_period_s)
@@ -263,7 +294,7 @@ class DRC(ArcController):
     feed-forward); nothing is estimated, so nothing is logged.
     """
 
-    compiled = CompiledStep(drc_step)
+    compiled = CompiledStep(arc_step, arc_log)
 
     def __init__(self, gains: ArcGains | None = None, theta: Theta | None = None) -> None:
         if theta is not None:
@@ -274,21 +305,21 @@ class DRC(ArcController):
 class DARC(ArcController):
     """Direct adaptive robust control (C1): gradient adaptation, eq. (8)-(9)."""
 
-    compiled = CompiledStep(darc_step, log_theta, (("theta_hat", (8,)),))
+    compiled = CompiledStep(arc_step, arc_log, (("theta_hat", (8,)),))
 
     def __init__(self, gains: ArcGains | None = None, gamma: Rates = DARC_GAMMA) -> None:
         super().__init__(gains)
         self.gamma = np.asarray(gamma, dtype=float)
 
     def _make_params(self) -> ArcParams:
-        return _arc_params(self.gains, self.sample_period_s, self.u_max_v, darc_gamma=self.gamma)
+        return _arc_params(LAW_DARC, self.gains, self.sample_period_s, self.u_max_v, darc_gamma=self.gamma)
 
 
 class DIARC(ArcController):
     """Integrated direct/indirect adaptive robust control (C2), section 4."""
 
     compiled = CompiledStep(
-        diarc_step, log_diarc, (("theta_hat", (8,)), ("dc_hat", (2,)), ("gamma_diag", (8,)), ("gamma_lambda_max", ()))
+        arc_step, arc_log, (("theta_hat", (8,)), ("dc_hat", (2,)), ("gamma_diag", (8,)), ("gamma_lambda_max", ()))
     )
 
     def __init__(self, gains: ArcGains | None = None, estimator: EstimatorChoice | None = None) -> None:
@@ -302,6 +333,7 @@ class DIARC(ArcController):
         self.estimator = IndirectEstimator(self.estimator_settings, self.gains, self.sample_period_s)
         self.state = self._fresh_state(self.estimator)
         self.params = _arc_params(
+            LAW_DIARC,
             self.gains,
             self.sample_period_s,
             self.u_max_v,

@@ -129,7 +129,7 @@ class EstimatorState(NamedTuple):
     work: LeastSquaresWork
 
 
-@kernel(internal=True)
+@kernel(internal=True, nrt=False)
 def estimator_start(params, est, q_m, dq_m_s, u_v):
     """Put each filter in steady state for the first sample's inputs."""
     wn, zeta = params.estimator.filter_wn_rad_s, params.estimator.filter_zeta
@@ -144,7 +144,7 @@ def estimator_start(params, est, q_m, dq_m_s, u_v):
     clock[CLOCK_STARTED] = 1.0
 
 
-@kernel(inline=True, internal=True)
+@kernel(inline=True, internal=True, nrt=False)
 def estimator_regression(params, est, q_m, dq_m_s, u_previous_v):
     """Advance the filters to this sample (eq. 25); fill est.regression (gamma_f) and est.u_f.
 
@@ -176,7 +176,7 @@ def estimator_regression(params, est, q_m, dq_m_s, u_previous_v):
             u_f[axis] = 0.0
 
 
-@kernel(inline=True, internal=True)
+@kernel(inline=True, internal=True, nrt=False)
 def estimator_update(params, theta, est, q_m, dq_m_s, u_previous_v):
     """One sample of the indirect estimator: filter, then least squares on theta (in place)."""
     estimator_regression(params, est, q_m, dq_m_s, u_previous_v)

@@ -143,7 +143,7 @@ def regressor(a_r, dq_m_s, friction_slope_s_m, out=None):
     return out
 
 
-@kernel
+@kernel(nrt=False)
 def arc_law(q_m, dq_m_s, ref, theta, dc_v, lam, ks, friction_slope_s_m, u_max_v, work):
     """u = clip(Phi theta^ - dc^ + u_s) with u_s = -T Ks T s_c (eq. 13-14, 17, 21).
 

@@ -54,7 +54,7 @@ class PDParams(NamedTuple):
     u_max_v: np.ndarray
 
 
-@kernel
+@kernel(nrt=False)
 def pd_step(params, q_m, dq_m_s, ref, u_v):
     """u = clip(-kp e - kd e' + kv x_d' + ka x_d'') per axis, into u_v (2,) volts."""
     kp, kd, kv, ka, u_max = params
@@ -65,7 +65,7 @@ def pd_step(params, q_m, dq_m_s, ref, u_v):
         u_v[i] = clip(u, -u_max[i], u_max[i])
 
 
-@kernel
+@kernel(nrt=False)
 def pd_command(params, state, t_s, q_m, dq_m_s, ref, u_v):
     """The compiled-controller step (controllers.base): :func:`pd_step`; PD has no state."""
     pd_step(params, q_m, dq_m_s, ref, u_v)
