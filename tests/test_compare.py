@@ -85,9 +85,8 @@ def test_two_runs_without_out_leave_two_complete_run_directories(two_runs):
     assert second["controller"] == "darc" and second["controller_option"] == "darc"
     assert second["overrides"] == [*OVERRIDES, "payload.mass_kg=2.5"]
     first_line = out2.splitlines()[0]
-    assert first_line.startswith("no_load_circle with darc (--set duration_s=2 ") and "--set payload.mass_kg=2.5)" in (
-        first_line
-    )
+    assert first_line.startswith("no_load_circle with darc on the rig plant (--set duration_s=2 ")
+    assert "--set payload.mass_kg=2.5)" in first_line
 
 
 def test_printed_summary_states_the_window_of_every_figure(two_runs):

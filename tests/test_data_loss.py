@@ -89,7 +89,7 @@ def recorded(tmp_path_factory) -> tuple[Path, bytes]:
     return cwd, data
 
 
-@pytest.mark.slow
+@pytest.mark.exhaustive  # a --save of a real run under RLIMIT_FSIZE: ~60 s; run with -m exhaustive
 def test_disk_full_during_save_exit_1_the_earlier_recording_kept_no_temporary(recorded):
     cwd, earlier = recorded
     child = _cli(cwd, *SAVE_RUN, "--set", "duration_s=0.3", "--out", "full", preexec=_disk_full)
@@ -104,7 +104,7 @@ def test_disk_full_during_save_exit_1_the_earlier_recording_kept_no_temporary(re
     assert (cwd / "full" / "summary.json").is_file()  # the run itself is complete; only the recording failed
 
 
-@pytest.mark.slow
+@pytest.mark.exhaustive  # a real --save killed mid-write: ~60 s; run with -m exhaustive
 @pytest.mark.parametrize("how", ["SIGTERM", "SIGKILL"])
 def test_a_signal_during_save_keeps_the_earlier_recording(recorded, how):
     """SIGTERM: exit 143 and the temporary removed. SIGKILL: the temporary stays (nothing can remove it), and the

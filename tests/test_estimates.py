@@ -66,10 +66,11 @@ def test_paper_filters_with_encoder_bias_m1_on_the_circle():
         assert abs(errors[name]) < 6.0, f"{name}: {errors[name]:+.2f} %"
 
 
-#: The slow circle (docs/estimator-envelope.md): r 0.05 m at 1 rad/s (0.05 m/s peak), 30 s. The earlier
+#: The slow circle (docs/estimator-envelope.md, on the ideal plant as its map): r 0.05 m at 1 rad/s (0.05 m/s
+#: peak), 30 s. The earlier
 #: recommended estimator (50 Hz filters, Sf(v) of the differenced velocity) gave M1 -17.7 %, B1 -21.3 %,
 #: B2 -20.2 % there.
-SLOW_CIRCLE = ("contour.radius_m=0.05", "contour.timing.rate_rad_s=1.0")
+SLOW_CIRCLE = ("contour.radius_m=0.05", "contour.timing.rate_rad_s=1.0", "plant.model=paper")  # the map's plant
 EARLIER_ESTIMATOR = (
     "controller.options.estimator={filter_hz: [50, 50], least_squares: {kappa: 0.7}, gamma_d: [3e4, 3e4]}"
 )

@@ -286,11 +286,13 @@ def test_shipped_scenarios_with_lugre_agree_with_a_2_us_physics_reference(path: 
 
 
 def test_a_scenario_chooses_the_friction_and_its_errors_name_the_field() -> None:
-    built = build(load_scenario(shipped("no_load_circle"), ["plant.friction.model=lugre"]))
+    built = build(load_scenario(shipped("no_load_circle"), ["plant.model=paper", "plant.friction.model=lugre"]))
     assert built.plant.friction.lugre and built.plant.substeps > 1
     assert (built.plant.friction_index >= 0).all()
-    coulomb = build(load_scenario(shipped("no_load_circle")))
+    coulomb = build(load_scenario(shipped("no_load_circle"), ["plant.model=paper"]))  # the ideal plant's own
     assert not coulomb.plant.friction.lugre and coulomb.plant.substeps == 1
+    rig = build(load_scenario(shipped("no_load_circle")))  # the default machine's own: LuGre
+    assert rig.plant.friction.lugre and rig.plant.substeps > 1
     with pytest.raises(ScenarioError) as too_stiff:
         build(
             load_scenario(shipped("no_load_circle"), ["plant.friction.model=lugre", "plant.friction.y.sigma0_n_m=1e9"])

@@ -10,7 +10,7 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from gantry_twin.plant import THETA_NAMES
+from gantry_twin.plant import THETA_NAMES, Plant
 from gantry_twin.reports import paper as report
 from gantry_twin.reports import paper_figures
 
@@ -115,7 +115,9 @@ def test_report_on_a_tiny_matrix(tmp_path, capsys):
         assert (tmp_path / "rep" / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
     expected = _independent_numbers(tmp_path, capsys)
-    truth = spec_theta(0.0)  # Sets 1 and 3 carry no load
+    # Sets 1 and 3 carry no load; the default machine (the rig plant): M from the masses (tests/helpers.py), B, Af,
+    # dN the rig's (checked against an independent fit in tests/test_rig_plant.py).
+    truth = [*spec_theta(0.0)[:2], *Plant.shipped("rig").true_parameters()[2:]]
     runs = {run["key"]: run for run in json.loads((tmp_path / "rep" / "results.json").read_text())["runs"]}
     assert set(runs) == set(TINY_RUNS)
     for key, want in expected.items():

@@ -87,7 +87,7 @@ def until(driver: subprocess.Popen, condition):  # noqa: ANN001, ANN201
     return check
 
 
-@pytest.mark.slow
+@pytest.mark.exhaustive  # a Dask cluster with a worker killed mid-trial; run with -m exhaustive
 def test_a_worker_killed_mid_trial_and_the_study_completes(tmp_path, scheduler):  # noqa: F811
     from distributed import Client
 
@@ -114,7 +114,7 @@ def test_a_worker_killed_mid_trial_and_the_study_completes(tmp_path, scheduler):
     assert (out / "tuned.yaml").is_file() and (out / "summary.md").is_file()
 
 
-@pytest.mark.slow
+@pytest.mark.exhaustive  # the driver SIGKILLed, then --resume; run with -m exhaustive
 def test_killed_driver_then_resume_runs_only_the_remaining_trials(tmp_path, capsys):
     import psutil
 

@@ -11,7 +11,7 @@ from gantry_twin._jit import kernel
 from gantry_twin.controllers.estimator import estimator_start, estimator_update
 
 
-@kernel(nrt=False)
+@kernel  # with reference counting: a row of theta_out takes a whole array (numba lowers that through NRT)
 def estimator_replay(params, theta, est, q_m, dq_m_s, u_v, theta_out):  # pragma: no cover
     """DIARC's estimator over a log: q_m, dq_m_s, u_v (n, 2); theta^ after each sample into theta_out (n, 8)."""
     estimator_start(params, est, q_m[0], dq_m_s[0], u_v[0])

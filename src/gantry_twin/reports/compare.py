@@ -238,6 +238,8 @@ def _why_absent(s: RunSummary, section: str) -> str | None:
         return "- (not estimated)"
     if section == "part_error" and s.part_error is None:
         return "- (not a part program)"
+    if section == "contour_error_per_period_um" and s.part_error is not None:
+        return "- (a part program: no lap)"
     return None
 
 
