@@ -2,8 +2,11 @@
 
 Each shipped scenario runs on its default machine, the rig plant (models/rig.xml); the ideal plant
 (``plant.model=paper``) is pinned too, DIARC on every scenario and every controller on the plain
-circle (keys ``scenario/controller@paper``; their digests are those recorded before the default
-machine became the rig, so they also show the ideal plant unchanged by it).
+circle (keys ``scenario/controller@paper``).
+
+The digests hold on any x86-64 machine: what the loop reads is computed with the C library's sin,
+cos and atan2 (``gantry_twin.libm``, tests/test_libm.py), not numpy's SIMD loops, whose last bits
+depend on the CPU.
 
 The digests in ``tests/data/trace_digests.json``: a run that changes any bit of any trace array
 changes its digest. Regenerate them only for an intended change of behaviour, and say so in the

@@ -26,6 +26,7 @@ from typing import Literal, Protocol
 
 import numpy as np
 
+from gantry_twin import libm
 from gantry_twin._jit import kernel
 from gantry_twin.settings import quote
 
@@ -75,7 +76,7 @@ class Ellipse:
 
     def derivatives(self, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         phi = np.asarray(phi, dtype=float)
-        s, c = np.sin(phi), np.cos(phi)
+        s, c = libm.sin(phi), libm.cos(phi)
         a, b = self.semi_x_m, self.semi_y_m
         p = np.stack([self.centre_m[0] + a * s, self.centre_m[1] - b * c], axis=-1)
         dp = np.stack([a * c, b * s], axis=-1)
@@ -171,7 +172,7 @@ def tangent_angle(path: Contour, phi: np.ndarray) -> tuple[np.ndarray, np.ndarra
     x3, y3 = dddp[..., 0], dddp[..., 1]
     num = x1 * y2 - y1 * x2
     den = x1 * x1 + y1 * y1
-    alpha = np.arctan2(y1, x1)
+    alpha = libm.atan2(y1, x1)
     alpha_phi = num / den
     alpha_phiphi = ((x1 * y3 - y1 * x3) * den - num * 2.0 * (x1 * x2 + y1 * y2)) / den**2
     return alpha, alpha_phi, alpha_phiphi
@@ -296,8 +297,8 @@ def contour_error(
         if np.all(np.abs(step) <= tolerance_rad):
             break
     p, dp, _, _ = path.derivatives(phi)
-    alpha = np.arctan2(dp[..., 1], dp[..., 0])
-    normal = np.stack([-np.sin(alpha), np.cos(alpha)], axis=-1)
+    alpha = libm.atan2(dp[..., 1], dp[..., 0])
+    normal = np.stack([-libm.sin(alpha), libm.cos(alpha)], axis=-1)
     d = q - p
     distance = np.linalg.norm(d, axis=-1)
     sign = np.where(np.einsum("...i,...i", d, normal) >= 0.0, 1.0, -1.0)

@@ -17,6 +17,8 @@ from typing import Literal
 
 import numpy as np
 
+from gantry_twin import libm
+
 
 @dataclass(frozen=True, slots=True)
 class Move:
@@ -129,14 +131,14 @@ class MoveTable:
         self.sign = np.where(self.sweep < 0.0, -1.0, 1.0)
         self.curvature = np.where(self.is_arc, self.sign / np.where(self.is_arc, self.radius, 1.0), 0.0)
         rel = self.start - self.centre
-        self.theta0 = np.where(self.is_arc, np.arctan2(rel[:, 1], rel[:, 0]), 0.0)
+        self.theta0 = np.where(self.is_arc, libm.atan2(rel[:, 1], rel[:, 0]), 0.0)
         chord = self.end - self.start
         safe = np.where(self.length > 0, self.length, 1.0)
         self.direction = np.where(self.is_arc[:, None], 0.0, chord / safe[:, None])
 
     def start_tangent_angle(self) -> np.ndarray:
         """The direction of motion at each move's start, rad in (-pi, pi]."""
-        line = np.arctan2(self.direction[:, 1], self.direction[:, 0])
+        line = libm.atan2(self.direction[:, 1], self.direction[:, 0])
         arc = self.theta0 + self.sign * 0.5 * np.pi
         return np.where(self.is_arc, np.angle(np.exp(1j * arc)), line)
 
@@ -153,7 +155,7 @@ class MoveTable:
         r = np.where(arc, self.radius[k], 1.0)
         c = self.curvature[k]
         theta = self.theta0[k] + sign * u / r
-        cos, sin = np.cos(theta), np.sin(theta)
+        cos, sin = libm.cos(theta), libm.sin(theta)
         tangent = np.where(arc[:, None], sign[:, None] * np.stack([-sin, cos], axis=-1), self.direction[k])
         normal = np.stack([-tangent[:, 1], tangent[:, 0]], axis=-1)
         p_arc = self.centre[k] + r[:, None] * np.stack([cos, sin], axis=-1)
@@ -172,7 +174,7 @@ class MoveTable:
         line = start + w[:, None] * chord
         rel = q - self.centre[k]
         sweep = np.abs(self.sweep[k])
-        angle = np.mod(self.sign[k] * (np.arctan2(rel[:, 1], rel[:, 0]) - self.theta0[k]), 2.0 * np.pi)
+        angle = np.mod(self.sign[k] * (libm.atan2(rel[:, 1], rel[:, 0]) - self.theta0[k]), 2.0 * np.pi)
         on_arc = (angle <= sweep) | (sweep >= 2.0 * np.pi - 1e-12)
         r = np.linalg.norm(rel, axis=1)
         radial = np.where(r > 0, r, 1.0)
@@ -191,7 +193,7 @@ class MoveTable:
             return np.array([self.start[k], self.end[k]])
         n = max(2, int(np.ceil(abs(self.sweep[k]) / step_rad)) + 1)
         theta = self.theta0[k] + np.linspace(0.0, self.sweep[k], n)
-        return self.centre[k] + self.radius[k] * np.column_stack([np.cos(theta), np.sin(theta)])
+        return self.centre[k] + self.radius[k] * np.column_stack([libm.cos(theta), libm.sin(theta)])
 
     def distance(self, k: np.ndarray, q: np.ndarray) -> np.ndarray:
         """Exact distance of q[i] (n, 2) to move k[i] (its line segment or arc), m."""
@@ -202,7 +204,7 @@ class MoveTable:
         line = np.linalg.norm(q - (start + w[:, None] * chord), axis=1)
         rel = q - self.centre[k]
         sweep = np.abs(self.sweep[k])
-        angle = np.mod(self.sign[k] * (np.arctan2(rel[:, 1], rel[:, 0]) - self.theta0[k]), 2.0 * np.pi)
+        angle = np.mod(self.sign[k] * (libm.atan2(rel[:, 1], rel[:, 0]) - self.theta0[k]), 2.0 * np.pi)
         on_arc = (angle <= sweep) | (sweep >= 2.0 * np.pi - 1e-12)
         radial = np.abs(np.linalg.norm(rel, axis=1) - self.radius[k])
         ends = np.minimum(np.linalg.norm(q - start, axis=1), np.linalg.norm(q - end, axis=1))

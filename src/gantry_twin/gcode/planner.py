@@ -43,6 +43,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from gantry_twin import libm
 from gantry_twin.gcode.geometry import Dwell, MoveTable
 from gantry_twin.gcode.profiles import (
     half_ramp_distance,
@@ -167,7 +168,7 @@ def _blend_fits(speed, jn: dict, limits: AxisLimits) -> np.ndarray:
     accel, jerk = np.where(positive, accel, 1.0), np.where(positive, jerk, 1.0)
     d = 0.5 * speed * ramp_time(speed, accel, jerk)
     s_h = half_ramp_distance(speed, accel, jerk)
-    deviation = 2.0 * s_h * np.sin(0.5 * jn["turn"]) + s_h * (0.5 * s_h + d) * jn["k_sum"]
+    deviation = 2.0 * s_h * libm.sin(0.5 * jn["turn"]) + s_h * (0.5 * s_h + d) * jn["k_sum"]
     return positive & (d <= jn["room"]) & (deviation <= jn["tolerance"])
 
 
@@ -204,8 +205,8 @@ def plan_program(program: Program, options: PlanOptions | None = None) -> Plan:
     # Tangents at each move's start and end.
     a_start = table.start_tangent_angle()
     a_end = a_start + table.sweep
-    t_start = np.stack([np.cos(a_start), np.sin(a_start)], axis=1)
-    t_end = np.stack([np.cos(a_end), np.sin(a_end)], axis=1)
+    t_start = np.stack([libm.cos(a_start), libm.sin(a_start)], axis=1)
+    t_end = np.stack([libm.cos(a_end), libm.sin(a_end)], axis=1)
     kind = np.full(n + 1, STOP)
     cap = np.zeros(n + 1)
     ramp_a = np.ones(n + 1)

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from gantry_twin import libm
 from gantry_twin.contours import Reference
 from gantry_twin.gcode.geometry import MoveTable
 
@@ -92,7 +93,7 @@ class Plan:
         dist, nearest, t_best = self._nearest_chord(q, centre, round(coarse_s / fine_s), fine_s)
         alpha = self.sample(t_best).alpha_rad
         d = q - nearest
-        sign = np.where(d[:, 0] * -np.sin(alpha) + d[:, 1] * np.cos(alpha) >= 0.0, 1.0, -1.0)
+        sign = np.where(d[:, 0] * -libm.sin(alpha) + d[:, 1] * libm.cos(alpha) >= 0.0, 1.0, -1.0)
         return sign * dist, t_best
 
     def _nearest_chord(self, q: np.ndarray, centre: np.ndarray, half: int, step_s: float):
@@ -152,7 +153,7 @@ class Plan:
             speed2 = np.einsum("ij,ij->i", vb, vb)
             cross_a = vb[:, 0] * ab[:, 1] - vb[:, 1] * ab[:, 0]
             cross_j = vb[:, 0] * jb[:, 1] - vb[:, 1] * jb[:, 0]
-            raw = np.arctan2(vb[:, 1], vb[:, 0])
+            raw = libm.atan2(vb[:, 1], vb[:, 0])
             ref = self.alpha_end[kp]
             alpha[blend] = ref + np.mod(raw - ref + np.pi, 2 * np.pi) - np.pi
             dalpha[blend] = cross_a / speed2

@@ -22,6 +22,7 @@ import numpy as np
 from pydantic import Field, create_model, model_validator
 from pydantic_core import PydanticCustomError
 
+from gantry_twin import libm
 from gantry_twin.contours import Ellipse, TimingLaw
 from gantry_twin.controllers import available
 from gantry_twin.estimation import FilterHz
@@ -208,7 +209,7 @@ class SineEvent(_Event):
     end_s: Seconds | None = None
 
     def volts(self, t: np.ndarray) -> np.ndarray:
-        wave = self.amplitude_v * np.sin(2.0 * np.pi * self.frequency_hz * t + self.phase_rad)
+        wave = self.amplitude_v * libm.sin(2.0 * np.pi * self.frequency_hz * t + self.phase_rad)
         return np.where(self._active(t), wave, 0.0)
 
 
