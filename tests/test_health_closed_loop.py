@@ -73,7 +73,12 @@ def test_payload_pickup_masses_tracked_within_4_s_and_alarmed():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", ["no_load_circle", "no_load_ellipse", "load_5kg_circle", "load_5kg_ellipse"])
+@pytest.mark.parametrize(
+    "name",
+    # The circle without load and the ellipse with it in the suite; the other two with -m exhaustive (suite time).
+    ["no_load_circle", pytest.param("no_load_ellipse", marks=pytest.mark.exhaustive)]
+    + [pytest.param("load_5kg_circle", marks=pytest.mark.exhaustive), "load_5kg_ellipse"],
+)
 def test_paper_scenarios_raise_no_alarm_over_60_s(name):
     _, _, report = run(name, "duration_s=60", "monitor.enable=true")
     assert report.alarms == []

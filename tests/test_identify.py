@@ -134,7 +134,7 @@ def _errors(result, truth):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("seed", [11, 12])
+@pytest.mark.parametrize("seed", [11, pytest.param(12, marks=pytest.mark.exhaustive)])  # a second twin: -m exhaustive
 def test_acceptance_twenty_second_excitation(seed, tmp_path):
     """The acceptance: a 20 s excitation on a random twin (0.5 um encoder): M within 1 %, B and Af within 3 %."""
     plant = random_plant(np.random.default_rng(seed))
@@ -145,7 +145,7 @@ def test_acceptance_twenty_second_excitation(seed, tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("seed", [21, 22])
+@pytest.mark.parametrize("seed", [21, pytest.param(22, marks=pytest.mark.exhaustive)])  # a second twin: -m exhaustive
 def test_acceptance_thirty_second_ellipse(seed, tmp_path):
     """The acceptance: a 30 s log of the paper's ellipse under DIARC on a random twin: M within 2 %, B and Af
     within 5 %."""

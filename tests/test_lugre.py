@@ -272,8 +272,17 @@ def lugre_scenario_eps_c(path: object, extra: tuple[str, ...] = ()) -> np.ndarra
     return np.asarray(trace.eps_c_m)
 
 
+#: The scenarios the suite checks (the plain circle, and the drift that moves the LuGre parameters during the
+#: run); the other seven with ``-m exhaustive`` (the same check, about 10 s each), to keep the suite's time.
+LUGRE_IN_SUITE = ("no_load_circle", "friction_drift_circle")
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("path", shipped_scenarios(), ids=lambda p: p.stem)
+@pytest.mark.parametrize(
+    "path",
+    [pytest.param(p, marks=() if p.stem in LUGRE_IN_SUITE else pytest.mark.exhaustive) for p in shipped_scenarios()],
+    ids=lambda p: p.stem,
+)
 def test_shipped_scenarios_with_lugre_agree_with_a_2_us_physics_reference(path: object) -> None:
     """The chosen integration (LUGRE_INTEGRATOR, LUGRE_SUBSTEPS) within 0.2 um of eps_c with 2 us RK4 physics
     under the same 0.2 ms control, the encoder's quantisation off: the integration error alone. With the 0.5 um
