@@ -244,6 +244,74 @@ def test_a_dask_scheduler_passes_the_probe():
         probe_scheduler(f"tcp://127.0.0.1:{port}", timeout_s=0.5)
 
 
+def _descendants(pid: int) -> list:
+    import psutil
+
+    found = []
+    for p in psutil.Process(pid).children(recursive=True):
+        with contextlib.suppress(psutil.Error):  # multiprocessing's resource tracker lives as long as we do
+            if p.status() != psutil.STATUS_ZOMBIE and "resource_tracker" not in " ".join(p.cmdline()):
+                found.append(p)
+    return found
+
+
+#: A bounded wait that is not bounded fails its test after this long instead of hanging it, s.
+UNBOUNDED_AFTER_S = 90.0
+
+
+def _sweep_in_process(tmp_path: Path, capsys) -> tuple[int, list[str], Path]:  # noqa: ANN001
+    """``sweep`` of two points on one local worker, in a thread: the test fails if it is still waiting after
+    UNBOUNDED_AFTER_S (with the timeout broken, it would wait for ever)."""
+    from .helpers import run_main
+
+    (tmp_path / "w.yaml").write_text(SWEEP)
+    out = tmp_path / "out"
+    answer: list = []
+    argv = ["sweep", str(tmp_path / "w.yaml"), "--out", str(out), "--workers", "1"]
+    thread = threading.Thread(target=lambda: answer.append(run_main(argv, capsys)), daemon=True)
+    thread.start()
+    thread.join(UNBOUNDED_AFTER_S)
+    assert not thread.is_alive(), f"the sweep still waited after {UNBOUNDED_AFTER_S:g} s"
+    code, _, err = answer[0]
+    return code, err.strip().splitlines(), out
+
+
+def test_a_local_worker_that_never_starts_ends_the_sweep_with_one_line(tmp_path, capsys, monkeypatch):
+    """A LocalCluster's start is bounded (engine.CLUSTER_START_TIMEOUT_S, the nannies' death_timeout): a worker
+    stuck at start (here a preload that sleeps) once kept a sweep waiting for ever. Exit 2, one line, no run."""
+    import dask
+    import distributed  # noqa: F401  its config section first: dask.config.set would otherwise remove it on exit
+
+    from gantry_twin.sweep import engine
+
+    (tmp_path / "stuck_preload.py").write_text("import time\ntime.sleep(3600)\n")
+    monkeypatch.setattr(engine, "CLUSTER_START_TIMEOUT_S", 3.0)
+    started = time.monotonic()
+    with dask.config.set({"distributed.worker.preload": [str(tmp_path / "stuck_preload.py")]}):
+        code, lines, out = _sweep_in_process(tmp_path, capsys)
+    assert code == 2, lines
+    assert len(lines) == 1 and "worker(s) did not start within 3 s" in lines[0], lines
+    assert time.monotonic() - started < 3.0 + WAIT_SLACK_S
+    assert not (out / "results.parquet").exists()
+    assert not [p for p in _descendants(os.getpid()) if p.is_running()], "the stuck worker outlived the sweep"
+
+
+def test_a_warm_up_that_never_ends_ends_the_sweep_with_one_line(tmp_path, capsys, monkeypatch):
+    """The workers' warm-up (compile or load the loops) is bounded (engine.WARM_UP_TIMEOUT_S): a worker stuck
+    there (here a warm-up that sleeps; in life a process holding the compile lock) once held the driver in
+    gather() for ever. Sweep and tune share the engine's prepare_workers. Exit 2, one line, no run."""
+    from gantry_twin.sweep import engine
+
+    monkeypatch.setattr(engine, "WARM_UP_TIMEOUT_S", 2.0)
+    monkeypatch.setattr(engine, "_warm_up_all", lambda *args: time.sleep(3600))  # pickled by value to the worker
+    started = time.monotonic()
+    code, lines, out = _sweep_in_process(tmp_path, capsys)
+    assert code == 2, lines
+    assert len(lines) == 1 and "did not compile or load the loop within 2 s" in lines[0], lines
+    assert time.monotonic() - started < 2.0 + 2 * WAIT_SLACK_S  # a cluster's start, the wait, its close
+    assert not (out / "results.parquet").exists()
+
+
 # ---------------------------------------------------------------------------
 # A fault in a point is that point's row, and the sweep's exit code says when all failed.
 
