@@ -20,6 +20,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pyarrow.parquet as pq
 import pytest
 
 from gantry_twin.sweep.engine import CONNECT_TIMEOUT_S, ClusterError, probe_scheduler
@@ -259,12 +260,13 @@ def _descendants(pid: int) -> list:
 UNBOUNDED_AFTER_S = 90.0
 
 
-def _sweep_in_process(tmp_path: Path, capsys) -> tuple[int, list[str], Path]:  # noqa: ANN001
-    """``sweep`` of two points on one local worker, in a thread: the test fails if it is still waiting after
-    UNBOUNDED_AFTER_S (with the timeout broken, it would wait for ever)."""
+def _sweep_in_process(tmp_path: Path, capsys, write_spec: bool = True) -> tuple[int, list[str], Path]:  # noqa: ANN001
+    """``sweep`` of two points (w.yaml: SWEEP unless written) on one local worker, in a thread: the test fails if
+    it is still waiting after UNBOUNDED_AFTER_S (with a timeout broken, it would wait for ever)."""
     from .helpers import run_main
 
-    (tmp_path / "w.yaml").write_text(SWEEP)
+    if write_spec:
+        (tmp_path / "w.yaml").write_text(SWEEP)
     out = tmp_path / "out"
     answer: list = []
     argv = ["sweep", str(tmp_path / "w.yaml"), "--out", str(out), "--workers", "1"]
@@ -333,6 +335,22 @@ class _Exits:
 
     def state_for_logging(self):
         return {}
+
+
+def test_an_unwritable_kernel_cache_fails_each_point_and_the_sweep(tmp_path, capsys, monkeypatch):
+    """A numba cache the workers cannot write: NUMBA_CACHE_DIR under a regular file, so that making it fails
+    with ENOTDIR even for root (chmod does not stop root). Each point's row says so, and the sweep exits 1,
+    not 0. (numba itself falls back silently to a cache beside the sources: ``run`` with the same variable
+    succeeds, checked by hand; it is the workers' compile lock that cannot be made.)"""
+    (tmp_path / "a_file").write_text("")
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "a_file" / "numba"))  # the workers inherit it
+    (tmp_path / "w.yaml").write_text(SWEEP.replace("axes:", "set: {duration_s: 0.2}\naxes:"))
+    code, lines, out = _sweep_in_process(tmp_path, capsys, write_spec=False)
+    assert code == 1, lines
+    assert lines[-1].startswith("gantry-twin: sweep failed: every point run failed"), lines
+    rows = pq.read_table(out / "results.parquet").to_pylist()
+    assert [r["status"] for r in rows] == ["failed", "failed"]
+    assert all("cannot be made or locked (Not a directory); set NUMBA_CACHE_DIR" in r["error"] for r in rows), rows
 
 
 def test_a_plugin_that_exits_in_a_point_gives_a_failed_row_not_an_exit():

@@ -70,8 +70,16 @@ _warmed: set[str] = set()
 def compile_lock() -> Iterator[None]:
     """An exclusive lock on this machine's kernel cache (a file lock, so it holds across processes)."""
     directory = cache_dir()
-    os.makedirs(directory, exist_ok=True)
-    with open(os.path.join(directory, COMPILE_LOCK), "a") as handle:
+    try:
+        os.makedirs(directory, exist_ok=True)
+        handle = open(os.path.join(directory, COMPILE_LOCK), "a")  # noqa: SIM115 (closed below)
+    except OSError as exc:  # e.g. NUMBA_CACHE_DIR under a regular file, or read-only: the point fails, saying so
+        raise OSError(
+            exc.errno,
+            f"the compiled-kernel cache {directory} cannot be made or locked ({exc.strerror}); "
+            "set NUMBA_CACHE_DIR to a writable folder",
+        ) from None
+    with handle:
         if fcntl is not None:
             fcntl.flock(handle, fcntl.LOCK_EX)
         try:
