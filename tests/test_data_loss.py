@@ -20,6 +20,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pyarrow.parquet as pq
 import pytest
 
 from gantry_twin.sweep.engine import CONNECT_TIMEOUT_S, ClusterError, probe_scheduler
@@ -244,6 +245,75 @@ def test_a_dask_scheduler_passes_the_probe():
         probe_scheduler(f"tcp://127.0.0.1:{port}", timeout_s=0.5)
 
 
+def _descendants(pid: int) -> list:
+    import psutil
+
+    found = []
+    for p in psutil.Process(pid).children(recursive=True):
+        with contextlib.suppress(psutil.Error):  # multiprocessing's resource tracker lives as long as we do
+            if p.status() != psutil.STATUS_ZOMBIE and "resource_tracker" not in " ".join(p.cmdline()):
+                found.append(p)
+    return found
+
+
+#: A bounded wait that is not bounded fails its test after this long instead of hanging it, s.
+UNBOUNDED_AFTER_S = 90.0
+
+
+def _sweep_in_process(tmp_path: Path, capsys, write_spec: bool = True) -> tuple[int, list[str], Path]:  # noqa: ANN001
+    """``sweep`` of two points (w.yaml: SWEEP unless written) on one local worker, in a thread: the test fails if
+    it is still waiting after UNBOUNDED_AFTER_S (with a timeout broken, it would wait for ever)."""
+    from .helpers import run_main
+
+    if write_spec:
+        (tmp_path / "w.yaml").write_text(SWEEP)
+    out = tmp_path / "out"
+    answer: list = []
+    argv = ["sweep", str(tmp_path / "w.yaml"), "--out", str(out), "--workers", "1"]
+    thread = threading.Thread(target=lambda: answer.append(run_main(argv, capsys)), daemon=True)
+    thread.start()
+    thread.join(UNBOUNDED_AFTER_S)
+    assert not thread.is_alive(), f"the sweep still waited after {UNBOUNDED_AFTER_S:g} s"
+    code, _, err = answer[0]
+    return code, err.strip().splitlines(), out
+
+
+def test_a_local_worker_that_never_starts_ends_the_sweep_with_one_line(tmp_path, capsys, monkeypatch):
+    """A LocalCluster's start is bounded (engine.CLUSTER_START_TIMEOUT_S, the nannies' death_timeout): a worker
+    stuck at start (here a preload that sleeps) once kept a sweep waiting for ever. Exit 2, one line, no run."""
+    import dask
+    import distributed  # noqa: F401  its config section first: dask.config.set would otherwise remove it on exit
+
+    from gantry_twin.sweep import engine
+
+    (tmp_path / "stuck_preload.py").write_text("import time\ntime.sleep(3600)\n")
+    monkeypatch.setattr(engine, "CLUSTER_START_TIMEOUT_S", 3.0)
+    started = time.monotonic()
+    with dask.config.set({"distributed.worker.preload": [str(tmp_path / "stuck_preload.py")]}):
+        code, lines, out = _sweep_in_process(tmp_path, capsys)
+    assert code == 2, lines
+    assert len(lines) == 1 and "worker(s) did not start within 3 s" in lines[0], lines
+    assert time.monotonic() - started < 3.0 + WAIT_SLACK_S
+    assert not (out / "results.parquet").exists()
+    assert not [p for p in _descendants(os.getpid()) if p.is_running()], "the stuck worker outlived the sweep"
+
+
+def test_a_warm_up_that_never_ends_ends_the_sweep_with_one_line(tmp_path, capsys, monkeypatch):
+    """The workers' warm-up (compile or load the loops) is bounded (engine.WARM_UP_TIMEOUT_S): a worker stuck
+    there (here a warm-up that sleeps; in life a process holding the compile lock) once held the driver in
+    gather() for ever. Sweep and tune share the engine's prepare_workers. Exit 2, one line, no run."""
+    from gantry_twin.sweep import engine
+
+    monkeypatch.setattr(engine, "WARM_UP_TIMEOUT_S", 2.0)
+    monkeypatch.setattr(engine, "_warm_up_all", lambda *args: time.sleep(3600))  # pickled by value to the worker
+    started = time.monotonic()
+    code, lines, out = _sweep_in_process(tmp_path, capsys)
+    assert code == 2, lines
+    assert len(lines) == 1 and "did not compile or load the loop within 2 s" in lines[0], lines
+    assert time.monotonic() - started < 2.0 + 2 * WAIT_SLACK_S  # a cluster's start, the wait, its close
+    assert not (out / "results.parquet").exists()
+
+
 # ---------------------------------------------------------------------------
 # A fault in a point is that point's row, and the sweep's exit code says when all failed.
 
@@ -265,6 +335,22 @@ class _Exits:
 
     def state_for_logging(self):
         return {}
+
+
+def test_an_unwritable_kernel_cache_fails_each_point_and_the_sweep(tmp_path, capsys, monkeypatch):
+    """A numba cache the workers cannot write: NUMBA_CACHE_DIR under a regular file, so that making it fails
+    with ENOTDIR even for root (chmod does not stop root). Each point's row says so, and the sweep exits 1,
+    not 0. (numba itself falls back silently to a cache beside the sources: ``run`` with the same variable
+    succeeds, checked by hand; it is the workers' compile lock that cannot be made.)"""
+    (tmp_path / "a_file").write_text("")
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "a_file" / "numba"))  # the workers inherit it
+    (tmp_path / "w.yaml").write_text(SWEEP.replace("axes:", "set: {duration_s: 0.2}\naxes:"))
+    code, lines, out = _sweep_in_process(tmp_path, capsys, write_spec=False)
+    assert code == 1, lines
+    assert lines[-1].startswith("gantry-twin: sweep failed: every point run failed"), lines
+    rows = pq.read_table(out / "results.parquet").to_pylist()
+    assert [r["status"] for r in rows] == ["failed", "failed"]
+    assert all("cannot be made or locked (Not a directory); set NUMBA_CACHE_DIR" in r["error"] for r in rows), rows
 
 
 def test_a_plugin_that_exits_in_a_point_gives_a_failed_row_not_an_exit():

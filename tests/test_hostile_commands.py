@@ -1,4 +1,4 @@
-"""Hostile input to the commands other than ``run`` (sweep, calibrate, compare, export, identify, excite, monitor
+"""Hostile input to the commands other than ``run`` (sweep, tune, calibrate, compare, export, identify, excite, monitor
 --log, report --rig, --save): each case is refused with its documented exit code, quickly, in bounded memory, in
 one line, and the case's directory is as it was (nothing written, nothing replaced). The table of cases is
 docs/hostile-input.md, "The other commands"; the harness (children forked from one interpreter that imported the
@@ -56,6 +56,9 @@ BINARY = bytes(range(256)) * 4
 DEEP_JSON = "[" * 100_000 + "]" * 100_000
 BILLION = "{start: 0, stop: 1, num: 1000000000}"
 SW = ("sweep", "w.yaml", "--out", "out")
+#: A valid tune spec: the shipped PD baseline's.
+TUNE = (Path(__file__).resolve().parents[1] / "tunes" / "pd_baseline.yaml").read_text(encoding="utf-8")
+TU = ("tune", "t.yaml", "--out", "out")
 CAL = ("calibrate", "c.yaml", "--out", "out")
 CMP = ("compare", "a", "b", "--out", "out")
 EXPORT = ("export", "trace.parquet", "--out", "x.csv")
@@ -192,6 +195,26 @@ CASES = [
     Case(
         "monitor_log_out_is_a_file", {"log.csv": LOG, "afile": "x"}, ("monitor", "--log", "log.csv", "--out", "afile")
     ),
+    # tune: the spec, the command line, the study to resume.
+    Case("tune_file_fifo", {"t.yaml": Fifo()}, TU),
+    Case("tune_file_dev_zero", {"t.yaml": Link("/dev/zero")}, TU),
+    Case("tune_file_binary", {"t.yaml": BINARY}, TU),
+    Case("tune_file_too_large", {"t.yaml": "#" * (INPUT_MAX_BYTES + 1)}, TU),
+    Case("tune_unknown_key", {"t.yaml": TUNE + "bogus: 1\n"}, TU),
+    Case("tune_a_billion_trials", {"t.yaml": TUNE.replace("trials: 60", "trials: 1000000000")}, TU),
+    Case("tune_design_range_empty", {"t.yaml": TUNE.replace("low: 1000, high: 100000", "low: 100000, high: 1000")}, TU),
+    Case(
+        "tune_member_payload_nan",
+        {"t.yaml": TUNE.replace("rig, payload.mass_kg: 0}", "rig, payload.mass_kg: .nan}")},
+        TU,
+    ),
+    Case("tune_workers_0", {"t.yaml": TUNE}, (*TU, "--workers", "0")),
+    Case("tune_trials_0", {"t.yaml": TUNE}, (*TU, "--trials", "0")),
+    Case("tune_scheduler_notaurl", {"t.yaml": TUNE}, (*TU, "--scheduler", "notaurl")),
+    Case("tune_out_unwritable", {"t.yaml": TUNE}, ("tune", "t.yaml", "--out", UNWRITABLE)),
+    Case("tune_out_holds_a_study", {"t.yaml": TUNE, "out/study.db": "junk\n"}, TU),
+    Case("tune_resume_junk_study", {"t.yaml": TUNE, "out/study.db": "junk\n"}, (*TU, "--resume")),
+    Case("tune_resume_study_a_fifo", {"t.yaml": TUNE, "out/study.db": Fifo()}, (*TU, "--resume")),
     # report --rig
     Case("report_rig_fifo", {"rig.json": Fifo()}, RIG),
     Case("report_rig_dev_zero", {"rig.json": Link("/dev/zero")}, RIG),
@@ -272,6 +295,7 @@ def test_at_least_60_cases_across_the_commands_each_documented():
     commands |= {"monitor --log" for c in CASES if "--log" in c.args} | {"--save" for c in CASES if "--save" in c.args}
     assert {
         "sweep",
+        "tune",
         "calibrate",
         "compare",
         "export",

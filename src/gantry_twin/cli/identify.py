@@ -32,6 +32,10 @@ SCENARIO_FILE = "plant.yaml"
 REPORT_FILE = "fit_report.md"
 #: The friction models ``--friction`` names.
 FRICTION_MODELS = ("coulomb", "lugre")
+#: Most rows identify takes over all its logs: the regression, the LuGre stages and the fit report's replay
+#: hold every row (about 0.4 KB a row: 1 000 000 rows, 200 s at 5 kHz, peaked at 0.8 GB; docs/logs.md).
+#: An excitation is 20-30 s.
+ROWS_MAX = 1_000_000
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -58,7 +62,7 @@ def command(args: argparse.Namespace) -> int:
             raise ValueError(f"--window-s: must be in (0, 3600] s, got {args.window_s:g}")
         if args.out.exists() and not args.out.is_dir():
             raise ValueError(f"--out {args.out}: exists and is not a directory")
-        logs = [read_log(p) for p in args.logs]
+        logs = read_logs(args.logs)
         machine_s = Plant().timestep_s
         for log in logs:  # a log at its own period is taken; t_s in ms or us (1000x, 10^6x the machine's) is not
             check_sample_period(log.path, log.sample_period_s, machine_s, exact=False)
@@ -88,6 +92,20 @@ def command(args: argparse.Namespace) -> int:
         return 2
     print(format_identified(data, out))
     return 0
+
+
+def read_logs(paths: Sequence[str]) -> list[Log]:
+    """The logs, each read whole within what ROWS_MAX leaves (LogError past it, naming the log and the range)."""
+    logs: list[Log] = []
+    timestep_s = Plant().timestep_s
+    for path in paths:
+        left = ROWS_MAX - sum(log.samples for log in logs)
+        why = (
+            f"identify holds its logs whole: {ROWS_MAX} rows in all, {ROWS_MAX * timestep_s:g} s at the machine's "
+            f"{timestep_s * 1e3:g} ms"
+        )
+        logs.append(read_log(path, max_rows=max(left, 0), reader=why + (", with the logs before it" if logs else "")))
+    return logs
 
 
 def scenario_plant(lugre: LuGreFit | None) -> dict[str, object]:

@@ -9,12 +9,12 @@ from pathlib import Path
 from gantry_twin.cli.common import PROG
 from gantry_twin.compiling import replay_compile_notice
 from gantry_twin.controllers import DIARC, create
-from gantry_twin.health.log_monitor import ESTIMATE_WINDOW_S, monitor_log
+from gantry_twin.health.log_monitor import monitor_log
 from gantry_twin.outputs.files import atomic_write_text
 from gantry_twin.outputs.summary import RunSummary, log_summary, summary_json
 from gantry_twin.plant import Plant
 from gantry_twin.scenario import apply_overrides, controller_options, load_scenario, make_monitor, validate_data
-from gantry_twin.sysid.logs import check_sample_period, read_log
+from gantry_twin.sysid.logs import check_sample_period, log_chunks, scan_log
 
 
 def monitor_log_command(args: argparse.Namespace, scenario_path: Path | None, out: Path) -> RunSummary:
@@ -41,9 +41,9 @@ def monitor_log_command(args: argparse.Namespace, scenario_path: Path | None, ou
             f"monitor --log runs DIARC's estimator; the scenario's controller is {scenario.controller.name}"
         )
     monitor = make_monitor(scenario, controller, source)
-    log = read_log(args.log)
+    log = scan_log(args.log)  # checked whole before the replay, a chunk at a time; then read again, likewise
     check_sample_period(f"--log {args.log}", log.sample_period_s, Plant().timestep_s)
-    end = float(log.t_s[-1])
+    end = log.t_last_s
     lo, hi = scenario.monitor.baseline_window_s
     if scenario.monitor.baseline_summary is None and hi > end + 1e-9:
         raise ValueError(
@@ -52,8 +52,8 @@ def monitor_log_command(args: argparse.Namespace, scenario_path: Path | None, ou
             "or --baseline SUMMARY (a healthy run's summary.json)"
         )
     replay_compile_notice(PROG)  # a line if the estimator's replay compiles first
-    report = monitor_log(log, controller, monitor)
-    summary = log_summary(log, report, (end - min(ESTIMATE_WINDOW_S, 0.5 * log.duration_s), end))
+    tally = monitor_log(log, log_chunks(args.log), controller, monitor)
+    summary = log_summary(log, tally)
     try:
         out.mkdir(parents=True, exist_ok=True)
         atomic_write_text(out / "summary.json", summary_json(summary))

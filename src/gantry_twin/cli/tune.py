@@ -7,7 +7,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from gantry_twin.cli.common import EXIT_OK, EXIT_RUN_FAILED, BadInput, checked_out
+from gantry_twin.cli.common import EXIT_OK, EXIT_RUN_FAILED, BadInput, checked_out, writable_out
 from gantry_twin.sweep.engine import ClusterError, check_scheduler, check_workers
 from gantry_twin.tune import TuneError, best_trial, check_out, load_tune, plan_tune, run_tune, tune_file, write_results
 from gantry_twin.tune.spec import TRIALS_MAX
@@ -64,7 +64,8 @@ def command(args: argparse.Namespace) -> int:
             print(f"{trial.number:4d} {trial.state.name.lower():8s} f {shown}", file=sys.stderr, flush=True)
 
     try:
-        outcome = run_tune(plan, out, trials, args.workers, args.scheduler, args.resume, args.seed, False, show)
+        with writable_out(out):  # before the cluster starts: a read-only --out found in milliseconds, not after it
+            outcome = run_tune(plan, out, trials, args.workers, args.scheduler, args.resume, args.seed, False, show)
     except ClusterError as exc:
         raise BadInput(str(exc)) from None
     except OSError as exc:

@@ -12,10 +12,15 @@ from gantry_twin.controllers.estimator import estimator_start, estimator_update
 
 
 @kernel  # with reference counting: a row of theta_out takes a whole array (numba lowers that through NRT)
-def estimator_replay(params, theta, est, q_m, dq_m_s, u_v, theta_out):  # pragma: no cover
-    """DIARC's estimator over a log: q_m, dq_m_s, u_v (n, 2); theta^ after each sample into theta_out (n, 8)."""
-    estimator_start(params, est, q_m[0], dq_m_s[0], u_v[0])
-    theta_out[0] = theta
-    for k in range(1, q_m.shape[0]):
-        estimator_update(params, theta, est, q_m[k], dq_m_s[k], u_v[k - 1])
+def estimator_replay(params, theta, est, q_m, dq_m_s, u_held, start, theta_out):  # pragma: no cover
+    """DIARC's estimator over n samples of a log, a chunk at a time: q_m, dq_m_s (n, 2); u_held (n, 2) the command
+    held over the interval before each sample (the previous sample's); theta^ after each sample into theta_out
+    (n, 8). ``start``: the chunk is the log's first, its sample 0 starts the filters (u_held[0] = its command)."""
+    first = 0
+    if start:
+        estimator_start(params, est, q_m[0], dq_m_s[0], u_held[0])
+        theta_out[0] = theta
+        first = 1
+    for k in range(first, q_m.shape[0]):
+        estimator_update(params, theta, est, q_m[k], dq_m_s[k], u_held[k])
         theta_out[k] = theta

@@ -14,62 +14,126 @@ On a twin's trace (float64 columns) the estimates are those the run
 logged, to rounding (tests/test_logmonitor.py). The first sample's
 velocity, which a log does not hold, is taken as the backward difference of
 the first two samples; it only sets the filters' start.
+
+The log is read a chunk at a time (:func:`gantry_twin.sysid.logs.log_chunks`), and the estimator and the
+monitor carry their state from one chunk to the next; what is kept of the monitor's periods is their
+:class:`~gantry_twin.health.monitor.MonitorTally`, so memory does not grow with the log's length
+(benchmarks/bench_log_memory.py).
 """
 
 from __future__ import annotations
+
+from collections.abc import Iterable, Iterator
 
 import numpy as np
 
 from gantry_twin.controllers import DIARC
 from gantry_twin.controllers.base import U_MAX_V, Measurement, RunContext
 from gantry_twin.health.estimator_replay import estimator_replay
-from gantry_twin.health.monitor import MachineMonitor, MonitorReport
-from gantry_twin.sysid.logs import Log
+from gantry_twin.health.monitor import MachineMonitor, MonitorTally
+from gantry_twin.sysid.logs import Log, LogChunk, LogInfo
 from gantry_twin.trace import Trace
 
 #: summary.json's estimates: the mean over the log's last ESTIMATE_WINDOW_S (at most half the log), s.
 ESTIMATE_WINDOW_S = 10.0
 
 
+class EstimatorReplay:
+    """DIARC's estimator (its gains and estimator settings) over a log's chunks, in order: :meth:`estimates`."""
+
+    def __init__(self, controller: DIARC, sample_period_s: float) -> None:
+        self.controller, self.ts = controller, sample_period_s
+        self._last: tuple[np.ndarray, np.ndarray] | None = None  # the previous chunk's last q_m and u_v
+        self._args = None
+
+    def estimates(self, chunk: LogChunk) -> np.ndarray:
+        """theta^ (n, 8) after each sample of the chunk, volt units. The first chunk needs two samples."""
+        q, u, ts = chunk.q_m, chunk.u_v, self.ts
+        start = self._last is None
+        dq = np.empty_like(q)
+        if start:
+            dq[1:] = np.diff(q, axis=0) / ts
+            dq[0] = dq[1]
+            context = RunContext(ts, np.array(U_MAX_V), Measurement(float(chunk.t_s[0]), q[0], dq[0]))
+            self.controller.reset(context)
+            params, state = self.controller.kernel_arguments()
+            self._args = (params, state.theta, state.estimator)
+            held = np.concatenate([u[:1], u[:-1]])
+        else:
+            q_before, u_before = self._last
+            dq[:] = np.diff(np.concatenate([q_before[None], q]), axis=0) / ts
+            held = np.concatenate([u_before[None], u[:-1]])
+        out = np.empty((q.shape[0], 8))
+        estimator_replay(*self._args, np.ascontiguousarray(q), dq, np.ascontiguousarray(held), start, out)
+        self._last = (q[-1].copy(), u[-1].copy())
+        return out
+
+
 def estimates(controller: DIARC, log: Log) -> np.ndarray:
-    """theta^ (n, 8) of DIARC's estimator (its gains and estimator settings) over the log, volt units."""
-    ts = log.sample_period_s
-    dq = np.empty_like(log.q_m)
-    dq[1:] = np.diff(log.q_m, axis=0) / ts
-    dq[0] = dq[1]
-    controller.reset(RunContext(ts, np.array(U_MAX_V), Measurement(float(log.t_s[0]), log.q_m[0], dq[0])))
-    params, state = controller.kernel_arguments()
-    out = np.empty((log.samples, 8))
-    estimator_replay(params, state.theta, state.estimator, np.ascontiguousarray(log.q_m), dq, log.u_v, out)
-    return out
+    """theta^ (n, 8) of DIARC's estimator over a whole log, volt units."""
+    return EstimatorReplay(controller, log.sample_period_s).estimates(LogChunk(0, log.t_s, log.u_v, log.q_m, None))
 
 
-def log_trace(log: Log, theta_hat: np.ndarray) -> Trace:
-    """A trace of what the log holds (no true positions, no contour errors) with DIARC's estimates."""
-    n = log.samples
+def chunk_trace(chunk: LogChunk, theta_hat: np.ndarray, sample_period_s: float) -> Trace:
+    """A trace piece of what the chunk holds (no true positions, no contour errors) with DIARC's estimates."""
+    n = chunk.t_s.size
     nan2, nan = np.full((n, 2), np.nan), np.full(n, np.nan)
-    q_d = log.q_d_m if log.q_d_m is not None else nan2
     return Trace(
-        t_s=log.t_s,
+        t_s=chunk.t_s,
         q_m=nan2,
-        q_meas_m=log.q_m,
-        q_d_m=q_d,
+        q_meas_m=chunk.q_m,
+        q_d_m=chunk.q_d_m if chunk.q_d_m is not None else nan2,
         e_m=nan2,
         eps_n_m=nan,
         eps_c_m=nan,
-        u_v=log.u_v,
+        u_v=chunk.u_v,
         disturbance_v=np.zeros((n, 2)),
         true_theta=np.full(8, np.nan),
         controller_state={"theta_hat": theta_hat},
-        filled=n,
-        timestep_s=log.sample_period_s,
+        filled=chunk.first + n,
+        first=chunk.first,
+        timestep_s=sample_period_s,
     )
 
 
-def monitor_log(log: Log, controller: DIARC, monitor: MachineMonitor) -> MonitorReport:
-    """DIARC's estimator and the health monitor over a log."""
-    trace = log_trace(log, estimates(controller, log))
-    monitor.on_start(None, trace)
-    monitor.on_chunk(trace, 0, trace.filled)
-    monitor.on_end(trace)
-    return monitor.report()
+def estimate_window_s(info: LogInfo) -> tuple[float, float]:
+    """summary.json's estimates window: the log's last ESTIMATE_WINDOW_S, at most half of it."""
+    return (info.t_last_s - min(ESTIMATE_WINDOW_S, 0.5 * info.duration_s), info.t_last_s)
+
+
+def monitor_log(info: LogInfo, chunks: Iterable[LogChunk], controller: DIARC, monitor: MachineMonitor) -> MonitorTally:
+    """DIARC's estimator and the health monitor over a log's chunks, one at a time (``info``: the log's
+    :func:`~gantry_twin.sysid.logs.scan_log`); the tally of the monitor's periods (its alarms, statuses, the
+    mean estimates over :func:`estimate_window_s`)."""
+    replay = EstimatorReplay(controller, info.sample_period_s)
+    tally = MonitorTally(estimate_window_s(info))
+    started = False
+    for chunk in _first_has_two(chunks):
+        trace = chunk_trace(chunk, replay.estimates(chunk), info.sample_period_s)
+        if not started:
+            monitor.on_start(None, trace)
+            started = True
+        monitor.on_chunk(trace, chunk.first, chunk.first + chunk.t_s.size)
+        tally.add(monitor.report(clear=True))
+    monitor.on_end(None)
+    tally.add(monitor.report(clear=True))
+    return tally
+
+
+def _first_has_two(chunks: Iterable[LogChunk]) -> Iterator[LogChunk]:
+    """The chunks, a one-row first chunk joined to the next (the first sample's velocity needs the second)."""
+    pending: LogChunk | None = None
+    for chunk in chunks:
+        if pending is not None:
+            desired = None if chunk.q_d_m is None else np.concatenate([pending.q_d_m, chunk.q_d_m])
+            chunk = LogChunk(
+                0,
+                *(np.concatenate([a, b]) for a, b in ((pending.t_s, chunk.t_s), (pending.u_v, chunk.u_v))),
+                np.concatenate([pending.q_m, chunk.q_m]),
+                desired,
+            )
+            pending = None
+        elif chunk.first == 0 and chunk.t_s.size < 2:
+            pending = chunk
+            continue
+        yield chunk

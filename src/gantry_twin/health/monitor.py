@@ -163,25 +163,98 @@ class MonitorReport:
 
     def judged(self) -> list[str]:
         """The parameters the monitor judged at least once (status ok, drifting or alarm), in theta's order."""
-        if self.status is None or not len(self.status):
-            return []
-        seen = np.isin(self.status, (OK, DRIFTING, ALARM)).any(axis=0)
-        return [n for n, s in zip(THETA_NAMES, seen, strict=True) if s]
+        return MonitorTally.of(self).judged()
 
     def final_status(self) -> dict[str, str]:
         """The status of each parameter at the end of the run."""
-        if self.status is None or not len(self.status):
-            return {}
-        return {n: STATUS_NAMES[int(c)] for n, c in zip(THETA_NAMES, self.status[-1], strict=True)}
+        return MonitorTally.of(self).final_status()
 
     def time_in_status_s(self, period_s: float) -> dict[str, dict[str, float]]:
         """Seconds each parameter spent in each status."""
-        if self.status is None:
+        return MonitorTally.of(self).time_in_status_s(period_s)
+
+
+class MonitorTally:
+    """The totals of a monitor's periods that summary.json's ``health`` section needs (and the mean estimate
+    over a window), added a :class:`MonitorReport` at a time: what ``monitor --log`` keeps of a log of any
+    length (:meth:`MachineMonitor.report` with ``clear=True`` after each chunk), memory independent of it."""
+
+    def __init__(self, estimate_window_s: tuple[float, float] | None = None) -> None:
+        self.periods = 0
+        self.first_t: list[float] = []  # the first two periods' end times: the monitor's period
+        self.level_final: np.ndarray | None = None
+        self.level_min = np.full(2, np.inf)
+        self.excited_periods = np.zeros(2)  # periods in which all of an axis' parameters were excited
+        self.has_status = False
+        self.status_periods = np.zeros((8, len(STATUS_NAMES)), dtype=np.int64)
+        self.last_status: np.ndarray | None = None
+        self.alarms: list[Alarm] = []
+        self.baseline: Baseline | None = None
+        self.estimate_window_s = estimate_window_s
+        self.estimate_sum = np.zeros(8)
+        self.estimate_count = 0
+
+    @classmethod
+    def of(cls, report: MonitorReport) -> MonitorTally:
+        tally = cls()
+        tally.add(report)
+        return tally
+
+    def add(self, report: MonitorReport) -> None:
+        """The periods of ``report`` (the next ones after those added before); its alarms and baseline replace
+        those held (a report holds all alarms so far)."""
+        m = int(report.t_s.size)
+        self.first_t.extend(float(t) for t in report.t_s[: max(0, 2 - len(self.first_t))])
+        self.alarms, self.baseline = list(report.alarms), report.baseline
+        if report.status is not None:
+            self.has_status = True
+        if m == 0:
+            return
+        self.periods += m
+        self.level_final = np.asarray(report.level_v[-1], dtype=float)
+        self.level_min = np.minimum(self.level_min, report.level_v.min(axis=0))
+        for i in range(2):
+            self.excited_periods[i] += int(report.excited[:, [j for j in range(8) if j % 2 == i]].all(axis=1).sum())
+        if report.status is not None and len(report.status):
+            for code in range(len(STATUS_NAMES)):
+                self.status_periods[:, code] += (report.status == code).sum(axis=0)
+            self.last_status = np.asarray(report.status[-1])
+        if report.estimate is not None and self.estimate_window_s is not None:
+            lo, hi = self.estimate_window_s
+            inside = (report.t_s >= lo) & (report.t_s <= hi)
+            self.estimate_sum += report.estimate[inside].sum(axis=0)
+            self.estimate_count += int(inside.sum())
+
+    @property
+    def period_s(self) -> float:
+        return self.first_t[1] - self.first_t[0] if len(self.first_t) > 1 else 0.0
+
+    def judged(self) -> list[str]:
+        """The parameters the monitor judged at least once (status ok, drifting or alarm), in theta's order."""
+        seen = self.status_periods[:, [OK, DRIFTING, ALARM]].sum(axis=1) > 0
+        return [n for n, s in zip(THETA_NAMES, seen, strict=True) if s]
+
+    def final_status(self) -> dict[str, str]:
+        """The status of each parameter after the last period."""
+        if self.last_status is None:
+            return {}
+        return {n: STATUS_NAMES[int(c)] for n, c in zip(THETA_NAMES, self.last_status, strict=True)}
+
+    def time_in_status_s(self, period_s: float) -> dict[str, dict[str, float]]:
+        """Seconds each parameter spent in each status."""
+        if not self.has_status:
             return {}
         return {
-            n: {s: float(np.sum(self.status[:, j] == c) * period_s) for c, s in enumerate(STATUS_NAMES)}
+            n: {s: float(self.status_periods[j, c] * period_s) for c, s in enumerate(STATUS_NAMES)}
             for j, n in enumerate(THETA_NAMES)
         }
+
+    def excited_fraction(self, axis: int) -> float:
+        return float(self.excited_periods[axis] / self.periods) if self.periods else 0.0
+
+    def estimates_mean(self) -> np.ndarray | None:
+        """The mean estimate over the periods ending inside ``estimate_window_s``; None if none did."""
+        return self.estimate_sum / self.estimate_count if self.estimate_count else None
 
 
 # ---------------------------------------------------------------------------------------------
@@ -278,7 +351,9 @@ class MachineMonitor:
         return t, np.asarray(self._hist["trusted"][row:], dtype=float).reshape(-1, 8)
 
     # -- results --
-    def report(self) -> MonitorReport:
+    def report(self, clear: bool = False) -> MonitorReport:
+        """The periods so far; ``clear``: the periods since the last clearing, which are then dropped (the
+        history's rows for :meth:`excitation_since` restart at 0; the alarms and baseline are kept)."""
         h = self._hist
 
         def stack(key: str, shape: tuple[int, ...]) -> np.ndarray:
@@ -296,11 +371,15 @@ class MachineMonitor:
             alarms=list(self._alarms),
             baseline=self._baseline,
         )
-        if h["estimate"]:
+        if h["estimate"] or (clear and self._judged_before):
             report.estimate = stack("estimate", (8,))
             report.deviation = stack("deviation", (8,))
             report.cusum = stack("cusum", (8, 2))
             report.status = stack("status", (8,)).astype(np.int8)
+        if clear:
+            self._judged_before = self._judged_before or bool(h["estimate"])
+            for rows in h.values():
+                rows.clear()
         return report
 
     # -- internals --
@@ -336,6 +415,7 @@ class MachineMonitor:
                 *("estimate", "deviation", "cusum", "status"),
             )
         }
+        self._judged_before = False
         self._ready = True
 
     def _window_information(self) -> np.ndarray:

@@ -14,7 +14,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
-import numpy as np
 from pydantic import ValidationError
 
 from gantry_twin.inputs import InputFileError, read_input_file
@@ -357,8 +356,12 @@ def whole_run_summary(whole: WholeRunMetrics) -> dict[str, Any]:
 
 
 def health_summary(report: Any) -> dict[str, Any]:
-    """The ``health`` section: alarms, status per parameter, excitation per axis (docs/health.md)."""
-    period = float(report.t_s[1] - report.t_s[0]) if report.t_s.size > 1 else 0.0
+    """The ``health`` section: alarms, status per parameter, excitation per axis (docs/health.md), of a monitor's
+    :class:`~gantry_twin.health.monitor.MonitorReport` or of the :class:`~gantry_twin.health.monitor.MonitorTally`
+    of its periods (``monitor --log``, a report at a time)."""
+    from gantry_twin.health.monitor import MonitorTally
+
+    tally = report if isinstance(report, MonitorTally) else MonitorTally.of(report)
     alarms = [
         {
             "parameter": a.parameter,
@@ -371,27 +374,25 @@ def health_summary(report: Any) -> dict[str, Any]:
             "baseline": a.baseline,
             "cleared_s": a.cleared_s,
         }
-        for a in report.alarms
+        for a in tally.alarms
     ]
     excitation = {}
     for i, axis in enumerate(AXES):
-        level = report.level_v[:, i] if report.level_v.size else np.zeros(0)
+        seen = tally.level_final is not None
         excitation[axis] = {
-            "level_v_final": float(level[-1]) if level.size else None,
-            "level_v_min": float(level.min()) if level.size else None,
-            "excited_fraction": float(report.excited[:, [j for j in range(8) if j % 2 == i]].all(axis=1).mean())
-            if level.size
-            else 0.0,
+            "level_v_final": float(tally.level_final[i]) if seen else None,
+            "level_v_min": float(tally.level_min[i]) if seen else None,
+            "excited_fraction": tally.excited_fraction(i),
         }
     out: dict[str, Any] = {
         "alarms": alarms,
-        "judged": report.judged(),
-        "status": report.final_status(),
-        "time_in_status_s": report.time_in_status_s(period),
+        "judged": tally.judged(),
+        "status": tally.final_status(),
+        "time_in_status_s": tally.time_in_status_s(tally.period_s),
         "excitation": excitation,
     }
-    if report.baseline is not None:
-        out["baseline"] = {"source": report.baseline.source, **report.baseline.as_dict()}
+    if tally.baseline is not None:
+        out["baseline"] = {"source": tally.baseline.source, **tally.baseline.as_dict()}
     return out
 
 
@@ -400,13 +401,10 @@ def summary_json(summary: RunSummary) -> str:
     return json.dumps(summary.as_dict(), indent=2, allow_nan=False) + "\n"
 
 
-def log_summary(log: Any, report: Any, estimate_window_s: tuple[float, float]) -> RunSummary:
-    """summary.json of ``monitor --log``: the log (:class:`gantry_twin.sysid.logs.Log`), the mean estimates over
-    the window, the ``health`` section of the monitor's :class:`gantry_twin.health.monitor.MonitorReport`."""
-    theta = report.estimate
-    t = report.t_s
-    lo, hi = estimate_window_s
-    inside = (t >= lo) & (t <= hi) if theta is not None else np.zeros(0, dtype=bool)
+def log_summary(log: Any, tally: Any) -> RunSummary:
+    """summary.json of ``monitor --log``: the log (:class:`gantry_twin.sysid.logs.LogInfo`), the mean estimates
+    over the tally's window and the ``health`` section, from the
+    :class:`~gantry_twin.health.monitor.MonitorTally` of the monitor's periods."""
     data: dict[str, Any] = {
         "schema_version": SUMMARY_SCHEMA_VERSION,
         "log": str(Path(log.path)),
@@ -416,9 +414,9 @@ def log_summary(log: Any, report: Any, estimate_window_s: tuple[float, float]) -
         "steps": log.samples,
         "status": "ok",
     }
-    if theta is not None and inside.any():
-        mean = theta[inside].mean(axis=0)
-        data["estimates_window_s"] = [lo, hi]
+    mean = tally.estimates_mean()
+    if mean is not None:
+        data["estimates_window_s"] = list(tally.estimate_window_s)
         data["estimates"] = {name: {"estimate": float(v)} for name, v in zip(THETA_NAMES, mean, strict=True)}
-    data["health"] = health_summary(report)
+    data["health"] = health_summary(tally)
     return RunSummary.model_validate(data)

@@ -20,6 +20,7 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
+import multiprocessing
 import os
 import re
 import socket
@@ -42,6 +43,12 @@ WARM_UP_S = 0.01
 #: How long to wait for a scheduler to answer, and for a connected cluster to have a worker, s.
 CONNECT_TIMEOUT_S = 10.0
 WORKERS_TIMEOUT_S = 60.0
+#: How long each worker of a LocalCluster may take to start (its process up and registered), s: Dask's
+#: ``death_timeout`` of the workers' nannies (a worker stuck at start once kept ``sweep`` waiting for ever).
+CLUSTER_START_TIMEOUT_S = 120.0
+#: How long the workers may take to compile or load the loops before the first run (:func:`prepare_workers`), s:
+#: a first compile of a loop takes about a minute on a loaded 2-core machine, and they queue on the compile lock.
+WARM_UP_TIMEOUT_S = 1200.0
 #: A scheduler's handshake is a few hundred bytes; a first frame announced longer is not one.
 HANDSHAKE_MAX_BYTES = 1 << 20
 COMPILE_LOCK = ".compile.lock"
@@ -63,8 +70,16 @@ _warmed: set[str] = set()
 def compile_lock() -> Iterator[None]:
     """An exclusive lock on this machine's kernel cache (a file lock, so it holds across processes)."""
     directory = cache_dir()
-    os.makedirs(directory, exist_ok=True)
-    with open(os.path.join(directory, COMPILE_LOCK), "a") as handle:
+    try:
+        os.makedirs(directory, exist_ok=True)
+        handle = open(os.path.join(directory, COMPILE_LOCK), "a")  # noqa: SIM115 (closed below)
+    except OSError as exc:  # e.g. NUMBA_CACHE_DIR under a regular file, or read-only: the point fails, saying so
+        raise OSError(
+            exc.errno,
+            f"the compiled-kernel cache {directory} cannot be made or locked ({exc.strerror}); "
+            "set NUMBA_CACHE_DIR to a writable folder",
+        ) from None
+    with handle:
         if fcntl is not None:
             fcntl.flock(handle, fcntl.LOCK_EX)
         try:
@@ -194,16 +209,27 @@ def open_client(workers: int | None = None, scheduler: str | None = None) -> Ite
         return
     check_workers(workers)
     n = workers or machine_cores()
-    with (
-        LocalCluster(
+    before = set(multiprocessing.active_children())
+    try:
+        cluster = LocalCluster(
             n_workers=n,
             threads_per_worker=1,
             processes=True,
             dashboard_address=":0",  # its HTTP server on a free port (never a clash on 8787)
             silence_logs=logging.ERROR,
-        ) as cluster,
-        Client(cluster) as client,
-    ):
+            death_timeout=CLUSTER_START_TIMEOUT_S,  # each worker's start, bounded by its nanny
+        )
+    except Exception as exc:  # a worker's start timed out; Dask then raises TimeoutError, or AssertionError while
+        # killing a worker still starting (distributed 2026.8: nanny.py's kill asserts on Status.starting)
+        for stuck in set(multiprocessing.active_children()) - before:  # Dask's failed kill may leave one running
+            stuck.kill()
+            stuck.join(5.0)
+        why = next((line for line in str(exc).splitlines() if line.strip()), "")[:160]
+        raise ClusterError(
+            f"the local cluster's {n} worker(s) did not start within {CLUSTER_START_TIMEOUT_S:g} s "
+            f"(sweep.engine.CLUSTER_START_TIMEOUT_S; Dask: {type(exc).__name__}{': ' + why if why else ''})"
+        ) from None
+    with cluster, Client(cluster) as client:
         yield client
 
 
@@ -233,6 +259,16 @@ def prepare_workers(client: Any, resolved: Sequence[dict[str, Any]], source: str
         client.submit(_warm_up_all, list(distinct.values()), source, workers=[w], allow_other_workers=False, pure=False)
         for w in workers
     ]
+    from distributed import wait
+
+    try:
+        wait(futures, timeout=WARM_UP_TIMEOUT_S)
+    except TimeoutError:
+        client.cancel(futures)
+        raise ClusterError(
+            f"the workers did not compile or load the loop within {WARM_UP_TIMEOUT_S:g} s "
+            f"(sweep.engine.WARM_UP_TIMEOUT_S): a worker stuck, or a process holding {cache_dir()}/{COMPILE_LOCK}"
+        ) from None
     client.gather(futures, errors="skip")  # a worker that died warms up in its first task
 
 

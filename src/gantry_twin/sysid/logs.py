@@ -24,6 +24,7 @@ from __future__ import annotations
 import functools
 import os
 import stat
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -51,8 +52,10 @@ PERIOD_TOLERANCE = 0.01
 LOG_MAX_ROWS = 18_000_000
 #: The header of a CSV log must end within this many bytes.
 HEADER_MAX_BYTES = 64 * 1024
-#: Rows per CSV batch read (pyarrow's block size, bytes).
+#: Bytes per CSV block read (pyarrow's block size): a CSV log's chunk.
 CSV_BLOCK_BYTES = 1 << 20
+#: Rows per parquet batch read (a parquet log's chunk, whatever its row groups).
+LOG_CHUNK_ROWS = 1 << 16
 PARQUET_MAGIC = b"PAR1"
 
 
@@ -110,17 +113,87 @@ class Log:
         return float(self.t_s[-1] - self.t_s[0] + self.sample_period_s)
 
 
-def read_log(path: str | Path) -> Log:
-    """Read and validate a log (module docstring); :class:`LogError` on the first problem."""
+@dataclass(frozen=True)
+class LogInfo:
+    """What a validated log holds, without its rows (:func:`scan_log`): samples, sample period, first and last t_s."""
+
+    path: str
+    samples: int
+    sample_period_s: float
+    t_first_s: float
+    t_last_s: float
+    has_desired: bool
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.t_last_s - self.t_first_s + self.sample_period_s)
+
+
+@dataclass(frozen=True)
+class LogChunk:
+    """Rows [first, first + len(t_s)) of a validated log: t_s (n,), u_v, q_m (n, 2), q_d_m (n, 2) or None."""
+
+    first: int
+    t_s: np.ndarray
+    u_v: np.ndarray
+    q_m: np.ndarray
+    q_d_m: np.ndarray | None
+
+
+def scan_log(path: str | Path) -> LogInfo:
+    """Read and validate a log a chunk at a time, keeping none of its rows; :class:`LogError` on the first problem."""
+    checker = _open_checked(str(path))
+    for _ in checker.chunks():
+        pass
+    return checker.info()
+
+
+def log_chunks(path: str | Path) -> Iterator[LogChunk]:
+    """The log's rows a chunk at a time (LOG_CHUNK_ROWS rows of parquet, CSV_BLOCK_BYTES of CSV), each validated
+    as it comes (:class:`LogError`); for the consumers that work chunk by chunk (``monitor --log``)."""
+    return _open_checked(str(path)).chunks()
+
+
+def read_log(path: str | Path, max_rows: int = LOG_MAX_ROWS, reader: str = "") -> Log:
+    """Read and validate a whole log (module docstring); :class:`LogError` on the first problem, and when it has
+    more than ``max_rows`` rows: refused before they are read when the file says how many it has (parquet), else
+    as soon as they are counted (CSV), so memory stays within ``max_rows``. ``reader`` says who holds the rows
+    whole and why, for the message (e.g. "identify holds its logs whole: ...")."""
     name = str(path)
+    checker = _open_checked(name)
+    rows = checker.declared_rows
+    if rows is not None and rows > max_rows:
+        raise _too_many(name, str(rows), max_rows, reader)
+    parts: list[LogChunk] = []
+    for chunk in checker.chunks():
+        if chunk.first + chunk.t_s.size > max_rows:
+            raise _too_many(name, f"more than {max_rows}", max_rows, reader)
+        parts.append(chunk)
+    info = checker.info()
+    desired = np.concatenate([c.q_d_m for c in parts]) if info.has_desired else None
+    return Log(
+        name,
+        np.concatenate([c.t_s for c in parts]),
+        np.concatenate([c.u_v for c in parts]),
+        np.concatenate([c.q_m for c in parts]),
+        desired,
+        info.sample_period_s,
+    )
+
+
+def _too_many(path: str, rows: str, max_rows: int, reader: str) -> LogError:
+    return _fail(path, f"rows: {rows}, allowed 2 to {max_rows}" + (f" ({reader})" if reader else ""))
+
+
+def _open_checked(name: str) -> _Checker:
     _check_file(name)
     with open(name, "rb") as fh:
         head = fh.read(HEADER_MAX_BYTES)
     if head.startswith(PARQUET_MAGIC):
-        batches, columns = _parquet_batches(name)
+        batches, columns, rows = _parquet_batches(name)
     else:
-        batches, columns = _csv_batches(name, head)
-    return _validated(name, batches, columns)
+        (batches, columns), rows = _csv_batches(name, head), None
+    return _Checker(name, batches, columns, rows)
 
 
 def _fail(path: str, message: str) -> LogError:
@@ -163,19 +236,25 @@ def _parquet_batches(path: str):
     except (pa.ArrowException, OSError) as exc:
         raise _fail(path, f"starts like parquet but is not a readable parquet file ({_first_line(exc)})") from None
     mapping = _mapping(path, pf.schema_arrow.names)
-    if pf.metadata.num_rows > LOG_MAX_ROWS:
-        raise _fail(path, f"has {pf.metadata.num_rows} rows, more than the {LOG_MAX_ROWS} a log may have")
+    rows = pf.metadata.num_rows
+    if rows > LOG_MAX_ROWS:
+        raise _fail(path, f"has {rows} rows, more than the {LOG_MAX_ROWS} a log may have")
+    t_f32 = pf.schema_arrow.field(mapping["t_s"]).type == pa.float32()
 
     def batches():
+        # LOG_CHUNK_ROWS at a time (a writer's row group may be a million rows or the whole file), one row group
+        # after another: one iter_batches over all of them let Arrow's pool grow with them (86 MB for 10 groups
+        # of 100 000 rows, against 25 MB).
         try:
-            for i in range(pf.num_row_groups):
-                table = pf.read_row_group(i, columns=list(mapping.values()))
-                batch = {c: _floats(path, table.column(s), c) for c, s in mapping.items()}
-                yield {**batch, "t_f32": table.column(mapping["t_s"]).type == pa.float32()}
+            for group in range(pf.num_row_groups):
+                for batch in pf.iter_batches(
+                    batch_size=LOG_CHUNK_ROWS, row_groups=[group], columns=list(mapping.values()), use_threads=False
+                ):
+                    yield {c: _floats(path, batch.column(s), c) for c, s in mapping.items()} | {"t_f32": t_f32}
         except (pa.ArrowException, OSError) as exc:
-            raise _fail(path, f"cannot read row group {i} ({_first_line(exc)})") from None
+            raise _fail(path, f"cannot read its data ({_first_line(exc)})") from None
 
-    return batches(), list(mapping)
+    return batches(), list(mapping), rows
 
 
 def _csv_batches(path: str, head: bytes):
@@ -261,22 +340,61 @@ def _named_rows(path: str, batches):
         raise _fail(path, f"column {bad.column}, row {before + bad.index + 1}: {text!r} is not a number") from None
 
 
-def _validated(path: str, batches, columns: list[str]) -> Log:
-    parts: dict[str, list[np.ndarray]] = {c: [] for c in columns}
-    rows = 0
-    period = None
-    last_t = None
-    extent = {c: [np.inf, -np.inf] for c in ("x_m", "y_m", *DESIRED_COLUMNS)}
-    last_q: dict[str, float] = {}
-    for batch in _named_rows(path, batches):
-        n = batch["t_s"].size
+class _Checker:
+    """Checks a log's batches as they come (each check carries over the batch boundaries); :meth:`chunks` yields
+    them as :class:`LogChunk` and keeps none; :meth:`info` after the last."""
+
+    def __init__(self, path: str, batches, columns: list[str], declared_rows: int | None) -> None:
+        self.path, self._batches, self._columns, self.declared_rows = path, batches, columns, declared_rows
+        self.rows = 0
+        self.period: float | None = None
+        self.first_t: float | None = None
+        self.last_t: float | None = None
+        self._extent = {c: [np.inf, -np.inf] for c in ("x_m", "y_m", *DESIRED_COLUMNS)}
+        self._last_q: dict[str, float] = {}
+
+    def chunks(self) -> Iterator[LogChunk]:
+        path, columns = self.path, self._columns
+        desired = all(c in columns for c in DESIRED_COLUMNS)
+        for batch in _named_rows(path, self._batches):
+            n = batch["t_s"].size
+            if n == 0:
+                continue
+            self._check(batch)
+            yield LogChunk(
+                self.rows,
+                batch["t_s"],
+                np.stack([batch["u_x_v"], batch["u_y_v"]], axis=1),
+                np.stack([batch["x_m"], batch["y_m"]], axis=1),
+                np.stack([batch["x_d_m"], batch["y_d_m"]], axis=1) if desired else None,
+            )
+            if self.first_t is None:
+                self.first_t = float(batch["t_s"][0])
+            self.rows += n
+            self.last_t = float(batch["t_s"][-1])
+        if self.rows == 0:
+            raise _fail(path, "has a header but no rows")
+        if self.rows == 1:
+            raise _fail(path, "has one row; a log needs at least two (the sample period comes from t_s)")
+
+    def info(self) -> LogInfo:
+        """The log's sample period is its mean step (the same however it was chunked; each step was checked
+        within PERIOD_TOLERANCE of the first chunk's median)."""
+        assert self.period is not None and self.first_t is not None and self.last_t is not None
+        has_desired = all(c in self._columns for c in DESIRED_COLUMNS)
+        period = (self.last_t - self.first_t) / (self.rows - 1)
+        return LogInfo(self.path, self.rows, period, self.first_t, self.last_t, has_desired)
+
+    def _check(self, batch: dict) -> None:
+        path, rows, n = self.path, self.rows, batch["t_s"].size
         if rows + n > LOG_MAX_ROWS:
             raise _fail(path, f"has more than {LOG_MAX_ROWS} rows, the most a log may have")
-        for c in columns:
+        for c in self._columns:
             bad = ~np.isfinite(batch[c])
             if bad.any():
                 i = int(np.argmax(bad))
                 raise _fail(path, f"column {c}, row {rows + i + 1}: {batch[c][i]} is not a finite number")
+        last_t = self.last_t
         t = batch["t_s"] if last_t is None else np.concatenate([[last_t], batch["t_s"]])
         dt = np.diff(t)
         offset = rows - (0 if last_t is None else 1)  # row (0-based) of t[0]
@@ -289,8 +407,9 @@ def _validated(path: str, batches, columns: list[str]) -> Log:
                     f"column t_s, row {offset + i + 2}: time {t[i + 1]:.9g} s is not after the row before "
                     f"({t[i]:.9g} s); time must increase",
                 )
-            if period is None:
-                period = float(np.median(dt))
+            if self.period is None:
+                self.period = float(np.median(dt))
+            period = self.period
             # A float32 time column (a compressed trace) rounds each time to its float32 spacing.
             rounding = 2.0 * np.spacing(np.abs(t[1:]).astype(np.float32)).astype(float) if batch.get("t_f32") else 0.0
             mixed = np.abs(dt - period) > PERIOD_TOLERANCE * period + rounding
@@ -310,6 +429,7 @@ def _validated(path: str, batches, columns: list[str]) -> Log:
                     f"column {c}, row {rows + i + 1}: {batch[c][i]:.6g} V is outside the DAC range "
                     f"+-{VOLTS_MAX_V:g} V (inputs are volts)",
                 )
+        extent, last_q, period = self._extent, self._last_q, self.period
         for c in extent:
             if c not in batch:
                 continue
@@ -326,8 +446,8 @@ def _validated(path: str, batches, columns: list[str]) -> Log:
                     f"(the column spans {extent[c][0]:.6g} to {extent[c][1]:.6g}): positions must be metres "
                     "(millimetres given?)",
                 )
-            if period is not None and q.size:
-                prev = last_q.get(c)
+            prev = last_q.get(c)
+            if period is not None and (q.size > 1 or prev is not None):
                 seq = q if prev is None else np.concatenate([[prev], q])
                 step = np.abs(np.diff(seq))
                 jump = step > SPEED_MAX_M_S * period
@@ -338,26 +458,7 @@ def _validated(path: str, batches, columns: list[str]) -> Log:
                         f"column {c}, row {rows + j + 1 + (prev is None)}: moves {step[j]:.6g} in one sample, "
                         f"faster than {SPEED_MAX_M_S:g} m/s: positions must be metres (millimetres given?)",
                     )
-                last_q[c] = float(q[-1])
-        for c in columns:
-            parts[c].append(batch[c])
-        rows += n
-        if n:
-            last_t = float(batch["t_s"][-1])
-    if rows == 0:
-        raise _fail(path, "has a header but no rows")
-    if rows == 1:
-        raise _fail(path, "has one row; a log needs at least two (the sample period comes from t_s)")
-    data = {c: np.concatenate(parts[c]) for c in columns}
-    desired = np.stack([data["x_d_m"], data["y_d_m"]], axis=1) if all(c in data for c in DESIRED_COLUMNS) else None
-    return Log(
-        path,
-        data["t_s"],
-        np.stack([data["u_x_v"], data["u_y_v"]], axis=1),
-        np.stack([data["x_m"], data["y_m"]], axis=1),
-        desired,
-        float(period),
-    )
+            last_q[c] = float(q[-1])
 
 
 def centred_velocity(q_m: np.ndarray, half_width: int, sample_period_s: float) -> np.ndarray:

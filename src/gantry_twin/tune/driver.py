@@ -51,10 +51,32 @@ def storage_url(out: Path) -> str:
     return f"sqlite:///{(Path(out) / STUDY_FILE).resolve()}"
 
 
+#: The first bytes of an SQLite database (Optuna's storage of a study).
+SQLITE_MAGIC = b"SQLite format 3\x00"
+
+
 def check_out(out: Path, resume: bool) -> None:
-    """TuneError when ``out`` holds a study and this is not ``--resume`` (nothing there is replaced)."""
-    if (Path(out) / STUDY_FILE).exists() and not resume:
+    """TuneError when ``out`` holds a study and this is not ``--resume`` (nothing there is replaced), or when the
+    study to resume is not a regular file that is an SQLite database (checked before the cluster starts: a junk
+    study.db once gave a traceback from SQLAlchemy, exit 1)."""
+    from gantry_twin.inputs import InputFileError, check_input_file
+
+    study = Path(out) / STUDY_FILE
+    if not (study.exists() or study.is_symlink()):
+        return
+    if not resume:
         raise TuneError(f"--out {out}: holds a study ({STUDY_FILE}); give --resume to continue it or another --out")
+    what = "a tune's study (SQLite), or another --out"
+    try:
+        check_input_file(study, what)
+        with open(study, "rb") as fh:
+            head = fh.read(len(SQLITE_MAGIC))
+    except InputFileError as exc:
+        raise TuneError(f"--resume: {study}: {exc}") from None
+    except OSError as exc:
+        raise TuneError(f"--resume: {study}: cannot read ({exc.strerror}); give {what}") from None
+    if head != SQLITE_MAGIC:
+        raise TuneError(f"--resume: {study}: not an SQLite database; give {what}")
 
 
 def _distributions(plan: TunePlan) -> dict[str, Any]:
