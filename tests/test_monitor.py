@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 
 from gantry_twin import Plant, SensingConfig, TimingLaw, circle, simulate
+from gantry_twin._jit import reference
 from gantry_twin.controllers import create
-from gantry_twin.health.excitation import FilteredRegressors
+from gantry_twin.health.excitation import FilteredRegressors, accumulate_information, accumulate_moment
 from gantry_twin.health.monitor import (
     ALARM,
     NOT_EXCITED,
@@ -106,6 +107,49 @@ def test_information_is_the_integral_of_the_filtered_regressor():
     expected = g.T @ g * TS
     got = report.information[k, 0][np.ix_([0, 1, 3], [0, 1, 3])]
     np.testing.assert_allclose(got, expected, rtol=1e-3, atol=1e-5 * np.abs(expected).max())
+
+
+def test_period_sums_of_information_and_moment_kernels():
+    """accumulate_information / accumulate_moment: each closed period holds sum_k w_k g_k g_k^T (and
+    [sum w e g, sum w |size| |g|]) of its own samples, the open period carries over to the next call, and the
+    compiled kernels give the bits of the same code uncompiled."""
+    rng = np.random.default_rng(3)
+    n, p, period, first = 23, 5, 7, 4  # periods close after global samples 6, 13, 20, 27 (k = 2, 9, 16)
+    g = rng.normal(size=(n, 2, p))
+    weight = np.where(rng.random((n, 2)) < 0.8, 2e-4, 0.0)
+    error, size = rng.normal(size=(n, 2)), rng.normal(size=(n, 2))
+    results = []
+    for info_kernel, moment_kernel in (
+        (accumulate_information, accumulate_moment),
+        (reference(accumulate_information), reference(accumulate_moment)),
+    ):
+        acc, moving, blocks, block_moving = (
+            np.zeros((2, p, p)),
+            np.zeros(2),
+            np.full((4, 2, p, p), 9.0),
+            np.zeros((4, 2)),
+        )
+        m = info_kernel(g, weight, first, period, acc, moving, blocks, block_moving)
+        moment_acc, moments = np.zeros((2, 2, 4)), np.full((4, 2, 2, 4), 9.0)
+        assert moment_kernel(g[:, :, :4], error, size, weight, first, period, moment_acc, moments) == m == 3
+        results.append((blocks[:m], block_moving[:m], acc, moving, moments[:m], moment_acc))
+    bounds = [0, 3, 10, 17, n]  # the periods' first samples, and the end
+    for i, (lo, hi) in enumerate(zip(bounds[:-1], bounds[1:], strict=True)):
+        info = np.einsum("ka,kai,kaj->aij", weight[lo:hi], g[lo:hi], g[lo:hi])
+        used = (weight[lo:hi] != 0.0).sum(axis=0)
+        signed = np.einsum("ka,kai->ai", weight[lo:hi] * error[lo:hi], g[lo:hi, :, :4])
+        unsigned = np.einsum("ka,kai->ai", weight[lo:hi] * np.abs(size[lo:hi]), np.abs(g[lo:hi, :, :4]))
+        got = results[0]
+        if i < 3:
+            np.testing.assert_allclose(got[0][i], info, rtol=1e-12, atol=1e-20)
+            np.testing.assert_array_equal(got[1][i], used / period)
+            np.testing.assert_allclose(got[4][i], np.stack([signed, unsigned]), rtol=1e-12, atol=1e-20)
+        else:  # the open period, carried over
+            np.testing.assert_allclose(got[2], info, rtol=1e-12, atol=1e-20)
+            np.testing.assert_array_equal(got[3], used)
+            np.testing.assert_allclose(got[5], np.stack([signed, unsigned]), rtol=1e-12, atol=1e-20)
+    for compiled, uncompiled in zip(*results, strict=True):
+        np.testing.assert_array_equal(compiled, uncompiled)
 
 
 def closed_loop(duration_s: float, chunk_s: float, observers=()):

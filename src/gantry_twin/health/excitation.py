@@ -60,12 +60,15 @@ class FilterSettings(Protocol):
     reversal_gate: float  # samples with |Sf_f| below this give a zero regressor (0: none)
 
 
-@kernel
+@kernel(nrt=False)
 def accumulate_information(g, weight, first_index, period, acc, moving, blocks, block_moving):  # pragma: no cover
     """Add weight_k g_k g_k^T (g (n, 2, p)) into per-period sums, sample by sample.
 
     acc (2, p, p), moving (2,) hold the open period; every closed period is
     written to blocks[m], block_moving[m]. Returns the number of closed periods.
+    Element by element, no whole-array assignment or arithmetic: numba's code
+    for those (broadcasting, a temporary array) took ten times the compile of
+    the rest (docs/performance.md, "Compile").
     """
     m = 0
     p = g.shape[2]
@@ -78,10 +81,13 @@ def accumulate_information(g, weight, first_index, period, acc, moving, blocks, 
                     for j in range(p):
                         acc[a, i, j] += w * g[k, a, i] * g[k, a, j]
         if (first_index + k + 1) % period == 0:
-            blocks[m] = acc
-            block_moving[m] = moving / period
-            acc[:] = 0.0
-            moving[:] = 0.0
+            for a in range(2):
+                for i in range(p):
+                    for j in range(p):
+                        blocks[m, a, i, j] = acc[a, i, j]
+                        acc[a, i, j] = 0.0
+                block_moving[m, a] = moving[a] / period
+                moving[a] = 0.0
             m += 1
     return m
 
@@ -256,7 +262,7 @@ def estimate_bias(
     return np.where(parameter_v > 0.0, bias, np.inf)
 
 
-@kernel
+@kernel(nrt=False)
 def accumulate_moment(g, error, size, weight, first_index, period, acc, blocks):  # pragma: no cover
     """Add weight_k g_k error_k into acc[0] and weight_k |g_k| size_k into acc[1] (g (n, 2, 4); error, size
     (n, 2): the friction column's signed error and, where its sign is unknown, its size; acc (2, 2, 4)), as
@@ -270,8 +276,11 @@ def accumulate_moment(g, error, size, weight, first_index, period, acc, blocks):
                 acc[0, a, i] += w * g[k, a, i]
                 acc[1, a, i] += u * abs(g[k, a, i])
         if (first_index + k + 1) % period == 0:
-            blocks[m] = acc
-            acc[:] = 0.0
+            for j in range(2):
+                for a in range(2):
+                    for i in range(4):
+                        blocks[m, j, a, i] = acc[j, a, i]
+                        acc[j, a, i] = 0.0
             m += 1
     return m
 
