@@ -345,3 +345,33 @@ def test_a_sigkilled_runs_temporaries_are_removed_by_the_next_run_in_its_directo
     code, _, err = run_main(["run", "no_load_circle", *SHORT, "--out", str(out), "--no-progress"], capsys)
     assert code == 0, err
     assert not stale.exists() and live.exists() and (out / "notes.part").exists()
+
+
+def test_the_run_time_leaves_the_compile_out_and_run_info_gives_it(tmp_path):
+    """A compile notice times the compile (run start to first chunk); 'simulated in N s' and run_info.json's
+    wall_time_s are the rest, and run_info.json's compile_s is the compile."""
+    import io
+    import time
+
+    from gantry_twin.compiling import CompileNotice
+
+    class SlowStart:  # stands for a compile: it holds the run between its start and its first chunk
+        def on_start(self, run, trace):
+            time.sleep(0.5)
+
+        def on_chunk(self, trace, start, stop): ...
+
+        def on_end(self, trace): ...
+
+    built = build(load_scenario(shipped("no_load_circle"), OVERRIDES, "pd"))
+    notice = CompileNotice("gantry-twin", io.StringIO())
+    started = time.perf_counter()
+    with RunWriter(tmp_path / "run", built) as writer:
+        outcome = writer.run([notice, SlowStart()])
+    elapsed_s = time.perf_counter() - started
+    info = json.loads((tmp_path / "run" / "run_info.json").read_text())
+    assert info["compile_s"] == notice.compile_s >= 0.5
+    assert info["wall_time_s"] == outcome.wall_time_s <= elapsed_s - 0.5
+    with RunWriter(tmp_path / "cached", built) as writer:  # nothing compiles: no compile_s
+        writer.run()
+    assert json.loads((tmp_path / "cached" / "run_info.json").read_text())["compile_s"] == 0.0

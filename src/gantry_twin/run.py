@@ -121,8 +121,8 @@ def trace_size(built: BuiltRun) -> TraceSize:
 
 
 class RunOutcome(NamedTuple):
-    """What :func:`run_and_write` did: summary.json's content, wall time s, the files written (in ``out``),
-    the error that stopped a failed run."""
+    """What :func:`run_and_write` did: summary.json's content, wall time s (the compile of the loop not counted),
+    the files written (in ``out``), the error that stopped a failed run."""
 
     summary: RunSummary
     wall_time_s: float
@@ -202,11 +202,17 @@ class RunWriter:
         except BaseException:
             self.discard()
             raise
-        return self.finish(trace, time.perf_counter() - started, failure)._replace(error=fault)
+        # A compile notice among the observers timed the loop's compile: the run's time is the rest.
+        compile_s = sum(getattr(observer, "compile_s", 0.0) for observer in observers)
+        wall_time_s = time.perf_counter() - started - compile_s
+        return self.finish(trace, wall_time_s, failure, compile_s)._replace(error=fault)
 
-    def finish(self, trace: Trace | None, wall_time_s: float, failure: Failure | None = None) -> RunOutcome:
+    def finish(
+        self, trace: Trace | None, wall_time_s: float, failure: Failure | None = None, compile_s: float = 0.0
+    ) -> RunOutcome:
         """Write the run whose observers saw ``trace`` (the last piece; None if it stopped before its first
-        sample): summary.json, the trace, scenario.yaml, run_info.json, and plots/ when asked for."""
+        sample): summary.json, the trace, scenario.yaml, run_info.json, and plots/ when asked for.
+        ``wall_time_s``: the run without the loop's compile, ``compile_s`` (s, 0 when nothing compiled)."""
         built, out = self.built, self.out
         scenario = built.scenario
         data = _summary(
@@ -220,7 +226,7 @@ class RunWriter:
                 written.append(TRACE_FILE)
             atomic_write_text(out / SCENARIO_FILE, dump_yaml(scenario.resolved()))
             written.append(SCENARIO_FILE)
-            atomic_write_text(out / RUN_INFO_FILE, json.dumps(_run_info(wall_time_s), indent=2) + "\n")
+            atomic_write_text(out / RUN_INFO_FILE, json.dumps(_run_info(wall_time_s, compile_s), indent=2) + "\n")
             written.append(RUN_INFO_FILE)
             if self.plots and self._plot(data, TRACE_FILE in written):
                 written.append(PLOTS_DIR)
@@ -394,12 +400,14 @@ def package_version() -> str:
         return "unknown"
 
 
-def _run_info(wall_time_s: float) -> dict[str, Any]:
-    """What differs between two runs of the same scenario (kept out of summary.json)."""
+def _run_info(wall_time_s: float, compile_s: float = 0.0) -> dict[str, Any]:
+    """What differs between two runs of the same scenario (kept out of summary.json): the run's wall time s
+    without the loop's compile, and the compile's s (0 when the loop came from the cache)."""
     import mujoco
 
     return {
         "wall_time_s": wall_time_s,
+        "compile_s": compile_s,
         "finished_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
         "gantry_twin": package_version(),
         "mujoco": mujoco.__version__,
