@@ -11,6 +11,7 @@ import rerun.blueprint as rrb
 from gantry_twin import Plant, TimingLaw, create, simulate
 from gantry_twin.gcode import parse_program, plan_program
 from gantry_twin.telemetry import RerunObserver, theta_entity
+from gantry_twin.telemetry.dashboard import VERDICTS_ENTITY
 
 from .helpers import read_rrd, run_main, scalars
 from .test_dashboard import _views
@@ -58,12 +59,24 @@ def test_the_programmed_part_is_drawn_to_scale(program_recording):
     assert points[:, 0].min() == pytest.approx(-40.0) and points[:, 1].max() == pytest.approx(60.0, abs=1e-3)
 
 
-def test_untrusted_estimates_are_titled_with_their_reason(program_recording):
-    _, _, _, sent = program_recording
-    titles = {str(v.origin): str(v.name) for v in _views(sent[-1].root_container)}
-    assert titles[theta_entity("M1")].endswith("(not trusted: a reason)")
-    assert titles[theta_entity("B2")].endswith("(not trusted: another)")
-    assert "not trusted" not in titles[theta_entity("M2")]
+def test_untrusted_estimates_are_marked_in_the_title_and_their_reasons_shown(program_recording):
+    _, _, path, sent = program_recording
+    first, last = ({str(v.origin): v for v in _views(b.root_container)} for b in (sent[0], sent[-1]))
+    titles = {origin: str(v.name) for origin, v in last.items()}
+    # The mark comes before the unit: a narrow panel cut "M1 [V/(m/s^2)] (not trusted: ..." to "(not truste".
+    assert titles[theta_entity("M1")] == "M1 not trusted [V/(m/s^2)]"
+    assert titles[theta_entity("B2")] == "B2 not trusted [V/(m/s)]"
+    assert titles[theta_entity("M2")] == "M2 [V/(m/s^2)]"
+    # The reasons are in a panel of their own, added once they are known.
+    assert VERDICTS_ENTITY in last and VERDICTS_ENTITY not in first
+    legends = {}
+    for chunk in rr.chunk.RrdReader(path).stream().to_chunks():
+        if chunk.is_static and chunk.entity_path.endswith("/estimate"):
+            batch = chunk.to_record_batch()
+            names = [v for n in batch.schema.names if n.endswith("names") for v in batch.column(n).to_pylist()]
+            legends.setdefault(chunk.entity_path.lstrip("/"), []).extend(names)
+    assert legends[f"{theta_entity('M1')}/estimate"][-1] == ["M1^ (not trusted)"]  # the last one logged wins
+    assert legends[f"{theta_entity('M2')}/estimate"][-1] == ["M2^"]
 
 
 def test_a_saved_run_marks_the_estimates_summary_json_does_not_trust(tmp_path, capsys):
@@ -78,9 +91,9 @@ def test_a_saved_run_marks_the_estimates_summary_json_does_not_trust(tmp_path, c
     assert untrusted  # a 0.5 s run cannot vouch for every estimate
     texts = []
     for chunk in rr.chunk.RrdReader(rrd).stream().to_chunks():
-        if chunk.entity_path == "/estimates/verdicts":
+        if chunk.entity_path == f"/{VERDICTS_ENTITY}":
             batch = chunk.to_record_batch()
             texts += [v for name in batch.schema.names if name.endswith("text") for v in batch.column(name).to_pylist()]
     ((text,),) = texts  # one document, one string
     for name in untrusted:
-        assert f"- {name}: {estimates[name].distrust}" in text
+        assert f"- **{name}**: {estimates[name].distrust}" in text

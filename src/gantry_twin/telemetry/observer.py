@@ -15,7 +15,6 @@ import math
 import os
 import re
 import sys
-import textwrap
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -31,6 +30,7 @@ from gantry_twin.plant import THETA_NAMES, THETA_UNITS
 from gantry_twin.telemetry.dashboard import (
     ERROR_MAGNIFICATION,
     TIMELINE,
+    VERDICTS_ENTITY,
     dashboard_blueprint,
     gantry_bodies,
     magnified_contour_m,
@@ -58,8 +58,9 @@ _EPS_C_STYLE, _EPS_N_STYLE = ((230, 120, 30), 4.0), ((30, 30, 120), 1.0)
 WIDEN_MARGIN = 0.25
 #: A part program's part error (distance to the programmed lines and arcs), green; its programmed geometry, black.
 _PART_STYLE, _PROGRAM_RGB, _RAPID_RGB = ((40, 160, 60), 1.5), (20, 20, 20), (170, 170, 170)
-#: An estimate's panel title gives the reason it is not trusted in at most this many characters.
-DOUBT_CHARS = 70
+#: What an untrusted estimate's panel title and legend add: short, so that a narrow panel still shows it (the
+#: reasons are in the verdicts panel).
+DISTRUST_MARK = "not trusted"
 
 
 def unit_in_entity(unit: str) -> str:
@@ -199,6 +200,7 @@ class RerunObserver:
         self._extents: dict[str, tuple[float, float]] = {}  # plot origin -> [min, max] of what it has had to show
         self._ranges: dict[str, tuple[float, float]] = {}  # plot origin -> the y range in the blueprint sent
         self._blueprint_sent = False
+        self._verdicts = False  # mark_estimates has logged the verdicts
         self._bodies = gantry_bodies(run.plant)
         samples = run.samples or run.reference.t_s.size
         step = max(1, samples // 4000)
@@ -332,20 +334,28 @@ class RerunObserver:
         self._plots = [e for e, _ in self._estimates] + extra
 
     def mark_estimates(self, distrust: dict[str, str]) -> None:
-        """Title each estimate whose name is a key of ``distrust`` with its reason (``not trusted: why``, as
-        summary.json judges it after the run), send the layout again, and log the verdicts as a text document
-        (``estimates/verdicts``). Call it after the run, before :meth:`close`."""
+        """Mark each estimate whose name is a key of ``distrust`` (its reason, ``not trusted: why``, as
+        summary.json judges it after the run): ``not trusted`` in its panel's title (before the unit, so a narrow
+        panel still shows it) and in its legend; log the verdicts, each with its reason, as a text document
+        (``estimates/verdicts``) and send the layout again with a panel for it. Call it after the run, before
+        :meth:`close`."""
         if self._run is None or not self._styled:
             return
         for entity, i in self._estimates:
             name = THETA_NAMES[i] if i < len(THETA_NAMES) else f"theta{i + 1}"
             if name in distrust:
-                why = textwrap.shorten(distrust[name], DOUBT_CHARS, placeholder=" ...")
-                self._titles[entity] = f"{self._titles.get(entity, name)} ({why})"
-        lines = [f"- {name}: {why}" for name, why in distrust.items()] or ["every estimate trusted"]
+                unit = THETA_UNITS[i] if name in THETA_NAMES else "-"
+                self._titles[entity] = panel_name(f"{name} {DISTRUST_MARK}", unit)
+                self.recording.log(
+                    f"{entity}/estimate",
+                    rr.SeriesLines(names=[f"{name}^ ({DISTRUST_MARK})"], colors=[_ESTIMATE_RGB]),
+                    static=True,
+                )
+        lines = [f"- **{name}**: {why}" for name, why in distrust.items()] or ["every estimate trusted"]
         self.recording.log(
-            "estimates/verdicts", rr.TextDocument("\n".join(lines), media_type=rr.MediaType.MARKDOWN), static=True
+            VERDICTS_ENTITY, rr.TextDocument("\n".join(lines), media_type=rr.MediaType.MARKDOWN), static=True
         )
+        self._verdicts = True
         self._send_blueprint()
 
     def _show(self, origin: str, *values: np.ndarray) -> None:
@@ -371,6 +381,7 @@ class RerunObserver:
                 health=self._monitor is not None,
                 ranges=self._ranges,
                 titles=self._titles,
+                verdicts=self._verdicts,
             ),
             make_active=True,
             make_default=True,
@@ -388,9 +399,11 @@ class RerunObserver:
 
         scalars("errors/contour/eps_c_um", trace.eps_c_m[rows] * 1e6)
         scalars("errors/contour/eps_n_um", trace.eps_n_m[rows] * 1e6)
+        part_um = np.empty(0)
         if self._plan is not None:  # NaN during a rapid: a gap in the line
             t, q = trace.t_s[rows], trace.q_m[rows]
-            scalars("errors/contour/part_um", distance_to_program(self._plan, self._plan.sample(t).move, q) * 1e6)
+            part_um = distance_to_program(self._plan, self._plan.sample(t).move, q) * 1e6
+            scalars("errors/contour/part_um", part_um)
         scalars("errors/axial/e_x_um", trace.e_m[rows, 0] * 1e6)
         scalars("errors/axial/e_y_um", trace.e_m[rows, 1] * 1e6)
         scalars("inputs/u_x_V", trace.u_v[rows, 0])
@@ -398,6 +411,8 @@ class RerunObserver:
         scalars("inputs/disturbance_x_V", trace.disturbance_v[rows, 0])
         scalars("inputs/disturbance_y_V", trace.disturbance_v[rows, 1])
         ranges_before = dict(self._ranges)
+        self._show("errors/contour", trace.eps_c_m[rows] * 1e6, trace.eps_n_m[rows] * 1e6, part_um)
+        self._show("errors/axial", trace.e_m[rows] * 1e6)
         self._show("inputs", trace.u_v[rows], trace.disturbance_v[rows])
         state = trace.controller_state
         k = self._estimate_stride
