@@ -11,7 +11,7 @@ import rerun.blueprint as rrb
 from gantry_twin import Plant, TimingLaw, create, simulate
 from gantry_twin.gcode import parse_program, plan_program
 from gantry_twin.telemetry import RerunObserver, theta_entity
-from gantry_twin.telemetry.dashboard import VERDICTS_ENTITY
+from gantry_twin.telemetry.dashboard import PROGRAM_ERROR_MAGNIFICATION, VERDICTS_ENTITY
 
 from .helpers import read_rrd, run_main, scalars
 from .test_dashboard import _views
@@ -97,3 +97,26 @@ def test_a_saved_run_marks_the_estimates_summary_json_does_not_trust(tmp_path, c
     ((text,),) = texts  # one document, one string
     for name in untrusted:
         assert f"- **{name}**: {estimates[name].distrust}" in text
+
+
+def test_a_program_is_magnified_less_and_its_rapids_not_at_all(tmp_path):
+    # At the circle's 10 000x the bracket's corner errors (tens of um) were drawn a metre off its 400 mm part.
+    plan = plan_program(parse_program("G0 X-40 Y-20\nG1 X40 F12000\nG0 X40 Y20\nG1 X-40 F12000\nM30\n"))
+    rapid = np.array([m.rapid for m in plan.moves])
+    assert rapid.any() and not rapid.all()
+    path = tmp_path / "p.rrd"
+    with RerunObserver.to_file(path, flush_interval_s=0.0) as observer:
+        trace = simulate(Plant(), plan, TimingLaw(1.0), create("diarc"), plan.duration_s, observers=[observer])
+    assert observer.error_magnification == PROGRAM_ERROR_MAGNIFICATION
+    data = read_rrd(path)
+    entity = data[f"contour_mm/xy/actual_x{PROGRAM_ERROR_MAGNIFICATION:g}"]
+    # One strip per send; its points are at the contour rate, the last at the send's last sample.
+    last = np.array([np.asarray(row[0], dtype=float)[-1] for row in entity["LineStrips2D:strips"]])
+    k = np.searchsorted(np.rint(trace.t_s * 1e9), entity["time_ns"])
+    on_rapid = rapid[plan.sample(trace.t_s[k]).move]
+    assert on_rapid.any() and (~on_rapid).any()
+    q_mm = trace.q_m[k] * 1e3
+    np.testing.assert_allclose(last[on_rapid], q_mm[on_rapid], atol=1e-3)  # where the machine is (float32 mm)
+    off = np.linalg.norm(last[~on_rapid] - q_mm[~on_rapid], axis=1)
+    err = distance_to_moves(trace.q_m[k][~on_rapid], plan.moves) * 1e3
+    np.testing.assert_allclose(off, (PROGRAM_ERROR_MAGNIFICATION - 1) * err, rtol=1e-3, atol=1e-3)

@@ -19,6 +19,10 @@ from gantry_twin.plant import Plant
 
 #: Default magnification of the contour error in the XY view (1 um drawn as 10 mm).
 ERROR_MAGNIFICATION = 10_000.0
+#: The same for a part program's run: its errors at corners are tens of um (a 10 um error drawn as 10 mm; at
+#: 10 000x the bracket's corners were drawn a metre off its 400 mm part). During a rapid (G0) move, not part of
+#: the part, the actual position is drawn unmagnified.
+PROGRAM_ERROR_MAGNIFICATION = 1_000.0
 #: The estimates' verdicts after a run: a Markdown list of those not trusted, each with its reason.
 VERDICTS_ENTITY = "estimates/verdicts"
 #: The timeline every sample is logged on (a duration from the start of the run).

@@ -29,6 +29,7 @@ from gantry_twin.gcode.sampling import Plan
 from gantry_twin.plant import THETA_NAMES, THETA_UNITS
 from gantry_twin.telemetry.dashboard import (
     ERROR_MAGNIFICATION,
+    PROGRAM_ERROR_MAGNIFICATION,
     TIMELINE,
     VERDICTS_ENTITY,
     dashboard_blueprint,
@@ -127,15 +128,16 @@ class RerunObserver:
     recording: a stream with its sinks already set (``rr.RecordingStream(...)``
     then ``.save``/``.spawn``/``.connect_grpc``, or ``set_sinks``); the
     constructors :meth:`to_file`, :meth:`spawn_viewer`, :meth:`connect` do that.
-    error_magnification: K of the XY view; flush_interval_s: wall time between
-    sends (0 = every chunk). One observer records one run.
+    error_magnification: K of the XY view (default :data:`ERROR_MAGNIFICATION`, for a part program's run
+    :data:`PROGRAM_ERROR_MAGNIFICATION`); flush_interval_s: wall time between sends (0 = every chunk). One
+    observer records one run.
     """
 
     def __init__(
         self,
         recording: rr.RecordingStream,
         *,
-        error_magnification: float = ERROR_MAGNIFICATION,
+        error_magnification: float | None = None,
         flush_interval_s: float = 0.2,
         marker_rate_hz: float = MARKER_RATE_HZ,
         contour_rate_hz: float = CONTOUR_RATE_HZ,
@@ -143,7 +145,8 @@ class RerunObserver:
     ) -> None:
         self.recording = recording
         self._monitor = None
-        self.error_magnification = float(error_magnification)
+        self._magnification_given = error_magnification
+        self.error_magnification = float(ERROR_MAGNIFICATION if error_magnification is None else error_magnification)
         self.flush_interval_s = float(flush_interval_s)
         self.marker_rate_hz = float(marker_rate_hz)
         self.contour_rate_hz = float(contour_rate_hz)
@@ -207,6 +210,8 @@ class RerunObserver:
         times_s = np.append(np.arange(0, samples, step), samples - 1) * ts
         self._desired_mm = reference(run.path, run.timing, times_s).q_d * 1e3
         self._plan = run.path if isinstance(run.path, Plan) else None  # a part program: its part error too
+        if self._plan is not None and self._magnification_given is None:
+            self.error_magnification = PROGRAM_ERROR_MAGNIFICATION
         self.recording.send_recording_name(f"{run.controller_name}, {run.duration_s:g} s")
         self._log_static_scene(run)
 
@@ -481,8 +486,12 @@ class RerunObserver:
         if idx.size == 0 or idx[-1] != stop - 1:
             idx = np.append(idx, stop - 1)
         phi = run.timing.derivatives(trace.t_s[idx - trace.first])[0]  # the desired phi, as in the reference
-        points_mm = magnified_contour_m(run.path, trace.q_m[idx - trace.first], phi, self.error_magnification)
-        points_mm *= 1e3
+        q = trace.q_m[idx - trace.first]
+        factor = self.error_magnification
+        if self._plan is not None:  # a rapid move is not part of the part: drawn where the machine is
+            rapid = np.array([m.rapid for m in self._plan.moves])[self._plan.sample(trace.t_s[idx - trace.first]).move]
+            factor = np.where(rapid, 1.0, factor)[:, None]
+        points_mm = magnified_contour_m(run.path, q, phi, factor) * 1e3
         strip = points_mm if self._last_point_mm is None else np.vstack([self._last_point_mm, points_mm])
         self._last_point_mm = points_mm[-1:]
         rec.send_columns(
