@@ -54,6 +54,11 @@ def test_commands_are_scaled_to_the_data_and_an_off_scale_limit_is_named(strided
         low, high = ax.get_ylim()
         assert high < 10 and low > -10 and high - low < 4 * np.ptp(u)  # not squashed to +-10 V
         assert any("off the scale" in t.get_text() for t in ax.texts)
+        # The label sits above the data (it hid u_y's first second on the circle).
+        fig.canvas.draw()
+        (text,) = ax.texts
+        label_bottom = ax.transData.inverted().transform(text.get_window_extent().get_points())[0, 1]
+        assert u.max() < label_bottom
     plt.close("all")
 
 

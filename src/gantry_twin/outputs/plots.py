@@ -47,6 +47,8 @@ THETA_UNITS = {"M": "V s²/m", "B": "V s/m", "Af": "V", "dN": "V"}
 MAGNIFIED_SHARE = 0.12
 #: A figure's title names the run in at most this many characters.
 TITLE_CHARS = 110
+#: The commands' panels: the data in the lower LABEL_ROOM of the height, the limits' label above it.
+LABEL_ROOM = 0.86
 #: Height added to a figure for a legend below its x label, inches.
 LEGEND_BELOW_IN = 0.3
 #: An untrusted estimate's reason above its panel: lines of at most this many characters, two lines at most.
@@ -295,6 +297,8 @@ def fig_commands(plt: Any, runs: Sequence[RunSeries]) -> Any:
             label = f"limits {limit[0]:+g} / {limit[1]:+g} V" + ("" if len(inside) == 2 else " (off the scale)")
             box = {"facecolor": "white", "edgecolor": "0.8", "alpha": 0.9, "pad": 2}
             ax.text(0.005, 0.96, label, transform=ax.transAxes, va="top", fontsize=7, color="tab:red", bbox=box)
+            if len(inside) < 2:  # headroom for the label: the data below it (it hid u_y's start on a circle)
+                high = max(high, low + (high - low) / LABEL_ROOM)
             ax.set_ylim(low, high)
 
     return _per_axis(
