@@ -81,7 +81,7 @@ def test_legends_are_outside_the_data(strided_run):
     # A legend in a corner of the axes hid the bracket program's spikes; "best" still covered estimates.
     plt = runplots.pyplot()
     series = read_series(strided_run, _summary(strided_run), "r")
-    for draw in (runplots.fig_eps_c, runplots.fig_estimates):
+    for draw in (runplots.fig_eps_c, runplots.fig_estimates, runplots.fig_contour):
         fig = draw(plt, [series])
         assert all(ax.get_legend() is None for ax in fig.axes), draw
         (legend,) = fig.legends

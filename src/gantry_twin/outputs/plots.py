@@ -203,12 +203,12 @@ def _window(summary: RunSummary) -> tuple[float, float] | None:
     return summary.contour_error_um.window_s if summary.contour_error_um is not None else None
 
 
-def _legend_below(fig: Any, ax: Any) -> None:
+def _legend_below(fig: Any, ax: Any, **kwargs: Any) -> None:
     """``ax``'s legend in one row at the figure's bottom, under the x label: never over the data (a legend in a
     corner hid the part program's corner spikes). The figure leaves :data:`LEGEND_BELOW_IN` for it."""
     handles, labels = ax.get_legend_handles_labels()
     if handles:
-        fig.legend(handles, labels, loc="lower center", ncol=min(len(handles), 4), fontsize=7, frameon=False)
+        fig.legend(handles, labels, loc="lower center", ncol=min(len(handles), 4), fontsize=7, frameon=False, **kwargs)
 
 
 def _title(runs: Sequence[RunSeries], what: str) -> str:
@@ -373,8 +373,8 @@ def magnification(runs: Sequence[RunSeries]) -> float:
 def fig_contour(plt: Any, runs: Sequence[RunSeries]) -> Any:
     """The desired path (mm) and q_d + k eps_c n around it, one factor k for every run."""
     k = magnification(runs)
-    fig, ax = plt.subplots(figsize=(6.5, 6.5))
-    fig.subplots_adjust(left=0.13, right=0.97, bottom=0.09, top=0.9)
+    fig, ax = plt.subplots(figsize=(6.5, 6.5 + LEGEND_BELOW_IN))
+    fig.subplots_adjust(left=0.13, right=0.97, bottom=(0.55 + LEGEND_BELOW_IN) / (6.5 + LEGEND_BELOW_IN), top=0.9)
     path = runs[0].contour_m  # in the order of time: any path, closed or not
     ax.plot(path[:, 0] * 1e3, path[:, 1] * 1e3, color="0.5", lw=0.8, label="desired path q_d")
     for r in runs:
@@ -386,7 +386,7 @@ def fig_contour(plt: Any, runs: Sequence[RunSeries]) -> Any:
     ax.set_title(
         _title(runs, f"contour error magnified {k:g}x around the path (eps_c > 0: left of the travel)"), fontsize=9
     )
-    ax.legend(loc="upper right", fontsize=7, markerscale=6)
+    _legend_below(fig, ax, markerscale=6)  # in the corner it hid the path of the second run of a compare
     return fig
 
 
