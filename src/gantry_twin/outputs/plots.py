@@ -203,12 +203,16 @@ def _window(summary: RunSummary) -> tuple[float, float] | None:
     return summary.contour_error_um.window_s if summary.contour_error_um is not None else None
 
 
-def _legend_below(fig: Any, ax: Any, **kwargs: Any) -> None:
-    """``ax``'s legend in one row at the figure's bottom, under the x label: never over the data (a legend in a
-    corner hid the part program's corner spikes). The figure leaves :data:`LEGEND_BELOW_IN` for it."""
+def legend_below(fig: Any, ax: Any, ncol: int = 4, **kwargs: Any) -> int:
+    """``ax``'s legend in rows of ``ncol`` at the figure's bottom, under the x label: never over the data (a legend
+    in a corner hid the part program's corner spikes). The figure leaves :data:`LEGEND_BELOW_IN` per row for it;
+    the number of rows."""
     handles, labels = ax.get_legend_handles_labels()
-    if handles:
-        fig.legend(handles, labels, loc="lower center", ncol=min(len(handles), 4), fontsize=7, frameon=False, **kwargs)
+    if not handles:
+        return 0
+    ncol = min(len(handles), ncol)
+    fig.legend(handles, labels, loc="lower center", ncol=ncol, fontsize=7, frameon=False, **kwargs)
+    return -(-len(handles) // ncol)
 
 
 def _title(runs: Sequence[RunSeries], what: str) -> str:
@@ -243,7 +247,7 @@ def fig_eps_c(plt: Any, runs: Sequence[RunSeries]) -> Any:
     ax.axhline(0.0, color="0.4", lw=0.5)
     ax.set(xlabel="time t (s)", ylabel="contour error eps_c (µm)")
     ax.set_title(_title(runs, "true contour error eps_c (largest |eps_c| of each bin)"), fontsize=9)
-    _legend_below(fig, ax)
+    legend_below(fig, ax)
     return fig
 
 
@@ -261,7 +265,7 @@ def _per_axis(plt: Any, runs: Sequence[RunSeries], series: str, ylabel: str, tit
             decorate(ax, axis)
         ax.set_ylabel(ylabel.format(axis=axis))
     if len(runs) > 1:
-        _legend_below(fig, axes[0])
+        legend_below(fig, axes[0])
     axes[-1].set_xlabel("time t (s)")
     axes[0].set_title(_title(runs, title), fontsize=9)
     return fig
@@ -386,7 +390,7 @@ def fig_contour(plt: Any, runs: Sequence[RunSeries]) -> Any:
     ax.set_title(
         _title(runs, f"contour error magnified {k:g}x around the path (eps_c > 0: left of the travel)"), fontsize=9
     )
-    _legend_below(fig, ax, markerscale=6)  # in the corner it hid the path of the second run of a compare
+    legend_below(fig, ax, markerscale=6)  # in the corner it hid the path of the second run of a compare
     return fig
 
 
