@@ -209,7 +209,11 @@ def draw(rows: list[dict], figure: Path) -> None:
 
     estimators = [e for e in ("paper", "earlier", "recommended") if any(r["estimator"] == e for r in rows)]
     panels = [(s, m) for s in ("circle", "ellipse") for m in PAYLOADS_KG]
-    fig, axes = plt.subplots(len(estimators), len(panels), figsize=(3.2 * len(panels), 2.6 * len(estimators)))
+    from gantry_twin.outputs.plots import DPI
+
+    fig, axes = plt.subplots(
+        len(estimators), len(panels), figsize=(3.4 * len(panels), 2.5 * len(estimators)), layout="constrained"
+    )
     axes = np.atleast_2d(axes)
     for i, est in enumerate(estimators):
         for j, (shape, mass) in enumerate(panels):
@@ -222,17 +226,19 @@ def draw(rows: list[dict], figure: Path) -> None:
                     grid[a, b] = r["worst_pct"]
                     marks[a, b] = "" if all(r["trusted"]) else "u"
             image = ax.imshow(np.log10(np.clip(grid, 0.01, 100)), origin="lower", cmap="RdYlGn_r", vmin=-2, vmax=2)
-            for (a, b), mark in marks.items():
-                ax.text(b, a, f"{grid[a, b]:.1f}{mark}", ha="center", va="center", fontsize=7)
+            for (a, b), mark in marks.items():  # whole per cent from 10 up: "58.3u58.3u" ran across the cells
+                value = f"{grid[a, b]:.0f}" if grid[a, b] >= 10 else f"{grid[a, b]:.1f}"
+                ax.text(b, a, value + mark, ha="center", va="center", fontsize=7)
             ax.set_xticks(range(len(SPEEDS_M_S)), [f"{s:g}" for s in SPEEDS_M_S], fontsize=7)
             ax.set_yticks(range(len(SIZES_M)), [f"{s:g}" for s in SIZES_M], fontsize=7)
             ax.set_title(f"{est}: {shape}, {mass:g} kg", fontsize=8)
             if i == len(estimators) - 1:
-                ax.set_xlabel("peak speed, m/s", fontsize=8)
+                ax.set_xlabel("peak speed (m/s)", fontsize=8)
             if j == 0:
-                ax.set_ylabel("radius / semi-x, m", fontsize=8)
-    fig.colorbar(image, ax=axes, shrink=0.6, label="log10 worst |error| of M, B, Af (%)")
-    fig.savefig(figure, dpi=110)
+                ax.set_ylabel("radius / semi-x (m)", fontsize=8)
+    fig.colorbar(image, ax=axes, shrink=0.8, label="log10 worst |error| of M, B, Af (%)")
+    fig.suptitle("worst |error| of M1, M2, B1, B2, Af1, Af2 per point (%); u: one of them not trusted", fontsize=9)
+    fig.savefig(figure, dpi=DPI)
     print(f"figure: {figure}")
 
 

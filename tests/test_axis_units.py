@@ -21,6 +21,8 @@ from gantry_twin.sweep.plots import axis_label, unit_of
         ("estimate_M1", "V s²/m"),
         ("estimate_Af2", "V"),
         ("true_B1", "V s/m"),
+        ("error_pct_M1", "%"),
+        ("error_pct_dN2", "%"),
         ("changes.cogging.0.amplitude_v", "V"),
         ("controller.name", ""),
         ("monitor.tolerance_pct", "%"),

@@ -94,6 +94,19 @@ def test_estimate_plots_show_the_truth_and_the_estimate_with_a_margin(pickup_run
     assert lo < trace.u_v.min() and trace.u_v.max() < hi
 
 
+def test_error_plots_are_in_micrometres_and_ranged_to_every_sample(pickup_run):
+    # The viewer's own range for the axial errors labelled a single "0" tick (a 4 s rig-plant run).
+    trace, sent = pickup_run
+    views = {str(v.origin): v for v in _views(sent[-1].root_container)}
+    for origin, values in (
+        ("errors/contour", np.concatenate([trace.eps_c_m, trace.eps_n_m]) * 1e6),
+        ("errors/axial", trace.e_m * 1e6),
+    ):
+        assert str(views[origin].name).endswith("[µm]"), views[origin].name
+        lo, hi = _range(views[origin])
+        assert lo < values.min() and values.max() < hi, origin
+
+
 def test_the_layout_is_sent_again_only_when_data_leaves_a_plot(pickup_run):
     _, sent = pickup_run
     assert 1 <= len(sent) <= 12  # 10 chunks of 0.1 s; not one layout per chunk

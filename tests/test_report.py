@@ -213,6 +213,11 @@ def test_figures_share_one_y_scale_and_label_every_axis_with_a_unit():
     for fig in by_name.values():
         labels = [a.get_ylabel() for a in fig.axes] + [a.get_xlabel() for a in fig.axes if a.get_xlabel()]
         assert labels and all(re.search(r"\[[^\]]+\]$", label) for label in labels), labels
+    for fig in by_name.values():  # legends below the panels: in a panel one covered Fig. 5's M1 estimate
+        fig.canvas.draw()
+        assert all(ax.get_legend() is None for ax in fig.axes)
+        (legend,) = fig.legends
+        assert not any(legend.get_window_extent().overlaps(ax.get_tightbbox()) for ax in fig.axes)
     for ax, j in zip(by_name["fig4_set1_y_estimates.png"].axes, (1, 3, 5, 7), strict=True):
         lo, hi = ax.get_ylim()
         span = theta[:, j].max() - true[j]

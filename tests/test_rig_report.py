@@ -252,3 +252,18 @@ def test_validation_count_is_judged_on_the_whole_matrix(misses, verdict):
     first = rig_report.acceptance(rig)[0]
     assert first[0] is verdict
     assert first[1].startswith(f"validation numbers within +-30 % of the paper: {26 - misses} of 26 (target 22 of 26)")
+
+
+def test_spike_figure_titles_do_not_run_into_each_other():
+    # "C2 (DIARC, paper estimator (250/150 Hz filters))" touched the neighbouring panels' titles.
+    import matplotlib.pyplot as plt
+
+    from gantry_twin.reports.rig import LABELS, spike_figure
+
+    t = np.linspace(-50.0, 50.0, 11)
+    fig = spike_figure({(label, name): (t, np.sin(t)) for label in LABELS for name in ("rig", "ideal")})
+    fig.canvas.draw()
+    boxes = [ax.title.get_window_extent() for ax in fig.axes]
+    assert not any(a.overlaps(b) for i, a in enumerate(boxes) for b in boxes[i + 1 :])
+    assert all(ax.title.get_window_extent().width < ax.get_window_extent().width for ax in fig.axes)
+    plt.close(fig)

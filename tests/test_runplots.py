@@ -54,6 +54,11 @@ def test_commands_are_scaled_to_the_data_and_an_off_scale_limit_is_named(strided
         low, high = ax.get_ylim()
         assert high < 10 and low > -10 and high - low < 4 * np.ptp(u)  # not squashed to +-10 V
         assert any("off the scale" in t.get_text() for t in ax.texts)
+        # The label sits above the data (it hid u_y's first second on the circle).
+        fig.canvas.draw()
+        (text,) = ax.texts
+        label_bottom = ax.transData.inverted().transform(text.get_window_extent().get_points())[0, 1]
+        assert u.max() < label_bottom
     plt.close("all")
 
 
@@ -66,6 +71,25 @@ def test_untrusted_estimates_are_marked_in_their_panel(strided_run):
     titles = {ax.get_ylabel().split()[0]: ax.get_title() for ax in fig.axes}
     for name, title in titles.items():
         assert title.startswith("not trusted: ") == (name in untrusted), (name, title)
+        if name in untrusted:  # the whole reason, its numbers included (cut at 85 characters, they were lost)
+            assert title.replace("\n", " ") == summary.estimates[name].distrust
+            assert all(len(line) <= runplots.DOUBT_CHARS for line in title.splitlines())
+    plt.close("all")
+
+
+def test_legends_are_outside_the_data(strided_run):
+    # A legend in a corner of the axes hid the bracket program's spikes; "best" still covered estimates.
+    plt = runplots.pyplot()
+    series = read_series(strided_run, _summary(strided_run), "r")
+    for draw in (runplots.fig_eps_c, runplots.fig_estimates, runplots.fig_contour):
+        fig = draw(plt, [series])
+        assert all(ax.get_legend() is None for ax in fig.axes), draw
+        (legend,) = fig.legends
+        boxes = [ax.get_window_extent() for ax in fig.axes]
+        fig.canvas.draw()
+        assert not any(legend.get_window_extent().overlaps(box) for box in boxes), draw
+    fig = runplots.fig_axial(plt, [series, series])  # two runs: told apart by a legend, below the panels
+    assert all(ax.get_legend() is None for ax in fig.axes) and len(fig.legends) == 1
     plt.close("all")
 
 

@@ -47,6 +47,12 @@ THETA_UNITS = {"M": "V s²/m", "B": "V s/m", "Af": "V", "dN": "V"}
 MAGNIFIED_SHARE = 0.12
 #: A figure's title names the run in at most this many characters.
 TITLE_CHARS = 110
+#: The commands' panels: the data in the lower LABEL_ROOM of the height, the limits' label above it.
+LABEL_ROOM = 0.86
+#: Height added to a figure for a legend below its x label, inches.
+LEGEND_BELOW_IN = 0.3
+#: An untrusted estimate's reason above its panel: lines of at most this many characters, two lines at most.
+DOUBT_CHARS = 90
 #: Figure resolution, dots per inch (png; svg and pdf are vector).
 DPI = 150
 #: The file formats a figure can be written in.
@@ -197,9 +203,16 @@ def _window(summary: RunSummary) -> tuple[float, float] | None:
     return summary.contour_error_um.window_s if summary.contour_error_um is not None else None
 
 
-def _legend(ax: Any, runs: Sequence[RunSeries]) -> None:
-    if len(runs) > 1 or ax.get_legend_handles_labels()[0]:
-        ax.legend(loc="upper right", fontsize=7)
+def legend_below(fig: Any, ax: Any, ncol: int = 4, **kwargs: Any) -> int:
+    """``ax``'s legend in rows of ``ncol`` at the figure's bottom, under the x label: never over the data (a legend
+    in a corner hid the part program's corner spikes). The figure leaves :data:`LEGEND_BELOW_IN` per row for it;
+    the number of rows."""
+    handles, labels = ax.get_legend_handles_labels()
+    if not handles:
+        return 0
+    ncol = min(len(handles), ncol)
+    fig.legend(handles, labels, loc="lower center", ncol=ncol, fontsize=7, frameon=False, **kwargs)
+    return -(-len(handles) // ncol)
 
 
 def _title(runs: Sequence[RunSeries], what: str) -> str:
@@ -216,8 +229,8 @@ def _name(runs: Sequence[RunSeries], r: RunSeries, what: str) -> str:
 
 def fig_eps_c(plt: Any, runs: Sequence[RunSeries]) -> Any:
     """eps_c(t), µm, with the metric window (the first run's) shaded."""
-    fig, ax = plt.subplots(figsize=(9, 3.6))
-    fig.subplots_adjust(left=0.08, right=0.98, bottom=0.14, top=0.85)
+    fig, ax = plt.subplots(figsize=(9, 3.6 + LEGEND_BELOW_IN))
+    fig.subplots_adjust(left=0.08, right=0.98, bottom=(0.5 + LEGEND_BELOW_IN) / (3.6 + LEGEND_BELOW_IN), top=0.87)
     for r in runs:
         ax.plot(r.t_eps_s, r.eps_c_um, lw=0.7, label=_name(runs, r, "" if len(runs) > 1 else "eps_c"))
     window = _window(runs[0].summary)
@@ -234,15 +247,16 @@ def fig_eps_c(plt: Any, runs: Sequence[RunSeries]) -> Any:
     ax.axhline(0.0, color="0.4", lw=0.5)
     ax.set(xlabel="time t (s)", ylabel="contour error eps_c (µm)")
     ax.set_title(_title(runs, "true contour error eps_c (largest |eps_c| of each bin)"), fontsize=9)
-    _legend(ax, runs)
+    legend_below(fig, ax)
     return fig
 
 
 def _per_axis(plt: Any, runs: Sequence[RunSeries], series: str, ylabel: str, title: str, decorate: Any = None) -> Any:
     """One panel per axis of ``RunSeries.<series>[axis]`` (t, values) for every run; ``decorate(ax, axis)`` adds
     what a panel needs besides (limits); ``ylabel`` is formatted with ``axis``."""
-    fig, axes = plt.subplots(2, 1, figsize=(9, 5), sharex=True)
-    fig.subplots_adjust(left=0.09, right=0.98, bottom=0.1, top=0.89, hspace=0.08)
+    below = LEGEND_BELOW_IN if len(runs) > 1 else 0.0  # several runs: a legend of their labels below
+    fig, axes = plt.subplots(2, 1, figsize=(9, 5 + below), sharex=True)
+    fig.subplots_adjust(left=0.09, right=0.98, bottom=(0.5 + below) / (5 + below), top=0.89, hspace=0.08)
     for i, (ax, axis) in enumerate(zip(axes, AXES, strict=True)):
         for r in runs:
             t, values = getattr(r, series)[i]
@@ -250,8 +264,8 @@ def _per_axis(plt: Any, runs: Sequence[RunSeries], series: str, ylabel: str, tit
         if decorate is not None:
             decorate(ax, axis)
         ax.set_ylabel(ylabel.format(axis=axis))
-        if len(runs) > 1:
-            _legend(ax, runs)
+    if len(runs) > 1:
+        legend_below(fig, axes[0])
     axes[-1].set_xlabel("time t (s)")
     axes[0].set_title(_title(runs, title), fontsize=9)
     return fig
@@ -287,6 +301,8 @@ def fig_commands(plt: Any, runs: Sequence[RunSeries]) -> Any:
             label = f"limits {limit[0]:+g} / {limit[1]:+g} V" + ("" if len(inside) == 2 else " (off the scale)")
             box = {"facecolor": "white", "edgecolor": "0.8", "alpha": 0.9, "pad": 2}
             ax.text(0.005, 0.96, label, transform=ax.transAxes, va="top", fontsize=7, color="tab:red", bbox=box)
+            if len(inside) < 2:  # headroom for the label: the data below it (it hid u_y's start on a circle)
+                high = max(high, low + (high - low) / LABEL_ROOM)
             ax.set_ylim(low, high)
 
     return _per_axis(
@@ -299,8 +315,8 @@ def fig_estimates(plt: Any, runs: Sequence[RunSeries]) -> Any | None:
     runs = [r for r in runs if r.theta_hat is not None]
     if not runs:
         return None
-    fig, axes = plt.subplots(4, 2, figsize=(10, 8.5), sharex=True)
-    fig.subplots_adjust(left=0.09, right=0.98, bottom=0.06, top=0.92, wspace=0.28, hspace=0.1)
+    fig, axes = plt.subplots(4, 2, figsize=(10, 9.5), sharex=True)
+    fig.subplots_adjust(left=0.09, right=0.98, bottom=0.055, top=0.88, wspace=0.28, hspace=0.2)
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     for j, (ax, name) in enumerate(zip(axes.T.ravel(), THETA_NAMES, strict=True)):
         low, high = [], []
@@ -323,14 +339,17 @@ def fig_estimates(plt: Any, runs: Sequence[RunSeries]) -> Any | None:
             ax.set_facecolor("0.93")
             ax.patch.set_hatch("///")
             ax.patch.set_edgecolor("0.8")
-            ax.set_title(textwrap.shorten(doubt, 85, placeholder=" ..."), fontsize=6.5, color="0.35", pad=2)
+            lines = textwrap.wrap(doubt, DOUBT_CHARS, max_lines=2, placeholder=" ...")
+            ax.set_title("\n".join(lines), fontsize=6.5, color="0.35", pad=2)
         window = runs[0].summary.estimates_window_s
         if window is not None:  # where the summary's mean estimate is taken
             label = f"estimates window [{window[0]:.2f}, {window[1]:.2f}] s" if j == 0 else None
             ax.axvspan(*window, color="tab:green", alpha=0.08, zorder=0, label=label)
     for ax in axes[-1]:
         ax.set_xlabel("time t (s)")
-    axes[0, 0].legend(loc="best", fontsize=6)
+    # One legend for every panel, between the title and the panels (in a panel, "best" still covered the data).
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, 0.935), ncol=4, fontsize=7, frameon=False)
     fig.suptitle(_title(runs, "parameter estimates theta^ (solid) and true values (dashed), volt units"), fontsize=9)
     return fig
 
@@ -358,8 +377,8 @@ def magnification(runs: Sequence[RunSeries]) -> float:
 def fig_contour(plt: Any, runs: Sequence[RunSeries]) -> Any:
     """The desired path (mm) and q_d + k eps_c n around it, one factor k for every run."""
     k = magnification(runs)
-    fig, ax = plt.subplots(figsize=(6.5, 6.5))
-    fig.subplots_adjust(left=0.13, right=0.97, bottom=0.09, top=0.9)
+    fig, ax = plt.subplots(figsize=(6.5, 6.5 + LEGEND_BELOW_IN))
+    fig.subplots_adjust(left=0.13, right=0.97, bottom=(0.55 + LEGEND_BELOW_IN) / (6.5 + LEGEND_BELOW_IN), top=0.9)
     path = runs[0].contour_m  # in the order of time: any path, closed or not
     ax.plot(path[:, 0] * 1e3, path[:, 1] * 1e3, color="0.5", lw=0.8, label="desired path q_d")
     for r in runs:
@@ -371,7 +390,7 @@ def fig_contour(plt: Any, runs: Sequence[RunSeries]) -> Any:
     ax.set_title(
         _title(runs, f"contour error magnified {k:g}x around the path (eps_c > 0: left of the travel)"), fontsize=9
     )
-    ax.legend(loc="upper right", fontsize=7, markerscale=6)
+    legend_below(fig, ax, markerscale=6)  # in the corner it hid the path of the second run of a compare
     return fig
 
 

@@ -14,9 +14,11 @@ from pathlib import Path
 from typing import Any
 
 from gantry_twin.outputs.files import atomic_write
-from gantry_twin.outputs.plots import DPI
+from gantry_twin.outputs.plots import DPI, legend_below
 from gantry_twin.plant import THETA_NAMES, THETA_UNITS
 
+#: Height of one row of a legend below the panels (font size 7), inches.
+LEGEND_ROW_IN = 0.17
 #: The runs of Figs. 4-5 by the estimator they differ in.
 ESTIMATOR_NAMES = {"C2": "paper estimator", "C2r": "recommended estimator"}
 
@@ -47,6 +49,11 @@ def _mark_events(ax: Any, r: Any, t_end: float, label: bool) -> None:
         span = f"[{start:g}, {'end' if end is None else f'{end:g}'})"
         ax.axvspan(start, stop, facecolor="none", edgecolor="tab:red", hatch="//", lw=0, alpha=0.35,
                    label=f"disturbance: {what}, {span} s" if label else None)  # fmt: skip
+
+
+def _below(fig: Any, rows: int) -> None:
+    """Lay the panels out above ``rows`` rows of a legend at the figure's bottom (:func:`legend_below`)."""
+    fig.tight_layout(rect=(0.0, (0.1 + LEGEND_ROW_IN * rows) / fig.get_figheight(), 1.0, 1.0))
 
 
 def figures(by_key: dict[tuple[int, str, str], Any], legend: dict[str, str]) -> list[tuple[Any, str, str]]:
@@ -80,10 +87,9 @@ def figures(by_key: dict[tuple[int, str, str], Any], legend: dict[str, str]) -> 
             ax.plot(r.t_eps_s[keep], r.eps_c_um[keep], lw=0.6, color="tab:blue")
             ax.set_ylabel(f"{c} eps_c [µm]")
             ax.grid(alpha=0.3)
-        axes[0, 0].legend(fontsize=7, loc="upper right")
         axes[-1, 0].set_xlabel("t [s]")
         fig.suptitle(f"Fig. {fig_no}: {contour} contouring errors, Set {set_id} (largest |eps_c| per 2 ms)")
-        fig.tight_layout()
+        _below(fig, legend_below(fig, axes[0, 0]))
         made.append(
             (
                 fig,
@@ -112,11 +118,10 @@ def figures(by_key: dict[tuple[int, str, str], Any], legend: dict[str, str]) -> 
             if doubts:  # the reasons are listed under Tables 3-4 of report.md
                 note = f"{name} not trusted: {', '.join(doubts)} (why: report.md, under Tables 3-4)"
                 ax.set_title(note, fontsize=7, color="0.35", loc="left", pad=2)
-        axes[0].legend(fontsize=7, loc="best")
         axes[-1].set_xlabel("t [s]")
         label = "Y" if axis == 1 else "X"
         fig.suptitle(f"Fig. {fig_no}: {label}-axis parameter estimates, Set {set_id} circle (DIARC)")
-        fig.tight_layout()
+        _below(fig, legend_below(fig, axes[0], ncol=1))  # in a panel ("best") it covered Fig. 5's M1 estimate
         made.append(
             (
                 fig,

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import io
 import json
+import textwrap
 from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
@@ -227,7 +228,8 @@ def spike_figure(series: dict[tuple[str, str], tuple[np.ndarray, np.ndarray]]) -
         for name in ("rig", "ideal"):
             t_ms, eps_um = series[(label, name)]
             ax.plot(t_ms, eps_um, lw=0.9, label=f"{name} twin")
-        ax.set_title(f"{label} ({CONTROLLERS[label][2]})")
+        # Wrapped: "C2 (DIARC, paper estimator (250/150 Hz filters))" ran into its neighbours' titles.
+        ax.set_title(textwrap.fill(f"{label} ({CONTROLLERS[label][2]})", 40), fontsize=10)
         ax.set_xlabel("time from the X reversal [ms]")
         ax.grid(True, alpha=0.3)
     axes[0].set_ylabel("eps_c [µm]")

@@ -46,6 +46,8 @@ def unit_of(name: str) -> str:
     for prefix in ("estimate_", "true_"):
         if last.startswith(prefix) and last[len(prefix) :].rstrip("12") in THETA_UNITS:
             return THETA_UNITS[last[len(prefix) :].rstrip("12")]
+    if last.startswith("error_pct_"):  # an estimate's error (the results table's column), per cent
+        return "%"
     for suffix, unit in UNIT_SUFFIXES:
         if last.lower().endswith(suffix):
             return unit

@@ -19,6 +19,12 @@ from gantry_twin.plant import Plant
 
 #: Default magnification of the contour error in the XY view (1 um drawn as 10 mm).
 ERROR_MAGNIFICATION = 10_000.0
+#: The same for a part program's run: its errors at corners are tens of um (a 10 um error drawn as 10 mm; at
+#: 10 000x the bracket's corners were drawn a metre off its 400 mm part). During a rapid (G0) move, not part of
+#: the part, the actual position is drawn unmagnified.
+PROGRAM_ERROR_MAGNIFICATION = 1_000.0
+#: The estimates' verdicts after a run: a Markdown list of those not trusted, each with its reason.
+VERDICTS_ENTITY = "estimates/verdicts"
 #: The timeline every sample is logged on (a duration from the start of the run).
 TIMELINE = "sim_time"
 #: Margin added on each side of what a ranged plot must show, as a fraction of its span.
@@ -147,10 +153,13 @@ def dashboard_blueprint(
     health: bool = False,
     ranges: Mapping[str, tuple[float, float]] | None = None,
     titles: Mapping[str, str] | None = None,
+    verdicts: bool = False,
 ) -> rrb.Blueprint:
     """Default layout: contour and 3D | errors and inputs | one plot per estimate (if any).
 
     ``health``: add the health monitor's excitation plot and alarm log to the middle column.
+    ``verdicts``: add the estimates' verdicts (``estimates/verdicts``, which are not trusted and why) below the
+    3D view.
 
     The XY view shows every strip of the actual contour up to the time cursor
     (visible range from -infinity); ``desired_mm`` (N, 2) sets its bounds.
@@ -176,7 +185,7 @@ def dashboard_blueprint(
         bounds = rrb.VisualBounds2D(
             x_range=[lo[0] - margin, hi[0] + margin], y_range=[-hi[1] - margin, -lo[1] + margin]
         )
-    left = rrb.Vertical(
+    left_views: list = [
         rrb.Spatial2DView(
             origin="contour_mm",
             name=f"{panel_name('XY contour', 'mm')}, error x{magnification:g}",
@@ -188,10 +197,13 @@ def dashboard_blueprint(
             name=panel_name("Gantry 3D", "m"),
             eye_controls=rrb.EyeControls3D(position=[0.9, -1.3, 0.9], look_target=[0.0, 0.0, -0.08]),
         ),
-    )
+    ]
+    if verdicts:
+        left_views.append(rrb.TextDocumentView(origin=VERDICTS_ENTITY, name="Estimates not trusted, and why"))
+    left = rrb.Vertical(*left_views, row_shares=[1.6, 1.0, 1.0][: len(left_views)])
     middle_views = [
-        series("errors/contour", panel_name("Contour error", "um")),
-        series("errors/axial", panel_name("Axial errors", "um")),
+        series("errors/contour", panel_name("Contour error", "µm")),
+        series("errors/axial", panel_name("Axial errors", "µm")),
         series("inputs", panel_name("Inputs", "V")),
     ]
     if health:

@@ -15,7 +15,6 @@ import math
 import os
 import re
 import sys
-import textwrap
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -30,7 +29,9 @@ from gantry_twin.gcode.sampling import Plan
 from gantry_twin.plant import THETA_NAMES, THETA_UNITS
 from gantry_twin.telemetry.dashboard import (
     ERROR_MAGNIFICATION,
+    PROGRAM_ERROR_MAGNIFICATION,
     TIMELINE,
+    VERDICTS_ENTITY,
     dashboard_blueprint,
     gantry_bodies,
     magnified_contour_m,
@@ -58,8 +59,9 @@ _EPS_C_STYLE, _EPS_N_STYLE = ((230, 120, 30), 4.0), ((30, 30, 120), 1.0)
 WIDEN_MARGIN = 0.25
 #: A part program's part error (distance to the programmed lines and arcs), green; its programmed geometry, black.
 _PART_STYLE, _PROGRAM_RGB, _RAPID_RGB = ((40, 160, 60), 1.5), (20, 20, 20), (170, 170, 170)
-#: An estimate's panel title gives the reason it is not trusted in at most this many characters.
-DOUBT_CHARS = 70
+#: What an untrusted estimate's panel title and legend add: short, so that a narrow panel still shows it (the
+#: reasons are in the verdicts panel).
+DISTRUST_MARK = "not trusted"
 
 
 def unit_in_entity(unit: str) -> str:
@@ -126,15 +128,16 @@ class RerunObserver:
     recording: a stream with its sinks already set (``rr.RecordingStream(...)``
     then ``.save``/``.spawn``/``.connect_grpc``, or ``set_sinks``); the
     constructors :meth:`to_file`, :meth:`spawn_viewer`, :meth:`connect` do that.
-    error_magnification: K of the XY view; flush_interval_s: wall time between
-    sends (0 = every chunk). One observer records one run.
+    error_magnification: K of the XY view (default :data:`ERROR_MAGNIFICATION`, for a part program's run
+    :data:`PROGRAM_ERROR_MAGNIFICATION`); flush_interval_s: wall time between sends (0 = every chunk). One
+    observer records one run.
     """
 
     def __init__(
         self,
         recording: rr.RecordingStream,
         *,
-        error_magnification: float = ERROR_MAGNIFICATION,
+        error_magnification: float | None = None,
         flush_interval_s: float = 0.2,
         marker_rate_hz: float = MARKER_RATE_HZ,
         contour_rate_hz: float = CONTOUR_RATE_HZ,
@@ -142,7 +145,8 @@ class RerunObserver:
     ) -> None:
         self.recording = recording
         self._monitor = None
-        self.error_magnification = float(error_magnification)
+        self._magnification_given = error_magnification
+        self.error_magnification = float(ERROR_MAGNIFICATION if error_magnification is None else error_magnification)
         self.flush_interval_s = float(flush_interval_s)
         self.marker_rate_hz = float(marker_rate_hz)
         self.contour_rate_hz = float(contour_rate_hz)
@@ -199,12 +203,15 @@ class RerunObserver:
         self._extents: dict[str, tuple[float, float]] = {}  # plot origin -> [min, max] of what it has had to show
         self._ranges: dict[str, tuple[float, float]] = {}  # plot origin -> the y range in the blueprint sent
         self._blueprint_sent = False
+        self._verdicts = False  # mark_estimates has logged the verdicts
         self._bodies = gantry_bodies(run.plant)
         samples = run.samples or run.reference.t_s.size
         step = max(1, samples // 4000)
         times_s = np.append(np.arange(0, samples, step), samples - 1) * ts
         self._desired_mm = reference(run.path, run.timing, times_s).q_d * 1e3
         self._plan = run.path if isinstance(run.path, Plan) else None  # a part program: its part error too
+        if self._plan is not None and self._magnification_given is None:
+            self.error_magnification = PROGRAM_ERROR_MAGNIFICATION
         self.recording.send_recording_name(f"{run.controller_name}, {run.duration_s:g} s")
         self._log_static_scene(run)
 
@@ -332,20 +339,28 @@ class RerunObserver:
         self._plots = [e for e, _ in self._estimates] + extra
 
     def mark_estimates(self, distrust: dict[str, str]) -> None:
-        """Title each estimate whose name is a key of ``distrust`` with its reason (``not trusted: why``, as
-        summary.json judges it after the run), send the layout again, and log the verdicts as a text document
-        (``estimates/verdicts``). Call it after the run, before :meth:`close`."""
+        """Mark each estimate whose name is a key of ``distrust`` (its reason, ``not trusted: why``, as
+        summary.json judges it after the run): ``not trusted`` in its panel's title (before the unit, so a narrow
+        panel still shows it) and in its legend; log the verdicts, each with its reason, as a text document
+        (``estimates/verdicts``) and send the layout again with a panel for it. Call it after the run, before
+        :meth:`close`."""
         if self._run is None or not self._styled:
             return
         for entity, i in self._estimates:
             name = THETA_NAMES[i] if i < len(THETA_NAMES) else f"theta{i + 1}"
             if name in distrust:
-                why = textwrap.shorten(distrust[name], DOUBT_CHARS, placeholder=" ...")
-                self._titles[entity] = f"{self._titles.get(entity, name)} ({why})"
-        lines = [f"- {name}: {why}" for name, why in distrust.items()] or ["every estimate trusted"]
+                unit = THETA_UNITS[i] if name in THETA_NAMES else "-"
+                self._titles[entity] = panel_name(f"{name} {DISTRUST_MARK}", unit)
+                self.recording.log(
+                    f"{entity}/estimate",
+                    rr.SeriesLines(names=[f"{name}^ ({DISTRUST_MARK})"], colors=[_ESTIMATE_RGB]),
+                    static=True,
+                )
+        lines = [f"- **{name}**: {why}" for name, why in distrust.items()] or ["every estimate trusted"]
         self.recording.log(
-            "estimates/verdicts", rr.TextDocument("\n".join(lines), media_type=rr.MediaType.MARKDOWN), static=True
+            VERDICTS_ENTITY, rr.TextDocument("\n".join(lines), media_type=rr.MediaType.MARKDOWN), static=True
         )
+        self._verdicts = True
         self._send_blueprint()
 
     def _show(self, origin: str, *values: np.ndarray) -> None:
@@ -371,6 +386,7 @@ class RerunObserver:
                 health=self._monitor is not None,
                 ranges=self._ranges,
                 titles=self._titles,
+                verdicts=self._verdicts,
             ),
             make_active=True,
             make_default=True,
@@ -388,9 +404,11 @@ class RerunObserver:
 
         scalars("errors/contour/eps_c_um", trace.eps_c_m[rows] * 1e6)
         scalars("errors/contour/eps_n_um", trace.eps_n_m[rows] * 1e6)
+        part_um = np.empty(0)
         if self._plan is not None:  # NaN during a rapid: a gap in the line
             t, q = trace.t_s[rows], trace.q_m[rows]
-            scalars("errors/contour/part_um", distance_to_program(self._plan, self._plan.sample(t).move, q) * 1e6)
+            part_um = distance_to_program(self._plan, self._plan.sample(t).move, q) * 1e6
+            scalars("errors/contour/part_um", part_um)
         scalars("errors/axial/e_x_um", trace.e_m[rows, 0] * 1e6)
         scalars("errors/axial/e_y_um", trace.e_m[rows, 1] * 1e6)
         scalars("inputs/u_x_V", trace.u_v[rows, 0])
@@ -398,6 +416,8 @@ class RerunObserver:
         scalars("inputs/disturbance_x_V", trace.disturbance_v[rows, 0])
         scalars("inputs/disturbance_y_V", trace.disturbance_v[rows, 1])
         ranges_before = dict(self._ranges)
+        self._show("errors/contour", trace.eps_c_m[rows] * 1e6, trace.eps_n_m[rows] * 1e6, part_um)
+        self._show("errors/axial", trace.e_m[rows] * 1e6)
         self._show("inputs", trace.u_v[rows], trace.disturbance_v[rows])
         state = trace.controller_state
         k = self._estimate_stride
@@ -466,8 +486,12 @@ class RerunObserver:
         if idx.size == 0 or idx[-1] != stop - 1:
             idx = np.append(idx, stop - 1)
         phi = run.timing.derivatives(trace.t_s[idx - trace.first])[0]  # the desired phi, as in the reference
-        points_mm = magnified_contour_m(run.path, trace.q_m[idx - trace.first], phi, self.error_magnification)
-        points_mm *= 1e3
+        q = trace.q_m[idx - trace.first]
+        factor = self.error_magnification
+        if self._plan is not None:  # a rapid move is not part of the part: drawn where the machine is
+            rapid = np.array([m.rapid for m in self._plan.moves])[self._plan.sample(trace.t_s[idx - trace.first]).move]
+            factor = np.where(rapid, 1.0, factor)[:, None]
+        points_mm = magnified_contour_m(run.path, q, phi, factor) * 1e3
         strip = points_mm if self._last_point_mm is None else np.vstack([self._last_point_mm, points_mm])
         self._last_point_mm = points_mm[-1:]
         rec.send_columns(
