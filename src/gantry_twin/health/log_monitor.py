@@ -17,7 +17,7 @@ the first two samples; it only sets the filters' start.
 
 The log is read a chunk at a time (:func:`gantry_twin.sysid.logs.log_chunks`), and the estimator and the
 monitor carry their state from one chunk to the next; what is kept of the monitor's periods is their
-:class:`~gantry_twin.health.monitor.MonitorTally`, so memory does not grow with the log's length
+:class:`~gantry_twin.health.tally.MonitorTally`, so memory does not grow with the log's length
 (benchmarks/bench_log_memory.py).
 """
 
@@ -30,7 +30,8 @@ import numpy as np
 from gantry_twin.controllers import DIARC
 from gantry_twin.controllers.base import U_MAX_V, Measurement, RunContext
 from gantry_twin.health.estimator_replay import estimator_replay
-from gantry_twin.health.monitor import MachineMonitor, MonitorTally
+from gantry_twin.health.monitor import MachineMonitor
+from gantry_twin.health.tally import MonitorTally
 from gantry_twin.sysid.logs import Log, LogChunk, LogInfo
 from gantry_twin.trace import Trace
 

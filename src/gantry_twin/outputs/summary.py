@@ -357,9 +357,9 @@ def whole_run_summary(whole: WholeRunMetrics) -> dict[str, Any]:
 
 def health_summary(report: Any) -> dict[str, Any]:
     """The ``health`` section: alarms, status per parameter, excitation per axis (docs/health.md), of a monitor's
-    :class:`~gantry_twin.health.monitor.MonitorReport` or of the :class:`~gantry_twin.health.monitor.MonitorTally`
+    :class:`~gantry_twin.health.monitor.MonitorReport` or of the :class:`~gantry_twin.health.tally.MonitorTally`
     of its periods (``monitor --log``, a report at a time)."""
-    from gantry_twin.health.monitor import MonitorTally
+    from gantry_twin.health.tally import MonitorTally
 
     tally = report if isinstance(report, MonitorTally) else MonitorTally.of(report)
     alarms = [
@@ -404,7 +404,7 @@ def summary_json(summary: RunSummary) -> str:
 def log_summary(log: Any, tally: Any) -> RunSummary:
     """summary.json of ``monitor --log``: the log (:class:`gantry_twin.sysid.logs.LogInfo`), the mean estimates
     over the tally's window and the ``health`` section, from the
-    :class:`~gantry_twin.health.monitor.MonitorTally` of the monitor's periods."""
+    :class:`~gantry_twin.health.tally.MonitorTally` of the monitor's periods."""
     data: dict[str, Any] = {
         "schema_version": SUMMARY_SCHEMA_VERSION,
         "log": str(Path(log.path)),

@@ -20,13 +20,13 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
-import pyarrow as pa
 import rerun as rr
 
 from gantry_twin.contours import reference
 from gantry_twin.gcode.part_error import distance_to_program
 from gantry_twin.gcode.sampling import Plan
 from gantry_twin.plant import THETA_NAMES, THETA_UNITS
+from gantry_twin.telemetry.columns import TimeIndex, scalar_column
 from gantry_twin.telemetry.dashboard import (
     ERROR_MAGNIFICATION,
     PROGRAM_ERROR_MAGNIFICATION,
@@ -78,44 +78,6 @@ def theta_entity(name: str) -> str:
     if name not in THETA_NAMES:
         return f"estimates/{name}"
     return f"estimates/{name}_{unit_in_entity(THETA_UNITS[THETA_NAMES.index(name)])}"
-
-
-class _TimeIndex:
-    """A ``sim_time`` column (rerun's TimeColumnLike) in whole nanoseconds, rounded rather than truncated.
-
-    Built straight from the int64 buffer: ``rr.TimeColumn`` does the same through slower conversions.
-    """
-
-    def __init__(self, t_s: np.ndarray) -> None:
-        self._times = pa.array(np.rint(np.asarray(t_s, dtype=float) * 1e9).astype(np.int64)).view(pa.duration("ns"))
-
-    def timeline_name(self) -> str:
-        return TIMELINE
-
-    def as_arrow_array(self) -> pa.Array:
-        return self._times
-
-
-class _ArrowBatch:
-    """A ready pyarrow array as a rerun ComponentBatchLike."""
-
-    def __init__(self, array: pa.Array) -> None:
-        self._array = array
-
-    def as_arrow_array(self) -> pa.Array:
-        return self._array
-
-
-_SCALARS = rr.Scalars.descriptor_scalars()
-
-
-def _scalar_column(values: np.ndarray) -> rr.ComponentColumn:
-    """``Scalars`` column of N rows of k values from an (N,) or (N, k) array (= ``rr.Scalars.columns``, faster)."""
-    values = np.asarray(values, dtype=np.float64)
-    rows = values.shape[0]
-    width = 1 if values.ndim == 1 else int(np.prod(values.shape[1:]))
-    offsets = np.arange(0, rows * width + 1, width, dtype=np.int32)
-    return rr.ComponentColumn(_SCALARS, _ArrowBatch(pa.array(values.reshape(-1))), offsets=offsets)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -397,10 +359,10 @@ class RerunObserver:
         if stop <= start or self._run is None:
             return
         rec, rows, first = self.recording, trace.rows(start, stop), trace.first
-        times = [_TimeIndex(trace.t_s[rows])]
+        times = [TimeIndex(trace.t_s[rows])]
 
         def scalars(entity: str, values: np.ndarray, index: list = times) -> None:
-            rec.send_columns(entity, indexes=index, columns=[_scalar_column(values)])
+            rec.send_columns(entity, indexes=index, columns=[scalar_column(values)])
 
         scalars("errors/contour/eps_c_um", trace.eps_c_m[rows] * 1e6)
         scalars("errors/contour/eps_n_um", trace.eps_n_m[rows] * 1e6)
@@ -422,7 +384,7 @@ class RerunObserver:
         state = trace.controller_state
         k = self._estimate_stride
         slow = np.arange(-(-start // k) * k, stop, k) - first  # the samples at estimate_rate_hz
-        slow_times = [_TimeIndex(trace.t_s[slow])]
+        slow_times = [TimeIndex(trace.t_s[slow])]
         if self._estimates:
             theta = state["theta_hat"][rows]  # every sample sets the plot's range; every k-th is logged
             if trace.true_theta_t is None:  # constant: a line needs two points per send
@@ -436,7 +398,7 @@ class RerunObserver:
                     )
                 )
                 true = trace.true_theta_t[at - first]
-            true_times = [_TimeIndex(trace.t_s[at - first])]
+            true_times = [TimeIndex(trace.t_s[at - first])]
             for entity, i in self._estimates:
                 if slow.size:
                     scalars(f"{entity}/estimate", state["theta_hat"][slow, i], slow_times)
@@ -463,12 +425,12 @@ class RerunObserver:
         if t.size:
             if self._excitation_sent == 0:
                 rec.log("health/excitation_V", rr.SeriesLines(names=["x", "y"], colors=[_X_RGB, _Y_RGB]), static=True)
-            rec.send_columns("health/excitation_V", indexes=[_TimeIndex(t)], columns=[_scalar_column(level)])
+            rec.send_columns("health/excitation_V", indexes=[TimeIndex(t)], columns=[scalar_column(level)])
             self._excitation_sent += t.size
             _, trusted = monitor.trusted_since(self._excitation_sent - t.size)
             if self._excitation_sent == t.size:
                 rec.log("health/trustworthy", rr.SeriesLines(names=list(THETA_NAMES)), static=True)
-            rec.send_columns("health/trustworthy", indexes=[_TimeIndex(t)], columns=[_scalar_column(trusted)])
+            rec.send_columns("health/trustworthy", indexes=[TimeIndex(t)], columns=[scalar_column(trusted)])
         alarms = monitor.alarms
         for alarm in alarms[self._alarms_sent :]:
             rec.set_time(TIMELINE, duration=alarm.time_s)
@@ -496,7 +458,7 @@ class RerunObserver:
         self._last_point_mm = points_mm[-1:]
         rec.send_columns(
             self._actual_entity,
-            indexes=[_TimeIndex(trace.t_s[trace.rows(stop - 1, stop)])],
+            indexes=[TimeIndex(trace.t_s[trace.rows(stop - 1, stop)])],
             columns=rr.LineStrips2D.columns(strips=[strip], colors=[_X_RGB], radii=[-1.5]),
         )
         # The moving bodies at marker_rate_hz.
@@ -504,7 +466,7 @@ class RerunObserver:
         idx = np.arange(-(-start // stride) * stride, stop, stride)
         if idx.size == 0:
             return
-        marker_times = [_TimeIndex(trace.t_s[idx - trace.first])]
+        marker_times = [TimeIndex(trace.t_s[idx - trace.first])]
         q = trace.q_m[idx - trace.first]
         for body in self._bodies:
             if body.slides:
