@@ -24,3 +24,31 @@ def circle_set1_traces():
 def pytest_xdist_auto_num_workers(config):
     """`-n auto`: one worker per core, at most 4 (each holds MuJoCo, numba's loops and a model: ~0.3 GB)."""
     return max(1, min(4, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1))
+
+
+#: The test modules that take longest (``python -m pytest --durations=150`` on the 2-core VM), in that order. xdist
+#: hands a worker a whole module (``--dist loadfile``, ``--no-loadscope-reorder``) in collection order; with these
+#: first, neither worker is left waiting at the end on the other's long module (the last of them, test_sweep.py,
+#: came late in the alphabet). Order only: no test depends on it.
+LONGEST_FIRST = (
+    "test_sweep.py",
+    "test_calibrate.py",
+    "test_health_closed_loop.py",
+    "test_hostile_commands.py",
+    "test_estimates.py",
+    "test_docs.py",
+    "test_pinned_traces.py",
+    "test_logmonitor.py",
+    "test_cli.py",
+    "test_compiling.py",
+    "test_identify_lugre.py",
+    "test_report.py",
+    "test_signals.py",
+    "test_data_loss.py",
+    "test_lugre.py",
+)
+
+
+def pytest_collection_modifyitems(config, items):
+    rank = {name: i for i, name in enumerate(LONGEST_FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # a stable sort: the rest keep their order
