@@ -12,7 +12,7 @@ from gantry_twin.health.log_monitor import estimates
 from gantry_twin.outputs.files import write_parquet
 from gantry_twin.outputs.tracefile import trace_table
 from gantry_twin.run import execute
-from gantry_twin.scenario import build, load_scenario, shipped
+from gantry_twin.scenario import build, dump_yaml, load_scenario, shipped
 from gantry_twin.sysid.logs import read_log, write_log
 
 
@@ -100,7 +100,7 @@ def test_monitor_log_at_another_sample_period_is_refused_naming_the_unit(tmp_pat
 
 
 @pytest.mark.slow
-def test_friction_drift_circle_same_alarms_from_its_trace(tmp_path):
+def test_friction_drift_circle_same_alarms_from_its_trace(tmp_path, capsys):
     """Acceptance: the trace of friction_drift_circle monitored as a log raises the simulated monitor's alarms."""
     scenario, built = _built("friction_drift_circle")
     trace = execute(built)
@@ -128,3 +128,11 @@ def test_friction_drift_circle_same_alarms_from_its_trace(tmp_path):
         )
         == 3
     )
+    # A run's directory (its trace and its resolved scenario, as gantry-twin run writes them): monitored with the
+    # run's own settings without naming the scenario; the same alarms at the same times as the run's monitor.
+    (tmp_path / "scenario.yaml").write_text(dump_yaml(scenario.resolved()), encoding="utf-8")
+    own = tmp_path / "own-settings"
+    assert main(["monitor", "--log", str(tmp_path), "--out", str(own)]) == 0
+    alarms = json.loads((own / "summary.json").read_text())["health"]["alarms"]
+    assert [(a["parameter"], a["time_s"]) for a in alarms] == [(a.parameter, a.time_s) for a in simulated]
+    assert "the run's own settings, from" in capsys.readouterr().err

@@ -339,8 +339,13 @@ def _announce_large_trace(built: Any) -> None:
 
 def _monitor_log(args: argparse.Namespace) -> int:
     """``monitor --log``: DIARC's estimator and the health monitor over a log (gantry_twin.health.log_monitor)."""
-    from gantry_twin.cli.monitor import monitor_log_command
+    from gantry_twin.cli.monitor import monitor_log_command, run_log
 
+    scenario = None if args.scenario is None else _scenario_path(args.scenario)
+    log, scenario, note = run_log(Path(args.log), scenario)
+    args.log = str(log)
+    if note:
+        print(note, file=sys.stderr, flush=True)
     # runs never overwrite: a new directory under runs/<log>-monitor/ unless --out names one (outputs.rundirs)
     out = (
         checked_out(args.out)
@@ -349,7 +354,7 @@ def _monitor_log(args: argparse.Namespace) -> int:
     )
     try:
         with writable_out(out):  # before the replay compiles and runs; removed again, empty, on bad input
-            data = monitor_log_command(args, None if args.scenario is None else _scenario_path(args.scenario), out)
+            data = monitor_log_command(args, scenario, out)
     except ValueError as exc:
         raise BadInput(str(exc).splitlines()[0]) from None
     if args.out is None:

@@ -12,9 +12,27 @@ from gantry_twin.controllers import DIARC, create
 from gantry_twin.health.log_monitor import monitor_log
 from gantry_twin.outputs.files import atomic_write_text
 from gantry_twin.outputs.summary import RunSummary, log_summary, summary_json
+from gantry_twin.outputs.tracefile import TRACE_FILE
 from gantry_twin.plant import Plant
+from gantry_twin.run import SCENARIO_FILE
 from gantry_twin.scenario import apply_overrides, controller_options, load_scenario, make_monitor, validate_data
 from gantry_twin.sysid.logs import check_sample_period, log_chunks, scan_log
+
+
+def run_log(log: Path, scenario: Path | None) -> tuple[Path, Path | None, str]:
+    """``--log LOG [SCENARIO]``: the log file, the scenario that gives the settings, and a note saying where they
+    came from ("" when SCENARIO was given or there is none to find).
+
+    A twin run's directory is its trace.parquet; a log with a scenario.yaml beside it (a run's trace) is
+    monitored with that run's own settings (its DIARC and monitor), so that the log gives the run's alarms,
+    unless SCENARIO names other settings.
+    """
+    if log.is_dir() and (log / TRACE_FILE).is_file():
+        log = log / TRACE_FILE
+    beside = log.parent / SCENARIO_FILE
+    if scenario is not None or log.name != TRACE_FILE or not beside.is_file():
+        return log, scenario, ""
+    return log, beside, f"{PROG}: monitor --log {log}: the run's own settings, from {beside}"
 
 
 def monitor_log_command(args: argparse.Namespace, scenario_path: Path | None, out: Path) -> RunSummary:
