@@ -42,8 +42,9 @@ Z95 = 1.959963984540054
 class IdentifySettings:
     """How :func:`identify` filters and selects the samples (module docstring).
 
-    filter_hz: Hf per axis, Hz (the recommended estimator's 50 Hz keeps the
-    encoder's quantisation out of x_f''); filter_zeta: its damping.
+    filter_hz: Hf per axis, Hz (identification's own 50 Hz, well above the
+    excitation's motion, keeps the encoder's quantisation out of x_f''; the
+    on-line recommended estimator uses 10 Hz); filter_zeta: its damping.
     friction_slope_s_m: slope of Sf(v) = (2/pi) atan(slope v), s/m.
     velocity_half_width: samples each side of the centred velocity.
     sliding_speed_m_s, stick_memory_s: the samples left out (module docstring).
