@@ -68,7 +68,7 @@ def test_the_notice_counts_seconds_on_a_terminal_until_the_first_chunk():
     notice.on_chunk(None, 0, 1)
     text = stream.getvalue()
     assert text.count("\r" + compile_message("gantry-twin") + ": ") >= 3  # the first line and the thread's ticks
-    assert text.endswith(" s done\n") and not notice._thread.is_alive()
+    assert text.endswith(" s done\n") and not notice.ticker._thread.is_alive()
     notice.on_chunk(None, 1, 2)
     notice.on_end(None)
     assert stream.getvalue() == text  # said once
@@ -116,18 +116,50 @@ def test_a_fresh_install_path_announces_its_compile(tmp_path):
 
 
 def test_a_batch_driver_says_once_that_its_workers_compile(monkeypatch):
-    """report and sweep: one line from the driver, before the first result, naming the loops and the time."""
+    """report and sweep: one line from the driver while the workers warm up, naming the loops and the time."""
     from gantry_twin import compiling
 
     monkeypatch.setattr(compiling, "loop_needs_compiling", lambda c: c != "cached")
     stream = io.StringIO()
-    assert compiling.batch_compile_notice(["diarc", "darc", "cached"], "gantry-twin", stream)
+    with compiling.batch_compile_notice(["diarc", "darc", "cached"], "gantry-twin", stream):
+        pass
     assert stream.getvalue() == (
         f"gantry-twin: workers compile the 2 loops for this install, once per worker "
         f"(about {2 * EXPECTED_COMPILE_S} s) before the first result\n"
     )
     quiet = io.StringIO()
-    assert not compiling.batch_compile_notice(["cached"], "gantry-twin", quiet) and quiet.getvalue() == ""
+    with compiling.batch_compile_notice(["cached"], "gantry-twin", quiet):
+        pass
+    assert quiet.getvalue() == ""
+
+
+def test_a_batch_driver_counts_seconds_on_a_terminal_while_its_workers_warm_up(monkeypatch):
+    from gantry_twin import compiling
+
+    monkeypatch.setattr(compiling, "loop_needs_compiling", lambda c: True)
+    stream = _Terminal()
+    with compiling.batch_compile_notice(["diarc"], "gantry-twin", stream, tick_s=0.02):
+        time.sleep(0.2)
+    line = "\r" + compiling.workers_compile_message("gantry-twin", 1) + ": "
+    text = stream.getvalue()
+    assert text.count(line) >= 3 and text.endswith(" s done\n")
+
+
+def test_excite_says_when_its_loop_compiles(tmp_path, monkeypatch):
+    """excite runs its trajectory under PD: a first compile of that loop is announced like a run's."""
+    from gantry_twin import compiling
+    from gantry_twin.cli import main
+
+    monkeypatch.setattr(compiling, "loop_needs_compiling", lambda c: True)
+    stream = io.StringIO()
+    monkeypatch.setattr(sys, "stderr", stream)
+    assert main(["excite", "--out", str(tmp_path / "e"), "--duration-s", "4", "--fade-s", "1"]) == 0
+    assert stream.getvalue().count(compile_message("gantry-twin")) == 1
+    monkeypatch.setattr(compiling, "loop_needs_compiling", lambda c: False)
+    quiet = io.StringIO()
+    monkeypatch.setattr(sys, "stderr", quiet)
+    assert main(["excite", "--out", str(tmp_path / "f"), "--duration-s", "4", "--fade-s", "1"]) == 0
+    assert "compiling" not in quiet.getvalue()
 
 
 def test_monitor_log_says_when_the_estimator_replay_compiles(monkeypatch):

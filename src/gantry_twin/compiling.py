@@ -1,14 +1,18 @@
-"""The notice shown when a run's compiled loop will compile first: how long it should take, and the time so far.
+"""The notice shown when a compiled loop will compile first: how long it should take, and the time so far.
 
 :func:`compile_notice` asks :func:`gantry_twin.simulate.loop_needs_compiling`
 (numba's own cache, for this install path and machine); when a compile will
 happen, the observer it returns writes one line on stderr as the run starts
 and, when stderr is a terminal, counts the elapsed seconds on that line until
-the first chunk of samples is done (the compile is over).
+the first chunk of samples is done (the compile is over): ``run`` and
+``excite``. A batch's driver (report, sweep, calibrate, tune) does the same
+with :func:`batch_compile_notice` while its workers compile or load their
+loops, before the first run. Both count with a :class:`Ticker`.
 """
 
 from __future__ import annotations
 
+import contextlib
 import sys
 import threading
 import time
@@ -30,56 +34,82 @@ def compile_message(prog: str) -> str:
     return f"{prog}: compiling the 0.2 ms loop for this install, once (at most about {EXPECTED_COMPILE_S} s)"
 
 
-class CompileNotice:
-    """An Observer that announces a compile on ``on_start`` and, on a terminal, ticks until the first chunk.
+class Ticker:
+    """One line on ``stream`` announcing work that takes a while (a compile), and on a terminal its seconds.
 
-    Not a terminal: one plain line. A terminal: the same line followed by
-    the elapsed seconds, rewritten every ``tick_s`` by a thread, ended with
-    the total when the first chunk is recorded (or the run ends).
-    ``compile_s``: the seconds from the run's start to its first chunk, the
-    compile (and one chunk of samples), once the first chunk is done.
+    Not a terminal: the line, once, as :meth:`start` is called. A terminal:
+    the line followed by the seconds so far, rewritten every ``tick_s`` by a
+    thread, ended with the total and "done" by :meth:`stop` (the first call;
+    later ones return the same seconds). A context manager: started on
+    entry, stopped on exit.
     """
 
-    def __init__(self, prog: str, stream: TextIO | None = None, tick_s: float = 0.5) -> None:
-        self.prog = prog
+    def __init__(self, message: str, stream: TextIO | None = None, tick_s: float = 0.5) -> None:
+        self.message = message
         self.stream = stream if stream is not None else sys.stderr
         self.tick_s = tick_s
         self._done = threading.Event()
         self._thread: threading.Thread | None = None
         self._started = 0.0
-        self.compile_s = 0.0
+        self.elapsed_s = 0.0
 
-    def on_start(self, run: RunInfo, trace: Trace) -> None:
+    def start(self) -> None:
         self._started = time.monotonic()
         if not _is_terminal(self.stream):
-            print(compile_message(self.prog), file=self.stream, flush=True)
+            print(self.message, file=self.stream, flush=True)
             return
         self._write(0.0)
         self._thread = threading.Thread(target=self._tick, name="compile-notice", daemon=True)
         self._thread.start()
 
-    def on_chunk(self, trace: Trace, start: int, stop: int) -> None:
-        self._finish()
+    def stop(self) -> float:
+        """End the count (the total on a terminal); the seconds since :meth:`start`."""
+        if self._done.is_set():
+            return self.elapsed_s
+        self._done.set()
+        self.elapsed_s = time.monotonic() - self._started
+        if self._thread is not None:
+            self._thread.join()
+            self._write(self.elapsed_s, " done\n")
+        return self.elapsed_s
 
-    def on_end(self, trace: Trace) -> None:
-        self._finish()
+    def __enter__(self) -> Ticker:
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
 
     def _tick(self) -> None:
         while not self._done.wait(self.tick_s):
             self._write(time.monotonic() - self._started)
 
     def _write(self, elapsed_s: float, end: str = "") -> None:
-        self.stream.write(f"\r{compile_message(self.prog)}: {elapsed_s:.0f} s{end}")
+        self.stream.write(f"\r{self.message}: {elapsed_s:.0f} s{end}")
         self.stream.flush()
 
-    def _finish(self) -> None:
-        if self._done.is_set():
-            return
-        self._done.set()
-        self.compile_s = time.monotonic() - self._started
-        if self._thread is not None:
-            self._thread.join()
-            self._write(self.compile_s, " done\n")
+
+class CompileNotice:
+    """An Observer that announces a compile on ``on_start`` and, on a terminal, counts seconds until the first chunk.
+
+    The line and the count are a :class:`Ticker`'s, stopped when the first
+    chunk is recorded (or the run ends). ``compile_s``: the seconds from the
+    run's start to its first chunk, the compile (and one chunk of samples),
+    once the first chunk is done.
+    """
+
+    def __init__(self, prog: str, stream: TextIO | None = None, tick_s: float = 0.5) -> None:
+        self.ticker = Ticker(compile_message(prog), stream, tick_s)
+        self.compile_s = 0.0
+
+    def on_start(self, run: RunInfo, trace: Trace) -> None:
+        self.ticker.start()
+
+    def on_chunk(self, trace: Trace, start: int, stop: int) -> None:
+        self.compile_s = self.ticker.stop()
+
+    def on_end(self, trace: Trace) -> None:
+        self.compile_s = self.ticker.stop()
 
 
 class _Quiet:
@@ -119,12 +149,15 @@ def workers_compile_message(prog: str, loops: int) -> str:
     )
 
 
-def batch_compile_notice(controllers: list[Controller], prog: str, stream: TextIO | None = None) -> bool:
-    """Print :func:`workers_compile_message` if any of ``controllers``' loops will compile first; True if printed."""
+def batch_compile_notice(
+    controllers: list[Controller], prog: str, stream: TextIO | None = None, tick_s: float = 0.5
+) -> Ticker | contextlib.nullcontext[None]:
+    """A :class:`Ticker` with :func:`workers_compile_message` if any of ``controllers``' loops will compile first
+    (a context manager: enter it around the wait for the workers), else one that says nothing."""
     loops = len({_loop_of(c) for c in controllers if loop_needs_compiling(c)})
-    if loops:
-        print(workers_compile_message(prog, loops), file=stream if stream is not None else sys.stderr, flush=True)
-    return loops > 0
+    if not loops:
+        return contextlib.nullcontext()
+    return Ticker(workers_compile_message(prog, loops), stream, tick_s)
 
 
 def _loop_of(controller: Controller) -> object:

@@ -6,6 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from gantry_twin.cli.common import PROG
 from gantry_twin.plant import Payload, Plant
 from gantry_twin.sysid.logs import write_columns, write_log
 from gantry_twin.sysid.trajectory import design, log_of, run_on_twin, trajectory_table, with_plateaus
@@ -51,7 +52,7 @@ def command(args: argparse.Namespace) -> int:
         print(f"trajectory ({path.duration_s:g} s) in {out / 'trajectory.csv'}")
         if args.no_run:
             return 0
-        trace = run_on_twin(path, plant)
+        trace = run_on_twin(path, plant, prog=PROG)  # says so if its loop compiles first
         write_log(out / "log.parquet", *log_of(trace))
     except OSError as exc:
         print(f"gantry-twin: error: --out {out}: cannot write there ({exc.strerror or exc})", file=sys.stderr)

@@ -253,7 +253,6 @@ def _check_workers(client: Any, scheduler: str) -> None:
 def prepare_workers(client: Any, resolved: Sequence[dict[str, Any]], source: str) -> None:
     """Warm up every current worker for these scenarios (one per controller), before the runs."""
     distinct = {json.dumps([r["controller"], r["monitor"]["enable"]], default=str): r for r in resolved}
-    _announce_compile(list(distinct.values()), source)
     workers = list(client.scheduler_info()["workers"])
     futures = [
         client.submit(_warm_up_all, list(distinct.values()), source, workers=[w], allow_other_workers=False, pure=False)
@@ -262,7 +261,8 @@ def prepare_workers(client: Any, resolved: Sequence[dict[str, Any]], source: str
     from distributed import wait
 
     try:
-        wait(futures, timeout=WARM_UP_TIMEOUT_S)
+        with _compile_notice(list(distinct.values()), source):  # a line, and seconds on a terminal, if they compile
+            wait(futures, timeout=WARM_UP_TIMEOUT_S)
     except TimeoutError:
         client.cancel(futures)
         raise ClusterError(
@@ -272,16 +272,16 @@ def prepare_workers(client: Any, resolved: Sequence[dict[str, Any]], source: str
     client.gather(futures, errors="skip")  # a worker that died warms up in its first task
 
 
-def _announce_compile(distinct: Sequence[dict[str, Any]], source: str) -> None:
-    """The driver's one line, before the workers warm up, when their loops compile first (the numba cache of this
-    install: a local cluster's workers share it)."""
+def _compile_notice(distinct: Sequence[dict[str, Any]], source: str) -> contextlib.AbstractContextManager[Any]:
+    """The driver's line while the workers warm up, when their loops compile first (the numba cache of this
+    install: a local cluster's workers share it), counting seconds on a terminal; nothing otherwise."""
     from gantry_twin.compiling import batch_compile_notice
 
     controllers = []
     for r in distinct:
         with contextlib.suppress(Exception):  # a scenario that does not build fails in its task, with its message
             controllers.append(build(validate_data(r, source), source).controller)
-    batch_compile_notice(controllers, "gantry-twin")
+    return batch_compile_notice(controllers, "gantry-twin")
 
 
 def run_tasks(

@@ -290,13 +290,22 @@ def random_lugre_plant(rng: np.random.Generator) -> Plant:
     return Plant(Payload(mass_kg=payload), friction=Friction(model="lugre", **axes))
 
 
-def run_on_twin(path: Multisine | Sequenced, plant: Plant, sensing=None):
-    """Run the trajectory on the twin under PD control (module docstring); the trace."""
+def run_on_twin(path: Multisine | Sequenced, plant: Plant, sensing=None, prog: str | None = None):
+    """Run the trajectory on the twin under PD control (module docstring); the trace.
+
+    prog: a command's name, to announce on stderr (counting seconds on a terminal) a first compile of the loop
+    (:func:`gantry_twin.compiling.compile_notice`); None: nothing is printed.
+    """
+    from gantry_twin.compiling import compile_notice
     from gantry_twin.controllers import create
     from gantry_twin.simulate import simulate
 
+    controller = create("pd")
+    observers = () if prog is None else (compile_notice(controller, prog),)
     with np.errstate(invalid="ignore", divide="ignore"):  # the tangent angle at rest (both axes stopped) is 0/0
-        return simulate(plant, path, TimingLaw(1.0), create("pd"), duration_s=path.duration_s, sensing=sensing)
+        return simulate(
+            plant, path, TimingLaw(1.0), controller, duration_s=path.duration_s, sensing=sensing, observers=observers
+        )
 
 
 def log_of(trace) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
