@@ -52,3 +52,18 @@ def test_prune_is_a_dry_run_without_yes_and_never_deletes_latest(tmp_path, capsy
 def test_prune_needs_keep(tmp_path, capsys):
     code, _, err = run_main(["runs", "--dir", str(tmp_path), "--prune"], capsys)
     assert code == 2 and "--keep" in err
+
+
+def test_compare_outputs_are_listed_as_compares_not_incomplete_runs(tmp_path, capsys):
+    """gantry-twin compare writes runs/compare/<UTC time>-<id>/ (compare.md, compare.json, plots/): a compare."""
+    runs = _runs(tmp_path, NAMES[1])
+    written, unfinished = runs / "compare" / NAMES[0], runs / "compare" / NAMES[1]
+    (written / "plots").mkdir(parents=True)
+    (written / "compare.md").write_text("| metric |\n")
+    (written / "compare.json").write_text("{}")
+    unfinished.mkdir()  # compare stopped before it wrote compare.json
+    status = {(e.scenario, e.path.name): e.status for e in list_runs(runs)}
+    assert status[("compare", NAMES[0])] == "compare" and status[("compare", NAMES[1])] == "incomplete"
+    code, out, _ = run_main(["runs", "--dir", str(runs)], capsys)
+    assert code == 0 and f"compare/{NAMES[0]}" in out and out.count("incomplete") == 2  # the run and the compare
+    assert out.strip().splitlines()[-1].startswith("5 runs and 1 compare,")

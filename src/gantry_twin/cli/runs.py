@@ -35,7 +35,9 @@ def command(args: argparse.Namespace) -> int:
         for e in entries:
             print(describe(e))
         total = sum(e.size_bytes for e in entries)
-        print(f"{_runs(len(entries))}, {human_size(total)} in {args.dir}")
+        compares = sum(e.status == "compare" for e in entries)
+        also = f" and {compares} compare{'s' if compares != 1 else ''}" if compares else ""
+        print(f"{_runs(len(entries) - compares)}{also}, {human_size(total)} in {args.dir}")
         return EXIT_OK
     doomed = to_prune(entries, args.keep)
     verb = "deleted" if args.yes else "would delete"

@@ -25,7 +25,7 @@ class RunEntry:
     scenario: str
     path: Path
     size_bytes: int
-    status: str  # "ok", "failed" (summary.json's status) or "incomplete" (no readable summary.json)
+    status: str  # "ok", "failed" (summary.json's status), "compare" (compare's output) or "incomplete" (neither)
     started_s: float
     latest: bool  # the scenario's ``latest`` names it
 
@@ -42,6 +42,8 @@ def _size(path: Path) -> int:
 
 
 def _status(run_dir: Path) -> str:
+    if not (run_dir / "summary.json").exists() and (run_dir / "compare.json").is_file():
+        return "compare"  # gantry-twin compare's output (runs/compare/<UTC time>-<id>/): not a run, not a broken one
     try:
         text = read_input_file(run_dir / "summary.json", "a run's summary.json")  # a FIFO or /dev/zero: refused
         return str(json.loads(text).get("status", "incomplete"))
