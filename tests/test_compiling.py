@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 from gantry_twin import _jit
-from gantry_twin.compiling import EXPECTED_COMPILE_S, CompileNotice, compile_message
+from gantry_twin.compiling import EXPECTED_COMPILE_S, EXPECTED_PD_COMPILE_S, CompileNotice, compile_message
 from gantry_twin.simulate import compiled_available
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -106,31 +106,55 @@ def test_a_fresh_install_path_announces_its_compile(tmp_path):
     args += ["--set", "estimates_window_s=[0, 0.2]"]
     runs = [_python(first, cache, RUN, *args, "--out", str(tmp_path / f"out{i}")) for i in range(2)]
     assert [r.returncode for r in runs] == [0, 0], [r.stderr for r in runs]
-    assert compile_message("gantry-twin") in runs[0].stderr
+    assert compile_message("gantry-twin", EXPECTED_PD_COMPILE_S) in runs[0].stderr
     assert "compiling" not in runs[1].stderr
     second = _install(tmp_path / "b")
     assert _python(first, cache, NEEDS).stdout.split() == ["False"]
     assert _python(second, cache, NEEDS).stdout.split() == ["True"]  # the first path's cache is not this one's
     again = _python(second, cache, RUN, *args, "--out", str(tmp_path / "out2"))  # the same cache, another install
-    assert again.returncode == 0 and compile_message("gantry-twin") in again.stderr
+    assert again.returncode == 0 and compile_message("gantry-twin", EXPECTED_PD_COMPILE_S) in again.stderr
 
 
 def test_a_batch_driver_says_once_that_its_workers_compile(monkeypatch):
-    """report and sweep: one line from the driver while the workers warm up, naming the loops and the time."""
+    """report and sweep: one line from the driver while the workers warm up, naming the loops and the time
+    (DRC, DARC and DIARC share one loop; pd's is announced with its own, shorter time)."""
     from gantry_twin import compiling
+    from gantry_twin.controllers import create
 
-    monkeypatch.setattr(compiling, "loop_needs_compiling", lambda c: c != "cached")
+    controllers = [create("pd"), create("diarc"), create("darc"), create("drc")]
+    monkeypatch.setattr(compiling, "loop_needs_compiling", lambda c: True)
     stream = io.StringIO()
-    with compiling.batch_compile_notice(["diarc", "darc", "cached"], "gantry-twin", stream):
+    with compiling.batch_compile_notice(controllers, "gantry-twin", stream):
         pass
     assert stream.getvalue() == (
         f"gantry-twin: workers compile the 2 loops for this install, once per worker "
-        f"(about {2 * EXPECTED_COMPILE_S} s) before the first result\n"
+        f"(about {EXPECTED_PD_COMPILE_S + EXPECTED_COMPILE_S} s) before the first result\n"
     )
+    monkeypatch.setattr(compiling, "loop_needs_compiling", lambda c: c is not controllers[0])
+    arc = io.StringIO()
+    with compiling.batch_compile_notice(controllers, "gantry-twin", arc):
+        pass
+    assert f"compile the loop for this install, once per worker (about {EXPECTED_COMPILE_S} s)" in arc.getvalue()
+    monkeypatch.setattr(compiling, "loop_needs_compiling", lambda c: False)
     quiet = io.StringIO()
-    with compiling.batch_compile_notice(["cached"], "gantry-twin", quiet):
+    with compiling.batch_compile_notice(controllers, "gantry-twin", quiet):
         pass
     assert quiet.getvalue() == ""
+
+
+def test_the_notice_gives_pd_its_own_shorter_time_and_a_plug_in_the_longest():
+    from gantry_twin.compiling import expected_compile_s
+    from gantry_twin.controllers import create
+
+    assert EXPECTED_PD_COMPILE_S < EXPECTED_COMPILE_S
+    assert expected_compile_s(create("pd")) == EXPECTED_PD_COMPILE_S
+    assert {expected_compile_s(create(name)) for name in ("drc", "darc", "diarc")} == {EXPECTED_COMPILE_S}
+    sys.path.insert(0, str(ROOT / "examples" / "gantry-example-pd" / "src"))
+    try:
+        from gantry_example_pd import ExamplePD
+    finally:
+        sys.path.pop(0)
+    assert expected_compile_s(ExamplePD()) == EXPECTED_COMPILE_S  # a plug-in's step: its size is unknown
 
 
 def test_a_batch_driver_counts_seconds_on_a_terminal_while_its_workers_warm_up(monkeypatch):
@@ -140,7 +164,7 @@ def test_a_batch_driver_counts_seconds_on_a_terminal_while_its_workers_warm_up(m
     stream = _Terminal()
     with compiling.batch_compile_notice(["diarc"], "gantry-twin", stream, tick_s=0.02):
         time.sleep(0.2)
-    line = "\r" + compiling.workers_compile_message("gantry-twin", 1) + ": "
+    line = "\r" + compiling.workers_compile_message("gantry-twin", 1, EXPECTED_COMPILE_S) + ": "
     text = stream.getvalue()
     assert text.count(line) >= 3 and text.endswith(" s done\n")
 
@@ -154,7 +178,7 @@ def test_excite_says_when_its_loop_compiles(tmp_path, monkeypatch):
     stream = io.StringIO()
     monkeypatch.setattr(sys, "stderr", stream)
     assert main(["excite", "--out", str(tmp_path / "e"), "--duration-s", "4", "--fade-s", "1"]) == 0
-    assert stream.getvalue().count(compile_message("gantry-twin")) == 1
+    assert stream.getvalue().count(compile_message("gantry-twin", EXPECTED_PD_COMPILE_S)) == 1
     monkeypatch.setattr(compiling, "loop_needs_compiling", lambda c: False)
     quiet = io.StringIO()
     monkeypatch.setattr(sys, "stderr", quiet)

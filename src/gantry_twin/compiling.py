@@ -23,15 +23,26 @@ from gantry_twin.controllers.base import compiled_step_of
 from gantry_twin.simulate import loop_needs_compiling
 from gantry_twin.trace import RunInfo, Trace
 
-#: Expected time of a cold compile of one controller's loop, s, at most: the slowest built-in loop (DIARC) from an
-#: empty cache on the slower of the 2-core VMs measured in docs/performance.md ("Compile"), rounded up; pd's takes
-#: a few seconds. The one place the notice takes it from.
+#: Expected time of a cold compile of one controller's loop, s, at most: the slowest built-in loop (DIARC's, which
+#: DRC and DARC share) from an empty cache on the slower of the 2-core VMs measured in docs/performance.md
+#: ("Compile"), rounded up; also what a plug-in's loop is announced with (its step's size is unknown).
 EXPECTED_COMPILE_S = 40
+#: The same for the built-in pd's loop: 2.6 s of CPU on the quiet AMD EPYC VM of docs/performance.md, about three
+#: times that at a load of 3 to 10, rounded up.
+EXPECTED_PD_COMPILE_S = 10
 
 
-def compile_message(prog: str) -> str:
-    """The line announcing a compile."""
-    return f"{prog}: compiling the 0.2 ms loop for this install, once (at most about {EXPECTED_COMPILE_S} s)"
+def expected_compile_s(controller: Controller) -> int:
+    """How long, at most, a cold compile of ``controller``'s loop is announced to take, s."""
+    from gantry_twin.controllers.pd import pd_command
+
+    compiled = compiled_step_of(controller)
+    return EXPECTED_PD_COMPILE_S if compiled is not None and compiled.step is pd_command else EXPECTED_COMPILE_S
+
+
+def compile_message(prog: str, expected_s: int = EXPECTED_COMPILE_S) -> str:
+    """The line announcing a compile expected to take at most about ``expected_s`` seconds."""
+    return f"{prog}: compiling the 0.2 ms loop for this install, once (at most about {expected_s} s)"
 
 
 class Ticker:
@@ -98,8 +109,10 @@ class CompileNotice:
     once the first chunk is done.
     """
 
-    def __init__(self, prog: str, stream: TextIO | None = None, tick_s: float = 0.5) -> None:
-        self.ticker = Ticker(compile_message(prog), stream, tick_s)
+    def __init__(
+        self, prog: str, stream: TextIO | None = None, tick_s: float = 0.5, expected_s: int = EXPECTED_COMPILE_S
+    ) -> None:
+        self.ticker = Ticker(compile_message(prog, expected_s), stream, tick_s)
         self.compile_s = 0.0
 
     def on_start(self, run: RunInfo, trace: Trace) -> None:
@@ -126,7 +139,9 @@ class _Quiet:
 
 def compile_notice(controller: Controller, prog: str) -> CompileNotice | _Quiet:
     """A :class:`CompileNotice` if running ``controller`` will first compile its loop, else a quiet observer."""
-    return CompileNotice(prog) if loop_needs_compiling(controller) else _Quiet()
+    if not loop_needs_compiling(controller):
+        return _Quiet()
+    return CompileNotice(prog, expected_s=expected_compile_s(controller))
 
 
 def replay_compile_notice(prog: str, stream: TextIO | None = None) -> bool:
@@ -140,12 +155,13 @@ def replay_compile_notice(prog: str, stream: TextIO | None = None) -> bool:
     return True
 
 
-def workers_compile_message(prog: str, loops: int) -> str:
-    """The line a batch's driver (report, sweep) prints when its workers will compile ``loops`` loops first."""
+def workers_compile_message(prog: str, loops: int, expected_s: int) -> str:
+    """The line a batch's driver (report, sweep) prints when its workers will compile ``loops`` loops first, expected
+    to take about ``expected_s`` seconds together."""
     what = "the loop" if loops == 1 else f"the {loops} loops"
     return (
         f"{prog}: workers compile {what} for this install, once per worker "
-        f"(about {EXPECTED_COMPILE_S * loops} s) before the first result"
+        f"(about {expected_s} s) before the first result"
     )
 
 
@@ -154,10 +170,10 @@ def batch_compile_notice(
 ) -> Ticker | contextlib.nullcontext[None]:
     """A :class:`Ticker` with :func:`workers_compile_message` if any of ``controllers``' loops will compile first
     (a context manager: enter it around the wait for the workers), else one that says nothing."""
-    loops = len({_loop_of(c) for c in controllers if loop_needs_compiling(c)})
+    loops = {_loop_of(c): expected_compile_s(c) for c in controllers if loop_needs_compiling(c)}
     if not loops:
         return contextlib.nullcontext()
-    return Ticker(workers_compile_message(prog, loops), stream, tick_s)
+    return Ticker(workers_compile_message(prog, len(loops), sum(loops.values())), stream, tick_s)
 
 
 def _loop_of(controller: Controller) -> object:
