@@ -137,8 +137,18 @@ def _positions(values: Sequence[Any]) -> tuple[list[float], list[Any] | None]:
     return [float(labels.index(v)) for v in values], labels
 
 
+def trust_column(metric: str) -> str | None:
+    """The results table's ``trustworthy_<name>`` column that judges an estimate's metric (``estimate_<name>``,
+    ``error_pct_<name>``); None for any other metric."""
+    for prefix in ("estimate_", "error_pct_"):
+        if metric.startswith(prefix):
+            return "trustworthy_" + metric.removeprefix(prefix)
+    return None
+
+
 def metric_plot(plan: Plan, rows: list[dict[str, Any]], field: str, metric: str, out: Path) -> str | None:
-    """``<metric>_vs_<field>.png``; None when no finished point has the metric."""
+    """``<metric>_vs_<field>.png``; None when no finished point has the metric. An estimate's points that the run's
+    confidence tests did not trust (``trustworthy_<name>`` false) are drawn hollow, and counted in the title."""
     import matplotlib.pyplot as plt
 
     rows = [r for r in rows if r.get(metric) is not None]
@@ -148,11 +158,19 @@ def metric_plot(plan: Plan, rows: list[dict[str, Any]], field: str, metric: str,
     fig, ax = plt.subplots(figsize=(7, 4.2), layout="constrained")
     is_grid = field in _grid_fields(plan)
     true_column = "true_" + metric.removeprefix("estimate_") if metric.startswith("estimate_") else None
+    trusted = trust_column(metric)
+    untrusted = 0
     for name, group in _series(plan, rows, field).items():
         xs, _ = (
             _positions([r[field] for r in group]) if labels is None else ([labels.index(r[field]) for r in group], None)
         )
-        dots = ax.plot(xs, [r[metric] for r in group], "o", ms=4, alpha=0.6, label=name or None)[0]
+        doubted = [trusted is not None and r.get(trusted) is False for r in group]
+        untrusted += sum(doubted)
+        solid = [(x, r[metric]) for x, r, d in zip(xs, group, doubted, strict=True) if not d]
+        hollow = [(x, r[metric]) for x, r, d in zip(xs, group, doubted, strict=True) if d]
+        dots = ax.plot(*_columns(solid), "o", ms=4, alpha=0.6, label=name or None)[0]
+        if hollow:
+            ax.plot(*_columns(hollow), "o", ms=5, mfc="none", color=dots.get_color(), alpha=0.8)
         by_x: dict[float, list[dict[str, Any]]] = defaultdict(list)
         for x, r in zip(xs, group, strict=True):
             by_x[x].append(r)
@@ -174,10 +192,16 @@ def metric_plot(plan: Plan, rows: list[dict[str, Any]], field: str, metric: str,
     ax.grid(alpha=0.3)
     if ax.get_legend_handles_labels()[1]:
         ax.legend(fontsize=7)
-    ax.set_title(f"{metric} against {field} ({len(rows)} points)")
+    doubt = f", {untrusted} not trusted: hollow" if untrusted else ""
+    ax.set_title(f"{metric} against {field} ({len(rows)} points{doubt})")
     name = f"{metric}_vs_{field}.png"
     _save(fig, out / name)
     return name
+
+
+def _columns(points: list[tuple[float, float]]) -> tuple[list[float], list[float]]:
+    """(xs, ys) of (x, y) pairs; two empty lists for none."""
+    return [x for x, _ in points], [y for _, y in points]
 
 
 def heat_map(plan: Plan, rows: list[dict[str, Any]], fx: str, fy: str, metric: str, out: Path) -> str | None:
