@@ -21,8 +21,8 @@ from .test_compare import run_main_plain
 from .test_gcode_planner import distance_to_moves
 
 PROGRAMS = Path(__file__).resolve().parents[1] / "programs"
-#: A short part (about 1.7 s at F12000): lines, a G64 corner, a half circle, and back.
-PART = "G0 X-40 Y-20\nG64 P0.01\nG1 X40 F12000\nG1 Y20\nG3 X-40 Y20 I-40 J0\nG1 Y-20\nM30\n"
+#: A short part (about 1.6 s at F12000): lines, a G64 corner, a half circle, back, and a rapid to the middle.
+PART = "G0 X-40 Y-20\nG64 P0.01\nG1 X40 F12000\nG1 Y20\nG3 X-40 Y20 I-40 J0\nG1 Y-20\nG0 X0 Y0\nM30\n"
 
 
 @pytest.fixture(scope="module")
@@ -92,6 +92,30 @@ def test_a_program_run_draws_its_part_with_the_error_summary_json_reports(progra
     worst = summary.part_error.worst_corners[0]
     assert f"line {worst.line}: {worst.max_um:.1f} µm" in labels
     plt.close(fig)
+
+
+def test_every_time_figure_of_a_program_run_hatches_its_rapids(program_runs):
+    """eps_c, the axial errors and the commands of a program's run hatch its G0 move, at its times, in each panel;
+    a legend names it."""
+    from gantry_twin.outputs import plots as runplots
+
+    program, dirs = program_runs
+    summary = RunSummary.read(dirs["diarc"] / "summary.json")
+    plan = plan_program(read_program(program))
+    series = read_series(dirs["diarc"], summary, "diarc", plan)
+    (rapid,) = [k for k, m in enumerate(plan.moves) if m.rapid]
+    plt = pyplot()
+    for draw in (runplots.fig_eps_c, runplots.fig_axial, runplots.fig_commands):
+        fig = draw(plt, [series])
+        labels = [text.get_text() for legend in fig.legends for text in legend.get_texts()]
+        labels += [text.get_text() for ax in fig.axes if ax.get_legend() for text in ax.get_legend().get_texts()]
+        assert "rapid (G0) moves (1)" in labels, draw.__name__
+        for ax in fig.axes:
+            hatched = [p for p in ax.patches if p.get_hatch() == "//"]
+            assert len(hatched) == 1, draw.__name__
+            span = hatched[0].get_x(), hatched[0].get_x() + hatched[0].get_width()  # an axvspan: a Rectangle
+            assert span == pytest.approx((plan.t0_s[rapid], plan.end_s[rapid]))
+        plt.close(fig)
 
 
 def test_a_circle_run_has_no_part_figure(tmp_path, capsys):

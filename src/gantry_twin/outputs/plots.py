@@ -238,12 +238,7 @@ def fig_eps_c(plt: Any, runs: Sequence[RunSeries]) -> Any:
         c = runs[0].summary.contour_error_um
         what = "paper's window (second period)" if c is not None and c.paper_window else "metric window"
         ax.axvspan(*window, color="0.85", zorder=0, label=f"{what} [{window[0]:.2f}, {window[1]:.2f}] s")
-    part = runs[0].part
-    if part is not None:  # a program's rapids: eps_c there is not the part's (the part error leaves them out)
-        spans = [(part.plan.t0_s[k], part.plan.end_s[k]) for k, m in enumerate(part.plan.moves) if m.rapid]
-        for i, (a, b) in enumerate(spans):
-            label = f"rapid (G0) moves ({len(spans)})" if i == 0 else None
-            ax.axvspan(a, b, facecolor="none", edgecolor="tab:red", hatch="//", lw=0, alpha=0.4, label=label)
+    _shade_rapids(ax, runs[0].part)  # eps_c there is not the part's (the part error leaves them out)
     ax.axhline(0.0, color="0.4", lw=0.5)
     ax.set(xlabel="time t (s)", ylabel="contour error eps_c (µm)")
     ax.set_title(_title(runs, "true contour error eps_c (largest |eps_c| of each bin)"), fontsize=9)
@@ -251,10 +246,28 @@ def fig_eps_c(plt: Any, runs: Sequence[RunSeries]) -> Any:
     return fig
 
 
+def _rapid_spans(part: PartSeries | None) -> list[tuple[float, float]]:
+    """(start, end) s of a part program's rapid (G0) moves; none for a contour's run."""
+    if part is None:
+        return []
+    return [(part.plan.t0_s[k], part.plan.end_s[k]) for k, m in enumerate(part.plan.moves) if m.rapid]
+
+
+def _shade_rapids(ax: Any, part: PartSeries | None) -> None:
+    """Hatch a part program's rapid moves on a time axis (labelled once): not part of the part, where the errors and
+    commands of positioning at the rapid feed are not the part's."""
+    spans = _rapid_spans(part)
+    for i, (a, b) in enumerate(spans):
+        label = f"rapid (G0) moves ({len(spans)})" if i == 0 else None
+        ax.axvspan(a, b, facecolor="none", edgecolor="tab:red", hatch="//", lw=0, alpha=0.4, label=label)
+
+
 def _per_axis(plt: Any, runs: Sequence[RunSeries], series: str, ylabel: str, title: str, decorate: Any = None) -> Any:
     """One panel per axis of ``RunSeries.<series>[axis]`` (t, values) for every run; ``decorate(ax, axis)`` adds
-    what a panel needs besides (limits); ``ylabel`` is formatted with ``axis``."""
-    below = LEGEND_BELOW_IN if len(runs) > 1 else 0.0  # several runs: a legend of their labels below
+    what a panel needs besides (limits); ``ylabel`` is formatted with ``axis``. A part program's rapid moves are
+    hatched (the first run's)."""
+    rapids = bool(_rapid_spans(runs[0].part))
+    below = LEGEND_BELOW_IN if len(runs) > 1 or rapids else 0.0  # a legend of the runs' labels, or the rapids, below
     fig, axes = plt.subplots(2, 1, figsize=(9, 5 + below), sharex=True)
     fig.subplots_adjust(left=0.09, right=0.98, bottom=(0.5 + below) / (5 + below), top=0.89, hspace=0.08)
     for i, (ax, axis) in enumerate(zip(axes, AXES, strict=True)):
@@ -263,8 +276,9 @@ def _per_axis(plt: Any, runs: Sequence[RunSeries], series: str, ylabel: str, tit
             ax.plot(t, values, lw=0.7, label=_name(runs, r, ""))
         if decorate is not None:
             decorate(ax, axis)
+        _shade_rapids(ax, runs[0].part)
         ax.set_ylabel(ylabel.format(axis=axis))
-    if len(runs) > 1:
+    if len(runs) > 1 or rapids:
         legend_below(fig, axes[0])
     axes[-1].set_xlabel("time t (s)")
     axes[0].set_title(_title(runs, title), fontsize=9)
