@@ -21,8 +21,10 @@ from .test_compare import run_main_plain
 from .test_gcode_planner import distance_to_moves
 
 PROGRAMS = Path(__file__).resolve().parents[1] / "programs"
-#: A short part (about 1.6 s at F12000): lines, a G64 corner, a half circle, back, and a rapid to the middle.
-PART = "G0 X-40 Y-20\nG64 P0.01\nG1 X40 F12000\nG1 Y20\nG3 X-40 Y20 I-40 J0\nG1 Y-20\nG0 X0 Y0\nM30\n"
+#: A short part (about 1.5 s at F12000): lines, a G64 corner, a half circle, and back.
+PART = "G0 X-40 Y-20\nG64 P0.01\nG1 X40 F12000\nG1 Y20\nG3 X-40 Y20 I-40 J0\nG1 Y-20\nM30\n"
+#: The same, then a rapid to the middle (the runs' figures hatch it).
+PART_AND_RAPID = PART.replace("M30", "G0 X150 Y100\nM30")
 
 
 @pytest.fixture(scope="module")
@@ -30,7 +32,7 @@ def program_runs(tmp_path_factory):
     """The part run with DIARC and with DRC, each into its own directory (with plots)."""
     base = tmp_path_factory.mktemp("part")
     program = base / "part.ngc"
-    program.write_text(PART)
+    program.write_text(PART_AND_RAPID)
     dirs = {}
     for controller in ("diarc", "drc"):
         dirs[controller] = base / controller

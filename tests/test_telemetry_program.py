@@ -16,7 +16,7 @@ from gantry_twin.telemetry.dashboard import PROGRAM_ERROR_MAGNIFICATION, VERDICT
 from .helpers import read_rrd, run_main, scalars
 from .test_dashboard import _views
 from .test_gcode_planner import distance_to_moves
-from .test_part_figures import PART
+from .test_part_figures import PART, PART_AND_RAPID
 
 
 @pytest.fixture(scope="module")
@@ -97,6 +97,28 @@ def test_a_saved_run_marks_the_estimates_summary_json_does_not_trust(tmp_path, c
     ((text,),) = texts  # one document, one string
     for name in untrusted:
         assert f"- **{name}**: {estimates[name].distrust}" in text
+
+
+def test_the_error_plots_are_ranged_to_the_part_not_to_the_rapids(tmp_path):
+    """A rapid's positioning error (hundreds of um) left the part's few um a flat line: the contour and axial
+    error plots are ranged to the samples of feed moves; the rapid's are drawn, off the scale."""
+    from .test_dashboard import _range
+
+    plan = plan_program(parse_program(PART_AND_RAPID))
+    sent: list[rrb.Blueprint] = []
+    with RerunObserver.to_file(tmp_path / "p.rrd") as observer:
+        send = observer.recording.send_blueprint
+        observer.recording.send_blueprint = lambda blueprint, **kw: (sent.append(blueprint), send(blueprint, **kw))
+        trace = simulate(Plant(), plan, TimingLaw(1.0), create("diarc"), plan.duration_s, observers=[observer])
+    rapid = np.array([m.rapid for m in plan.moves])[plan.sample(trace.t_s).move]
+    assert rapid.any() and (~rapid).any()
+    views = {str(v.origin): v for v in _views(sent[-1].root_container)}
+    contour = np.column_stack([trace.eps_c_m, trace.eps_n_m]) * 1e6
+    for origin, values in (("errors/contour", contour), ("errors/axial", trace.e_m * 1e6)):
+        lo, hi = _range(views[origin])
+        assert lo < values[~rapid].min() and values[~rapid].max() < hi, origin
+    lo, hi = _range(views["errors/contour"])
+    assert contour[rapid].min() < lo or contour[rapid].max() > hi  # the rapid's: off the scale
 
 
 def test_a_program_is_magnified_less_and_its_rapids_not_at_all(tmp_path):

@@ -367,10 +367,13 @@ class RerunObserver:
         scalars("errors/contour/eps_c_um", trace.eps_c_m[rows] * 1e6)
         scalars("errors/contour/eps_n_um", trace.eps_n_m[rows] * 1e6)
         part_um = np.empty(0)
+        feed = np.ones(stop - start, dtype=bool)  # the samples the error plots are ranged to
         if self._plan is not None:  # NaN during a rapid: a gap in the line
             t, q = trace.t_s[rows], trace.q_m[rows]
-            part_um = distance_to_program(self._plan, self._plan.sample(t).move, q) * 1e6
+            moves = self._plan.sample(t).move
+            part_um = distance_to_program(self._plan, moves, q) * 1e6
             scalars("errors/contour/part_um", part_um)
+            feed = ~np.array([m.rapid for m in self._plan.moves], dtype=bool)[moves]  # a rapid's error: off the scale
         scalars("errors/axial/e_x_um", trace.e_m[rows, 0] * 1e6)
         scalars("errors/axial/e_y_um", trace.e_m[rows, 1] * 1e6)
         scalars("inputs/u_x_V", trace.u_v[rows, 0])
@@ -378,8 +381,8 @@ class RerunObserver:
         scalars("inputs/disturbance_x_V", trace.disturbance_v[rows, 0])
         scalars("inputs/disturbance_y_V", trace.disturbance_v[rows, 1])
         ranges_before = dict(self._ranges)
-        self._show("errors/contour", trace.eps_c_m[rows] * 1e6, trace.eps_n_m[rows] * 1e6, part_um)
-        self._show("errors/axial", trace.e_m[rows] * 1e6)
+        self._show("errors/contour", trace.eps_c_m[rows][feed] * 1e6, trace.eps_n_m[rows][feed] * 1e6, part_um)
+        self._show("errors/axial", trace.e_m[rows][feed] * 1e6)
         self._show("inputs", trace.u_v[rows], trace.disturbance_v[rows])
         state = trace.controller_state
         k = self._estimate_stride
