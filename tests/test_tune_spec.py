@@ -105,3 +105,13 @@ def test_an_unreachable_scheduler_is_exit_2_nothing_written(tmp_path, capsys):
     code, _, err = run_main(["tune", str(spec), "--out", str(out), "--scheduler", "tcp://127.0.0.1:9"], capsys)
     assert code == 2 and "cannot connect" in err and len(err.strip().splitlines()) == 1, err
     assert not out.exists()
+
+
+def test_the_best_line_says_when_no_trial_improved_on_the_baseline():
+    from gantry_twin.cli.tune import best_line
+
+    baseline = {"lam_x": 300.0, "ks_x": 40.0}
+    assert (
+        best_line(baseline, 0, dict(baseline)) == "best: trial 0 (the scenarios' own values: no trial improved on them)"
+    )
+    assert best_line(baseline, 7, {"lam_x": 310.0, "ks_x": 40.0}) == "best: trial 7"

@@ -79,8 +79,15 @@ def command(args: argparse.Namespace) -> int:
     if best is None or best_trial(plan, outcome.study) is None:
         print(f"no trial met every hard goal; see {out}/summary.md", file=sys.stderr)
         return EXIT_RUN_FAILED
-    print(f"best: trial {best.number}")
+    print(best_line(plan.baseline_design, best.number, best.params))
     for name, value in best.params.items():
         print(f"  {name} = {value:.6g}")
     print(f"results in {out}/ (tuned.yaml, trials.parquet, summary.md, study.db, baseline/, tuned/)")
     return EXIT_OK
+
+
+def best_line(baseline_design: dict[str, float | None], number: int, params: dict[str, float]) -> str:
+    """``best: trial N``, saying so when the best design is the scenarios' own values (the baseline, enqueued first:
+    no trial improved on it)."""
+    same = all(params.get(label) == value for label, value in baseline_design.items())
+    return f"best: trial {number}" + (" (the scenarios' own values: no trial improved on them)" if same else "")
