@@ -375,3 +375,26 @@ def test_the_run_time_leaves_the_compile_out_and_run_info_gives_it(tmp_path):
     with RunWriter(tmp_path / "cached", built) as writer:  # nothing compiles: no compile_s
         writer.run()
     assert json.loads((tmp_path / "cached" / "run_info.json").read_text())["compile_s"] == 0.0
+
+
+def test_run_scenario_times_a_compile_as_gantry_twin_run_does(tmp_path, monkeypatch):
+    """run_info.json of a run written from Python: compile_s is the compile, wall_time_s the rest."""
+    import time
+
+    from gantry_twin import compiling, run_scenario
+
+    def slow_start(self, run, trace):  # stands for a compile, between the run's start and its first chunk
+        original(self, run, trace)
+        time.sleep(0.5)
+
+    original = compiling.CompileTimer.on_start
+    monkeypatch.setattr(compiling.CompileTimer, "on_start", slow_start)
+    monkeypatch.setattr(compiling, "loop_needs_compiling", lambda controller: True)
+    started = time.perf_counter()
+    run_scenario("no_load_circle", OVERRIDES, "pd", out=tmp_path / "run")
+    elapsed_s = time.perf_counter() - started
+    info = json.loads((tmp_path / "run" / "run_info.json").read_text())
+    assert info["compile_s"] >= 0.5 and info["wall_time_s"] <= elapsed_s - 0.5
+    monkeypatch.setattr(compiling, "loop_needs_compiling", lambda controller: False)
+    run_scenario("no_load_circle", OVERRIDES, "pd", out=tmp_path / "cached")
+    assert json.loads((tmp_path / "cached" / "run_info.json").read_text())["compile_s"] == 0.0

@@ -125,6 +125,29 @@ class CompileNotice:
         self.compile_s = self.ticker.stop()
 
 
+class CompileTimer:
+    """An Observer that times a compile and says nothing: ``compile_s``, the seconds from the run's start to its first
+    chunk (the compile and one chunk of samples), as :class:`CompileNotice` times it; for runs started from Python."""
+
+    def __init__(self) -> None:
+        self._started: float | None = None
+        self.compile_s = 0.0
+
+    def on_start(self, run: RunInfo, trace: Trace) -> None:
+        self._started = time.monotonic()
+
+    def on_chunk(self, trace: Trace, start: int, stop: int) -> None:
+        self._stop()
+
+    def on_end(self, trace: Trace) -> None:
+        self._stop()
+
+    def _stop(self) -> None:
+        if self._started is not None:
+            self.compile_s = time.monotonic() - self._started
+            self._started = None
+
+
 class _Quiet:
     """The Observer used when nothing compiles."""
 
@@ -142,6 +165,11 @@ def compile_notice(controller: Controller, prog: str) -> CompileNotice | _Quiet:
     if not loop_needs_compiling(controller):
         return _Quiet()
     return CompileNotice(prog, expected_s=expected_compile_s(controller))
+
+
+def compile_timer(controller: Controller) -> CompileTimer | _Quiet:
+    """A :class:`CompileTimer` if running ``controller`` will first compile its loop, else a quiet observer."""
+    return CompileTimer() if loop_needs_compiling(controller) else _Quiet()
 
 
 def replay_compile_notice(prog: str, stream: TextIO | None = None) -> bool:

@@ -293,13 +293,14 @@ def run_and_write(
         return writer.run(observers, hold_s)
 
 
-def write_run(out: Path, built: BuiltRun, trace: Trace, wall_time_s: float) -> RunSummary:
-    """Write a finished run's whole trace into ``out`` by the output contract; summary.json's content."""
+def write_run(out: Path, built: BuiltRun, trace: Trace, wall_time_s: float, compile_s: float = 0.0) -> RunSummary:
+    """Write a finished run's whole trace into ``out`` by the output contract; summary.json's content.
+    ``wall_time_s``: the run without its loop's compile; ``compile_s``: the compile (0: none)."""
     with RunWriter(out, built) as writer:
         for observer in writer.observers():
             observer.on_chunk(trace, trace.first, trace.filled)
             observer.on_end(trace)
-        return writer.finish(trace, wall_time_s).summary
+        return writer.finish(trace, wall_time_s, compile_s=compile_s).summary
 
 
 def _summary(
@@ -379,14 +380,17 @@ def run_scenario(
     (summary.json, scenario.yaml, trace.parquet, run_info.json). Raises
     ScenarioError (one line) for bad input, SimulationError for a fault.
     """
+    from gantry_twin.compiling import compile_timer
     from gantry_twin.scenario import build, load_scenario, resolve_scenario
 
     path = resolve_scenario(str(scenario))
     built = build(load_scenario(path, list(overrides), controller), str(path))
+    timer = compile_timer(built.controller)  # run_info.json's compile_s, as gantry-twin run's notice times it
     started = time.perf_counter()
-    trace = execute(built)
+    trace = execute(built, [timer])
     if out is not None:
-        return ScenarioRun(write_run(Path(out), built, trace, time.perf_counter() - started), trace)
+        wall_time_s = time.perf_counter() - started - timer.compile_s
+        return ScenarioRun(write_run(Path(out), built, trace, wall_time_s, timer.compile_s), trace)
     return ScenarioRun(summarise(built, trace), trace)
 
 
