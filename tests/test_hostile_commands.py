@@ -167,6 +167,7 @@ CASES = [
     Case("identify_window_s_inf", {"log.csv": LOG}, (*ID, "--window-s", "inf")),
     Case("identify_out_is_a_file", {"log.csv": LOG, "afile": "x"}, ("identify", "log.csv", "--out", "afile")),
     # excite: the options and the plant file.
+    Case("compile_controller_unknown", {}, ("compile", "--controller", "pd", "--controller", "nope")),
     Case("excite_duration_1e308", {}, (*EXC, "--duration-s", "1e308")),
     Case("excite_duration_1e5", {}, (*EXC, "--duration-s", "1e5")),
     Case("excite_duration_negative", {}, (*EXC, "--duration-s", "-1")),

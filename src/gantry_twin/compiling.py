@@ -198,13 +198,13 @@ def batch_compile_notice(
 ) -> Ticker | contextlib.nullcontext[None]:
     """A :class:`Ticker` with :func:`workers_compile_message` if any of ``controllers``' loops will compile first
     (a context manager: enter it around the wait for the workers), else one that says nothing."""
-    loops = {_loop_of(c): expected_compile_s(c) for c in controllers if loop_needs_compiling(c)}
+    loops = {loop_of(c): expected_compile_s(c) for c in controllers if loop_needs_compiling(c)}
     if not loops:
         return contextlib.nullcontext()
     return Ticker(workers_compile_message(prog, len(loops), sum(loops.values())), stream, tick_s)
 
 
-def _loop_of(controller: Controller) -> object:
+def loop_of(controller: Controller) -> object:
     """What identifies a controller's compiled loop: its compiled step and log (DRC, DARC and DIARC share one)."""
     compiled = compiled_step_of(controller)
     return (compiled.step, compiled.log) if compiled is not None else id(controller)

@@ -30,6 +30,7 @@ from typing import Any, NoReturn
 
 from gantry_twin.cli import calibrate as calibrate_command
 from gantry_twin.cli import compare as compare_command
+from gantry_twin.cli import compile as compile_command
 from gantry_twin.cli import excite as excite_command
 from gantry_twin.cli import export as export_command
 from gantry_twin.cli import identify as identify_command
@@ -85,6 +86,7 @@ EXAMPLES = """examples:
   gantry-twin report --out runs/report              the paper's Tables 1-4 and figures
   gantry-twin monitor friction_drift_circle --fail-on-alarm
   gantry-twin sweep payload_0_20kg --workers 2
+  gantry-twin compile                               compile the loops ahead of a first run
 
 docs: docs/cli.md (every command, exit codes), docs/scenarios.md (every field)."""
 #: File names ``run`` takes as a G-code part program rather than a scenario.
@@ -114,7 +116,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(
         dest="command",
         required=True,
-        metavar="{run,monitor,validate,report,sweep,calibrate,tune,scenarios,sweeps,runs,export,compare,identify,excite}",
+        metavar="{run,monitor,validate,report,sweep,calibrate,tune,scenarios,sweeps,runs,export,compare,identify,excite,compile}",
         parser_class=_Parser,
     )
 
@@ -190,6 +192,9 @@ def build_parser() -> argparse.ArgumentParser:
     compare = sub.add_parser("compare", help="the figures of runs side by side, and their plots overlaid")
     compare_command.add_arguments(compare, RUNS_DIR)
     compare.set_defaults(func=compare_command.command)
+    compile_parser = sub.add_parser("compile", help="compile the loops for this install before a first run")
+    compile_command.add_arguments(compile_parser, DEFAULT_SCENARIO)
+    compile_parser.set_defaults(func=compile_command.command)
     return parser
 
 

@@ -1,0 +1,82 @@
+"""``gantry-twin compile [--controller NAME ...]``: compile the controllers' loops for this install ahead of the
+first run (docs/cli.md, "compile"; docs/performance.md, "Compile")."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from gantry_twin.cli.common import EXIT_OK, PROG, BadInput
+
+#: The loops ``compile`` makes when no --controller is given: every built-in controller (DRC, DARC and DIARC share
+#: one loop, so three names cost one compile).
+BUILT_IN = ("pd", "drc", "darc", "diarc")
+#: The short run each loop is compiled with: long enough for a run's every kernel (the summary's too), s.
+SHORT_RUN = ("duration_s=2", "window_s=[1, 2]", "estimates_window_s=[1, 2]")
+
+
+def add_arguments(parser: argparse.ArgumentParser, default_scenario: str) -> None:
+    parser.add_argument(
+        "--controller",
+        metavar="NAME",
+        action="append",
+        help=f"a controller whose loop to compile (repeatable; default: {', '.join(BUILT_IN)})",
+    )
+    parser.set_defaults(compile_scenario=default_scenario)
+
+
+def command(args: argparse.Namespace) -> int:
+    """Compile (or find cached) each named controller's loop with a short run of the default scenario; exit 0 when
+    every loop is ready. A bad name is ScenarioError (exit 2); a loop that fails to compile or run, exit 1."""
+    from gantry_twin._jit import cache_dir
+    from gantry_twin.compiling import CompileNotice, expected_compile_s, loop_of
+    from gantry_twin.controllers import available
+    from gantry_twin.run import run_scenario
+    from gantry_twin.scenario import build, load_scenario, resolve_scenario
+    from gantry_twin.simulate import compiled_available, loop_needs_compiling
+    from gantry_twin.sweep.engine import compile_lock
+    from gantry_twin.trace import SimulationError
+
+    names = list(dict.fromkeys(args.controller or BUILT_IN))
+    known = available()
+    for name in names:
+        if name not in known:
+            raise BadInput(f"--controller {name}: unknown controller; available: {', '.join(known)}")
+    path = resolve_scenario(args.compile_scenario)
+    controllers = {name: build(load_scenario(path, list(SHORT_RUN), name), str(path)).controller for name in names}
+    if not compiled_available():
+        print(f"{PROG}: MuJoCo's shared library was not found: runs use the Python loop, nothing to compile")
+        return EXIT_OK
+    loops: dict[object, list[str]] = {}
+    for name, controller in controllers.items():
+        loops.setdefault(loop_of(controller), []).append(name)
+    done = []
+    for group in loops.values():
+        name, label = group[0], "/".join(group)
+        controller = controllers[name]
+        if loop_of(controller) == id(controller):  # no compiled step: the Python loop, nothing to compile
+            print(f"{label}: runs in the Python loop (no compiled step), nothing to compile")
+            continue
+        with compile_lock():
+            if not loop_needs_compiling(controller):
+                print(f"{label}: already compiled for this install")
+                continue
+            notice = CompileNotice(f"{PROG} ({label})", expected_s=expected_compile_s(controller))
+            started = time.process_time()
+            notice.on_start(None, None)  # type: ignore[arg-type]
+            try:
+                with tempfile.TemporaryDirectory(prefix="gantry-twin-compile-") as tmp:
+                    for member in group:  # one loop; each controller's run compiles what its summary needs (DIARC's)
+                        run_scenario(path, SHORT_RUN, member, out=Path(tmp) / member)
+            except SimulationError as exc:
+                print(f"{PROG}: {label}: the loop compiled but its run failed: {exc}", file=sys.stderr)
+                return 1
+            finally:
+                notice.on_end(None)  # type: ignore[arg-type]
+        done.append(f"{label} {time.process_time() - started:.1f} s CPU")
+    if done:
+        print(f"compiled: {', '.join(done)}; cached in {cache_dir()}")
+    return EXIT_OK
