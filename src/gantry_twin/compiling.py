@@ -7,7 +7,8 @@ and, when stderr is a terminal, counts the elapsed seconds on that line until
 the first chunk of samples is done (the compile is over): ``run`` and
 ``excite``. A batch's driver (report, sweep, calibrate, tune) does the same
 with :func:`batch_compile_notice` while its workers compile or load their
-loops, before the first run. Both count with a :class:`Ticker`.
+loops, before the first run; ``gantry-twin compile`` (:mod:`gantry_twin.cli.compile`) compiles ahead. All count
+with a :class:`Ticker`.
 """
 
 from __future__ import annotations
