@@ -398,3 +398,14 @@ def test_run_scenario_times_a_compile_as_gantry_twin_run_does(tmp_path, monkeypa
     monkeypatch.setattr(compiling, "loop_needs_compiling", lambda controller: False)
     run_scenario("no_load_circle", OVERRIDES, "pd", out=tmp_path / "cached")
     assert json.loads((tmp_path / "cached" / "run_info.json").read_text())["compile_s"] == 0.0
+
+
+def test_compile_of_a_plug_in_whose_short_run_fails_is_exit_1_one_line(capsys, faulty_controllers, monkeypatch):
+    import importlib
+
+    simulate_module = importlib.import_module("gantry_twin.simulate")  # the package's ``simulate`` is the function
+    monkeypatch.setattr(simulate_module, "loop_needs_compiling", lambda controller: True)  # cached or not
+    code, stdout, err = run_main(["compile", "--controller", "faulty_compiled"], capsys)
+    line = one_line(err.split("\n", 1)[1] if err.startswith("gantry-twin (faulty_compiled): compiling") else err)
+    assert code == 1 and "compiled:" not in stdout
+    assert line.startswith("gantry-twin: faulty_compiled: compiling its loop with a short run failed: SimulationError:")

@@ -9,7 +9,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from gantry_twin.cli.common import EXIT_OK, PROG, BadInput
+from gantry_twin.cli.common import EXIT_OK, EXIT_RUN_FAILED, PROG, BadInput
 
 #: The loops ``compile`` makes when no --controller is given: every built-in controller (DRC, DARC and DIARC share
 #: one loop, so three names cost one compile).
@@ -30,15 +30,15 @@ def add_arguments(parser: argparse.ArgumentParser, default_scenario: str) -> Non
 
 def command(args: argparse.Namespace) -> int:
     """Compile (or find cached) each named controller's loop with a short run of the default scenario; exit 0 when
-    every loop is ready. A bad name is ScenarioError (exit 2); a loop that fails to compile or run, exit 1."""
+    every loop is ready. An unknown name is BadInput (exit 2); a loop that fails to compile or run, exit 1."""
     from gantry_twin._jit import cache_dir
-    from gantry_twin.compiling import CompileNotice, expected_compile_s, loop_of
+    from gantry_twin.compiling import Ticker, compile_message, expected_compile_s, loop_of
     from gantry_twin.controllers import available
+    from gantry_twin.controllers.base import compiled_step_of
     from gantry_twin.run import run_scenario
     from gantry_twin.scenario import build, load_scenario, resolve_scenario
     from gantry_twin.simulate import compiled_available, loop_needs_compiling
     from gantry_twin.sweep.engine import compile_lock
-    from gantry_twin.trace import SimulationError
 
     names = list(dict.fromkeys(args.controller or BUILT_IN))
     known = available()
@@ -55,27 +55,25 @@ def command(args: argparse.Namespace) -> int:
         loops.setdefault(loop_of(controller), []).append(name)
     done = []
     for group in loops.values():
-        name, label = group[0], "/".join(group)
-        controller = controllers[name]
-        if loop_of(controller) == id(controller):  # no compiled step: the Python loop, nothing to compile
+        label, controller = "/".join(group), controllers[group[0]]
+        if compiled_step_of(controller) is None:
             print(f"{label}: runs in the Python loop (no compiled step), nothing to compile")
             continue
-        with compile_lock():
+        with compile_lock():  # a sweep's workers, or another compile, may be compiling it now
             if not loop_needs_compiling(controller):
                 print(f"{label}: already compiled for this install")
                 continue
-            notice = CompileNotice(f"{PROG} ({label})", expected_s=expected_compile_s(controller))
             started = time.process_time()
-            notice.on_start(None, None)  # type: ignore[arg-type]
+            message = compile_message(f"{PROG} ({label})", expected_compile_s(controller))
             try:
-                with tempfile.TemporaryDirectory(prefix="gantry-twin-compile-") as tmp:
+                with Ticker(message), tempfile.TemporaryDirectory(prefix="gantry-twin-compile-") as tmp:
                     for member in group:  # one loop; each controller's run compiles what its summary needs (DIARC's)
                         run_scenario(path, SHORT_RUN, member, out=Path(tmp) / member)
-            except SimulationError as exc:
-                print(f"{PROG}: {label}: the loop compiled but its run failed: {exc}", file=sys.stderr)
-                return 1
-            finally:
-                notice.on_end(None)  # type: ignore[arg-type]
+            except Exception as exc:  # a plug-in's step that does not compile, or whose run fails
+                text = str(exc).splitlines()[0] if str(exc) else ""
+                why = f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+                print(f"{PROG}: {label}: compiling its loop with a short run failed: {why}", file=sys.stderr)
+                return EXIT_RUN_FAILED
         done.append(f"{label} {time.process_time() - started:.1f} s CPU")
     if done:
         print(f"compiled: {', '.join(done)}; cached in {cache_dir()}")
