@@ -349,9 +349,7 @@ def run_metrics(built: BuiltRun) -> RunMetrics:
     the contour figures (the part error leaves them out too; docs/gcode.md)."""
     confidence = estimate_confidence(built)
     if isinstance(built.path, Plan):
-        plan = built.path
-        rapids = [(plan.t0_s[k], plan.end_s[k]) for k, move in enumerate(plan.moves) if move.rapid]
-        return RunMetrics.for_program(built.scenario, rapids, confidence)
+        return RunMetrics.for_program(built.scenario, built.path.rapid_spans(), confidence)
     return RunMetrics.for_scenario(built.scenario, confidence)
 
 

@@ -84,7 +84,7 @@ def nearest_on_program(plan: Plan, move: np.ndarray, q_m: np.ndarray, neighbours
 def _nearest_moves(plan: Plan, move: np.ndarray, q_m: np.ndarray, neighbours: int, rapids: bool):
     """The distance of each q[i] to its nearest counted move and that move's index (-1 and NaN: none)."""
     table = plan.table
-    counted = np.array([rapids or not m.rapid for m in plan.moves])
+    counted = np.ones(len(plan.moves), dtype=bool) if rapids else ~plan.rapid
     q = np.asarray(q_m, dtype=float).reshape(-1, 2)
     best = np.full(len(q), np.inf)
     which = np.full(len(q), -1)

@@ -54,6 +54,12 @@ class Plan:
         self._seg = seg.astype(int)
         self._key = self._seg + self._tau0 / duration[self._seg]
         self.end_s = t0 + duration
+        #: (moves,) True for a rapid (G0) move: positioning, not part of the part.
+        self.rapid = np.array([m.rapid for m in self.moves], dtype=bool)
+
+    def rapid_spans(self) -> list[tuple[float, float]]:
+        """(start, end) s of each rapid (G0) move, in order."""
+        return [(float(self.t0_s[k]), float(self.end_s[k])) for k in np.flatnonzero(self.rapid)]
 
     # ------------------------------------------------------------------ Contour protocol (phi = t)
     @property

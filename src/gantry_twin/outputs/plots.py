@@ -248,9 +248,7 @@ def fig_eps_c(plt: Any, runs: Sequence[RunSeries]) -> Any:
 
 def _rapid_spans(part: PartSeries | None) -> list[tuple[float, float]]:
     """(start, end) s of a part program's rapid (G0) moves; none for a contour's run."""
-    if part is None:
-        return []
-    return [(part.plan.t0_s[k], part.plan.end_s[k]) for k, m in enumerate(part.plan.moves) if m.rapid]
+    return [] if part is None else part.plan.rapid_spans()
 
 
 def _shade_rapids(ax: Any, part: PartSeries | None) -> None:

@@ -373,7 +373,7 @@ class RerunObserver:
             moves = self._plan.sample(t).move
             part_um = distance_to_program(self._plan, moves, q) * 1e6
             scalars("errors/contour/part_um", part_um)
-            feed = ~np.array([m.rapid for m in self._plan.moves], dtype=bool)[moves]  # a rapid's error: off the scale
+            feed = ~self._plan.rapid[moves]  # a rapid's error: drawn, off the scale
         scalars("errors/axial/e_x_um", trace.e_m[rows, 0] * 1e6)
         scalars("errors/axial/e_y_um", trace.e_m[rows, 1] * 1e6)
         scalars("inputs/u_x_V", trace.u_v[rows, 0])
@@ -454,7 +454,7 @@ class RerunObserver:
         q = trace.q_m[idx - trace.first]
         factor = self.error_magnification
         if self._plan is not None:  # a rapid move is not part of the part: drawn where the machine is
-            rapid = np.array([m.rapid for m in self._plan.moves])[self._plan.sample(trace.t_s[idx - trace.first]).move]
+            rapid = self._plan.rapid[self._plan.sample(trace.t_s[idx - trace.first]).move]
             factor = np.where(rapid, 1.0, factor)[:, None]
         points_mm = magnified_contour_m(run.path, q, phi, factor) * 1e3
         strip = points_mm if self._last_point_mm is None else np.vstack([self._last_point_mm, points_mm])
