@@ -4,12 +4,11 @@ first run (docs/cli.md, "compile"; docs/performance.md, "Compile")."""
 from __future__ import annotations
 
 import argparse
-import sys
 import tempfile
 import time
 from pathlib import Path
 
-from gantry_twin.cli.common import EXIT_OK, EXIT_RUN_FAILED, PROG, BadInput
+from gantry_twin.cli.common import EXIT_OK, PROG, BadInput, failed
 
 #: The loops ``compile`` makes when no --controller is given: every built-in controller (DRC, DARC and DIARC share
 #: one loop, so three names cost one compile).
@@ -70,10 +69,7 @@ def command(args: argparse.Namespace) -> int:
                     for member in group:  # one loop; each controller's run compiles what its summary needs (DIARC's)
                         run_scenario(path, SHORT_RUN, member, out=Path(tmp) / member)
             except Exception as exc:  # a plug-in's step that does not compile, or whose run fails
-                text = str(exc).splitlines()[0] if str(exc) else ""
-                why = f"{type(exc).__name__}: {text}" if text else type(exc).__name__
-                print(f"{PROG}: {label}: compiling its loop with a short run failed: {why}", file=sys.stderr)
-                return EXIT_RUN_FAILED
+                return failed(f"{label}: compiling its loop with a short run", exc)
         done.append(f"{label} {time.process_time() - started:.1f} s CPU")
     if done:
         print(f"compiled: {', '.join(done)}; cached in {cache_dir()}")
