@@ -1,10 +1,10 @@
-"""Cost of the end-stop and saturation scan (gantry_twin.events) over the longest run allowed.
+"""Cost of the end-stop and saturation scan (gantry_twin.loop.events) over the longest run allowed.
 
     PYTHONPATH=src python benchmarks/bench_events.py [--seconds 3600]
 
 A synthetic trace of ``--seconds`` at 5 kHz (positions inside the travel,
 commands inside the limits: the scan's usual case) is scanned three ways:
-:func:`gantry_twin.events.travel_summary` (what ``write_run`` does, block by
+:func:`gantry_twin.loop.events.travel_summary` (what ``write_run`` does, block by
 block), chunk by chunk as a simulate observer (0.1 s chunks), and in one
 piece. Prints the wall time and the growth of the peak RSS of each; run it in a
 fresh process per way (``--way``) for the RSS to mean anything.
@@ -20,7 +20,7 @@ import types
 import numpy as np
 
 from gantry_twin import Plant
-from gantry_twin.events import TravelWatch, travel_summary
+from gantry_twin.loop.events import TravelWatch, travel_summary
 
 SAMPLE_PERIOD_S = 2e-4
 CHUNK = 500  # simulate's default chunk, 0.1 s

@@ -75,10 +75,10 @@ def main() -> None:
     print(f"sample: {sample_s:.2f} s for {n} samples at 0.2 ms ({sample_s / n * 1e6:.2f} us/sample)")
     print(f"peak RSS {rss_mb():.0f} MB")
     if args.run:
-        from gantry_twin.contours import TimingLaw
         from gantry_twin.controllers import create
-        from gantry_twin.plant import Plant
-        from gantry_twin.simulate import simulate
+        from gantry_twin.loop.simulate import simulate
+        from gantry_twin.paths.contours import TimingLaw
+        from gantry_twin.plant.model import Plant
 
         start = time.perf_counter()
         simulate(Plant(), plan, TimingLaw(1.0), create("diarc"), plan.duration_s, hold_s=10.0)

@@ -17,9 +17,9 @@ import time
 
 import numpy as np
 
-from gantry_twin.contours import TimingLaw, paper_ellipse
 from gantry_twin.controllers import create
-from gantry_twin.simulate import simulate
+from gantry_twin.loop.simulate import simulate
+from gantry_twin.paths.contours import TimingLaw, paper_ellipse
 from gantry_twin.sysid.identify import identify
 from gantry_twin.sysid.logs import Log
 from gantry_twin.sysid.trajectory import design, random_plant, run_on_twin

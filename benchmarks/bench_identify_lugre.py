@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gantry_twin.plant import Plant
+from gantry_twin.plant.model import Plant
 from gantry_twin.sysid.identify import identify, plant_xml
 from gantry_twin.sysid.logs import Log
 from gantry_twin.sysid.lugre import identify_lugre
@@ -39,9 +39,9 @@ def as_log(trace) -> Log:
 
 def circle_rms_um(plant: Plant) -> float:
     """rms contour error of the paper's circle (0.2 m at 2 rad/s, DIARC) over its second period, um."""
-    from gantry_twin.contours import TimingLaw, circle
     from gantry_twin.controllers import create
-    from gantry_twin.simulate import simulate
+    from gantry_twin.loop.simulate import simulate
+    from gantry_twin.paths.contours import TimingLaw, circle
 
     period = np.pi
     trace = simulate(plant, circle(), TimingLaw(2.0), create("diarc"), duration_s=2.0 * period)

@@ -46,7 +46,7 @@ from mujoco import rollout
 
 from gantry_twin import Plant, TimingLaw, circle, simulate
 from gantry_twin.controllers import available, create, register
-from gantry_twin.friction import Friction
+from gantry_twin.plant.friction import Friction
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SRC = os.path.join(ROOT, "src")
@@ -70,7 +70,7 @@ import json, resource
 import numpy as np
 from gantry_twin import Plant, TimingLaw, circle, simulate
 from gantry_twin.controllers import create
-from gantry_twin.contours import reference
+from gantry_twin.paths.contours import reference
 simulate(Plant(), circle(), TimingLaw(2.0), create("diarc"), duration_s=0.01)
 before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
 trace = simulate(Plant(), circle(), TimingLaw(2.0), create("diarc"), duration_s=60.0)

@@ -23,8 +23,8 @@ import numpy as np
 from gantry_twin import Plant, TimingLaw, circle, simulate
 from gantry_twin.controllers import ArcGains, EstimatorSettings, create
 from gantry_twin.controllers.arc import DARC_GAMMA
-from gantry_twin.estimation import LeastSquaresSettings
-from gantry_twin.sensing import SensingConfig
+from gantry_twin.numerics.estimation import LeastSquaresSettings
+from gantry_twin.plant.sensing import SensingConfig
 
 
 def unchecked(settings: Any, **fields: Any) -> Any:

@@ -134,7 +134,7 @@ def rejudge(row: dict, runs: Path) -> None:
     from gantry_twin.health.confidence import judge
     from gantry_twin.health.excitation import ExcitationSettings
     from gantry_twin.outputs.summary import RunSummary
-    from gantry_twin.plant import THETA_NAMES
+    from gantry_twin.plant.model import THETA_NAMES
 
     summary = RunSummary.read(runs / row["key"] / "summary.json")
     if summary.confidence is None:

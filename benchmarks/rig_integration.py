@@ -10,7 +10,7 @@ integration error alone) and as shipped (docs/rig-plant.md, docs/friction.md "In
 
 import numpy as np
 
-from gantry_twin.plant import Plant
+from gantry_twin.plant.model import Plant
 from gantry_twin.run import execute
 from gantry_twin.scenario import build, load_scenario, shipped_scenarios
 

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from gantry_twin import Plant, TimingLaw, circle, simulate
-from gantry_twin._jit import reference
 from gantry_twin.controllers import PD
-from gantry_twin.plant_effects import Amplifier, amplifier_output
+from gantry_twin.numerics.jit import reference
+from gantry_twin.plant.effects import Amplifier, amplifier_output
 from gantry_twin.scenario import ScenarioError, build, validate_data
 
 TS_S = 2e-4

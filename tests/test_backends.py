@@ -14,12 +14,12 @@ import numpy as np
 import pytest
 
 from gantry_twin import Plant, SensingConfig, TimingLaw, circle, paper_ellipse, simulate
-from gantry_twin._jit import reference
 from gantry_twin.controllers import DARC, DIARC, DRC, PD, RECOMMENDED_ESTIMATOR, create
 from gantry_twin.controllers.arc import diarc_step
-from gantry_twin.estimation import LeastSquaresSettings, least_squares_step
-from gantry_twin.linalg import EIGENVALUE_TOLERANCE, largest_eigenvalue, largest_eigenvalue_exact
-from gantry_twin.trace import SimulationError
+from gantry_twin.loop.trace import SimulationError
+from gantry_twin.numerics.estimation import LeastSquaresSettings, least_squares_step
+from gantry_twin.numerics.jit import reference
+from gantry_twin.numerics.linalg import EIGENVALUE_TOLERANCE, largest_eigenvalue, largest_eigenvalue_exact
 
 U_TOLERANCE_V = 1e-9
 TRACE_FIELDS = ("q_m", "q_meas_m", "e_m", "eps_n_m", "eps_c_m", "u_v")
@@ -228,7 +228,7 @@ def test_logged_lambda_max_matches_final_gamma():
 
 def test_plant_changes_compiled_equals_reference_and_restore_the_model():
     """Every kind of change at once (drift, pick-up, cogging, spike, hold, velocity noise): same bits."""
-    from gantry_twin.faults import (
+    from gantry_twin.plant.faults import (
         CoggingRipple,
         EncoderGlitch,
         FrictionDrift,
@@ -276,12 +276,12 @@ def test_loop_needs_compiling_asks_the_cache_for_the_controllers_chunk_kernel(mo
     import importlib
 
     from gantry_twin.controllers.base import compiled_step_of
-    from gantry_twin.simulate import chunk_kernel, compiled_available, loop_needs_compiling
+    from gantry_twin.loop.simulate import chunk_kernel, compiled_available, loop_needs_compiling
 
     if not compiled_available():
         pytest.skip("no compiled backend on this machine")
     monkeypatch.setattr(
-        importlib.import_module("gantry_twin.simulate"),
+        importlib.import_module("gantry_twin.loop.simulate"),
         "is_cached",
         lambda function: function is chunk_kernel(DIARC.compiled),
     )

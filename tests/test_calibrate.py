@@ -13,8 +13,8 @@ import yaml
 from gantry_twin.calibration import calibration_file, load_calibration, lugre_fields, plan
 from gantry_twin.calibration.fit import scenario_of
 from gantry_twin.cli import main
-from gantry_twin.friction import identified_af_b
 from gantry_twin.metrics import contour_metrics
+from gantry_twin.plant.friction import identified_af_b
 from gantry_twin.run import execute
 from gantry_twin.scenario import build, load_scenario, shipped
 

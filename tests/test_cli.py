@@ -11,7 +11,7 @@ import pytest
 
 from gantry_twin.cli import app as cli
 from gantry_twin.outputs import files as results
-from gantry_twin.plant import THETA_NAMES, Payload, Plant
+from gantry_twin.plant.model import THETA_NAMES, Payload, Plant
 from gantry_twin.run import execute
 from gantry_twin.scenario import shipped
 

@@ -13,8 +13,8 @@ import shutil
 import pytest
 
 from gantry_twin import run as run_module
+from gantry_twin.loop.trace import SimulationError
 from gantry_twin.outputs.plots import FIGURES
-from gantry_twin.trace import SimulationError
 
 from .helpers import run_main
 

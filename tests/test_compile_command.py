@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from gantry_twin.compiling import EXPECTED_PD_COMPILE_S, compile_message
-from gantry_twin.simulate import compiled_available
+from gantry_twin.loop.compiling import EXPECTED_PD_COMPILE_S, compile_message
+from gantry_twin.loop.simulate import compiled_available
 
 SRC = Path(__file__).resolve().parents[1] / "src"
 CLI = "import sys; from gantry_twin.cli import main; sys.exit(main(sys.argv[1:]))"

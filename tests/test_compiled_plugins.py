@@ -16,7 +16,7 @@ import pytest
 
 from gantry_twin import Plant, TimingLaw, circle, simulate
 from gantry_twin.controllers.base import REF_DQ, REF_Q, CompiledStep, compiled_step_of, log_values
-from gantry_twin.simulate import compiled_available, loop_needs_compiling
+from gantry_twin.loop.simulate import compiled_available, loop_needs_compiling
 
 
 class Gains(NamedTuple):
@@ -126,7 +126,7 @@ class AllocatingPD(PI):
 @pytest.mark.skipif(not compiled_available(), reason="no compiled backend on this machine")
 def test_a_step_that_allocates_runs_compiled_with_reference_counting():
     """The loop compiles without numba's reference counting; a step that allocates gets a loop compiled with it."""
-    from gantry_twin.sample_loop import chunk_kernel
+    from gantry_twin.loop.sample import chunk_kernel
 
     controller = AllocatingPD()
     compiled = simulate(Plant(), circle(), TimingLaw(2.0), controller, 0.05, backend="compiled")
@@ -144,7 +144,7 @@ sys.path.insert(0, {root!r})
 from gantry_twin import Plant, TimingLaw, circle, simulate
 from gantry_twin.controllers import PD
 from gantry_twin.controllers.base import compiled_step_of
-from gantry_twin.sample_loop import chunk_kernel, measure_sample, record_and_step, record_log
+from gantry_twin.loop.sample import chunk_kernel, measure_sample, record_and_step, record_log
 controller = PD()
 if sys.argv[1] == "plugin":
     from tests.test_compiled_plugins import PI

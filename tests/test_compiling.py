@@ -13,12 +13,12 @@ from pathlib import Path
 
 import pytest
 
-from gantry_twin import _jit
-from gantry_twin.compiling import EXPECTED_COMPILE_S, EXPECTED_PD_COMPILE_S, CompileNotice, compile_message
-from gantry_twin.simulate import compiled_available
+from gantry_twin.loop.compiling import EXPECTED_COMPILE_S, EXPECTED_PD_COMPILE_S, CompileNotice, compile_message
+from gantry_twin.loop.simulate import compiled_available
+from gantry_twin.numerics import jit
 
 ROOT = Path(__file__).resolve().parents[1]
-TINY_KERNEL = "from gantry_twin._jit import kernel\n\n\n@kernel\ndef twice(x):\n    return 2.0 * x\n"
+TINY_KERNEL = "from gantry_twin.numerics.jit import kernel\n\n\n@kernel\ndef twice(x):\n    return 2.0 * x\n"
 
 
 def _load(path: Path):  # noqa: ANN202
@@ -31,18 +31,18 @@ def _load(path: Path):  # noqa: ANN202
 
 def test_is_cached_holds_for_the_compiled_file_only(tmp_path, monkeypatch):
     """numba's cache is per source path and content: a copy at another path, or an edited file, compiles."""
-    monkeypatch.setattr(_jit, "_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setattr(jit, "_CACHE_DIR", str(tmp_path / "cache"))
     first, second = tmp_path / "a" / "tiny_kernel.py", tmp_path / "b" / "tiny_kernel.py"
     for path in (first, second):
         path.parent.mkdir()
         path.write_text(TINY_KERNEL)
     twice = _load(first)
-    assert not _jit.is_cached(twice)
+    assert not jit.is_cached(twice)
     assert twice(1.5) == 3.0  # compiles, and writes the cache
-    assert _jit.is_cached(twice) and _jit.is_cached(_load(first))
-    assert not _jit.is_cached(_load(second))  # the same code installed at another path: numba compiles it again
+    assert jit.is_cached(twice) and jit.is_cached(_load(first))
+    assert not jit.is_cached(_load(second))  # the same code installed at another path: numba compiles it again
     first.write_text(TINY_KERNEL + "# edited\n")
-    assert not _jit.is_cached(_load(first))  # an edited file (numba keeps a hash of it): the index is stale
+    assert not jit.is_cached(_load(first))  # an edited file (numba keeps a hash of it): the index is stale
 
 
 class _Terminal(io.StringIO):
@@ -92,7 +92,8 @@ def _python(src: Path, cache: Path, code: str, *args: str) -> subprocess.Complet
 
 RUN = "import sys; from gantry_twin.cli import main; sys.exit(main(sys.argv[1:]))"
 NEEDS = (
-    "from gantry_twin.controllers import PD; from gantry_twin.simulate import loop_needs_compiling as n; print(n(PD()))"
+    "from gantry_twin.controllers import PD; from gantry_twin.loop.simulate import loop_needs_compiling as n; "
+    "print(n(PD()))"
 )
 
 
@@ -118,8 +119,8 @@ def test_a_fresh_install_path_announces_its_compile(tmp_path):
 def test_a_batch_driver_says_once_that_its_workers_compile(monkeypatch):
     """report and sweep: one line from the driver while the workers warm up, naming the loops and the time
     (DRC, DARC and DIARC share one loop; pd's is announced with its own, shorter time)."""
-    from gantry_twin import compiling
     from gantry_twin.controllers import create
+    from gantry_twin.loop import compiling
 
     controllers = [create("pd"), create("diarc"), create("darc"), create("drc")]
     monkeypatch.setattr(compiling, "loop_needs_compiling", lambda c: True)
@@ -143,8 +144,8 @@ def test_a_batch_driver_says_once_that_its_workers_compile(monkeypatch):
 
 
 def test_the_notice_gives_pd_its_own_shorter_time_and_a_plug_in_the_longest():
-    from gantry_twin.compiling import expected_compile_s
     from gantry_twin.controllers import create
+    from gantry_twin.loop.compiling import expected_compile_s
 
     assert EXPECTED_PD_COMPILE_S < EXPECTED_COMPILE_S
     assert expected_compile_s(create("pd")) == EXPECTED_PD_COMPILE_S
@@ -158,7 +159,7 @@ def test_the_notice_gives_pd_its_own_shorter_time_and_a_plug_in_the_longest():
 
 
 def test_a_batch_driver_counts_seconds_on_a_terminal_while_its_workers_warm_up(monkeypatch):
-    from gantry_twin import compiling
+    from gantry_twin.loop import compiling
 
     monkeypatch.setattr(compiling, "loop_needs_compiling", lambda c: True)
     stream = _Terminal()
@@ -171,8 +172,8 @@ def test_a_batch_driver_counts_seconds_on_a_terminal_while_its_workers_warm_up(m
 
 def test_excite_says_when_its_loop_compiles(tmp_path, monkeypatch):
     """excite runs its trajectory under PD: a first compile of that loop is announced like a run's."""
-    from gantry_twin import compiling
     from gantry_twin.cli import main
+    from gantry_twin.loop import compiling
 
     monkeypatch.setattr(compiling, "loop_needs_compiling", lambda c: True)
     stream = io.StringIO()
@@ -187,10 +188,10 @@ def test_excite_says_when_its_loop_compiles(tmp_path, monkeypatch):
 
 
 def test_monitor_log_says_when_the_estimator_replay_compiles(monkeypatch):
-    from gantry_twin import _jit, compiling
+    from gantry_twin.cli import monitor
 
     for cached, expected in ((False, True), (True, False)):
-        monkeypatch.setattr(_jit, "is_cached", lambda f, cached=cached: cached)
+        monkeypatch.setattr(monitor, "is_cached", lambda f, cached=cached: cached)
         stream = io.StringIO()
-        assert compiling.replay_compile_notice("gantry-twin", stream) is expected
+        assert monitor.replay_compile_notice("gantry-twin", stream) is expected
         assert ("compiling the estimator's replay" in stream.getvalue()) is expected

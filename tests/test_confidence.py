@@ -10,7 +10,7 @@ import pytest
 
 from gantry_twin.health.confidence import judge
 from gantry_twin.health.excitation import ExcitationSettings, FilteredRegressors, estimate_bias, normalised_excitation
-from gantry_twin.plant import THETA_NAMES
+from gantry_twin.plant.model import THETA_NAMES
 from gantry_twin.run import execute, summarise
 from gantry_twin.scenario import build, load_scenario, shipped
 

@@ -12,7 +12,7 @@ import math
 import numpy as np
 import pytest
 
-from gantry_twin.contours import (
+from gantry_twin.paths.contours import (
     ReferenceStream,
     TimingLaw,
     circle,

@@ -11,7 +11,7 @@ import pytest
 from gantry_twin import Plant, TimingLaw, circle, simulate
 from gantry_twin.controllers import DIARC, available, create, register, unregister
 from gantry_twin.controllers.base import Measurement, ReferenceSample, RunContext
-from gantry_twin.trace import SimulationError
+from gantry_twin.loop.trace import SimulationError
 
 from .helpers import run
 

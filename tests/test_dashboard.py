@@ -12,8 +12,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from gantry_twin import Plant, TimingLaw, circle, create, simulate
-from gantry_twin.faults import PayloadChange, PlantChanges
-from gantry_twin.plant import THETA_NAMES
+from gantry_twin.plant.faults import PayloadChange, PlantChanges
+from gantry_twin.plant.model import THETA_NAMES
 from gantry_twin.telemetry import RerunObserver, theta_entity
 from gantry_twin.telemetry.dashboard import RANGE_MARGIN, RANGE_MAX_LABELS, plot_range
 

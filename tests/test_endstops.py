@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from gantry_twin import Payload, Plant
-from gantry_twin.plant import AXES
+from gantry_twin.plant.model import AXES
 
 from .helpers import DAC_LIMIT_V, TRAVEL_END_M, pushed_from_rest_m
 

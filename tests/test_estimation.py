@@ -7,7 +7,7 @@ import itertools
 import numpy as np
 import pytest
 
-from gantry_twin.estimation import (
+from gantry_twin.numerics.estimation import (
     LeastSquaresSettings,
     discretise_filter,
     filter_acceleration,
@@ -141,7 +141,7 @@ def _pool_sizes(libraries) -> list[int]:  # noqa: ANN001
 
 
 def test_one_blas_thread_holds_each_openblas_to_one_thread_and_restores_it():
-    from gantry_twin import linalg
+    from gantry_twin.numerics import linalg
 
     with linalg.one_blas_thread():
         libraries = linalg._OPENBLAS
@@ -159,7 +159,7 @@ def test_filter_discretisation_runs_lapack_on_one_thread(monkeypatch):
     """scipy's expm (LAPACK) at a DIARC reset would leave OpenBLAS threads spinning beside the loop."""
     import contextlib
 
-    from gantry_twin import estimation
+    from gantry_twin.numerics import estimation
 
     entered = []
 

@@ -1,4 +1,4 @@
-"""End-stop events and command saturation (gantry_twin.events), in simulate and on the command line."""
+"""End-stop events and command saturation (gantry_twin.loop.events), in simulate and on the command line."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import pytest
 
 from gantry_twin import Plant, TimingLaw, circle, simulate
 from gantry_twin.controllers import register, unregister
-from gantry_twin.events import EVENTS_MAX, TravelWatch, travel_summary
+from gantry_twin.loop.events import EVENTS_MAX, TravelWatch, travel_summary
 
 from .helpers import DAC_LIMIT_V, TRAVEL_END_M, pushed_from_rest_m, run_main
 

@@ -1,4 +1,4 @@
-"""Plant-change schedules (gantry_twin.faults) against hand computation and the compiled model."""
+"""Plant-change schedules (gantry_twin.plant.faults) against hand computation and the compiled model."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from gantry_twin import Payload, Plant
-from gantry_twin.faults import (
+from gantry_twin.plant.faults import (
     CoggingRipple,
     EncoderGlitch,
     FrictionDrift,

@@ -8,8 +8,8 @@ import pytest
 
 from gantry_twin import Payload, Plant, TimingLaw, circle, simulate
 from gantry_twin.controllers import DIARC, PD
-from gantry_twin.faults import CoggingRipple, FrictionDrift, PayloadChange, PlantChanges
-from gantry_twin.plant import moving_masses_kg
+from gantry_twin.plant.faults import CoggingRipple, FrictionDrift, PayloadChange, PlantChanges
+from gantry_twin.plant.model import moving_masses_kg
 
 ZERO_PD = dict(kp_v_m=(0.0, 0.0), kd_v_s_m=(0.0, 0.0), kv_v_s_m=(0.0, 0.0), ka_v_s2_m=(0.0, 0.0))
 

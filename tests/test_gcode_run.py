@@ -9,15 +9,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gantry_twin.contours import TimingLaw, circle, reference
 from gantry_twin.controllers import create
 from gantry_twin.gcode import read_program
 from gantry_twin.gcode.part_error import part_error
 from gantry_twin.gcode.planner import plan_program
 from gantry_twin.gcode.sampling import Plan
-from gantry_twin.plant import Plant
+from gantry_twin.loop.simulate import simulate
+from gantry_twin.paths.contours import TimingLaw, circle, reference
+from gantry_twin.plant.model import Plant
 from gantry_twin.scenario import ScenarioError, build, load_scenario
-from gantry_twin.simulate import simulate
 
 PROGRAMS = Path(__file__).resolve().parents[1] / "programs"
 

@@ -18,7 +18,7 @@ from gantry_twin.controllers import DIARC, RECOMMENDED_ESTIMATOR
 from gantry_twin.controllers.law import THETA_MAX, THETA_MIN
 from gantry_twin.health.monitor import NOT_EXCITED, Baseline, ExcitationSettings, HealthSettings, MachineMonitor
 from gantry_twin.metrics import contour_metrics
-from gantry_twin.plant import THETA_NAMES
+from gantry_twin.plant.model import THETA_NAMES
 from gantry_twin.run import execute
 from gantry_twin.scenario import build, load_scenario, shipped
 

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from gantry_twin.cli import main
-from gantry_twin.contours import TimingLaw, paper_ellipse
-from gantry_twin.plant import Plant
+from gantry_twin.loop.simulate import simulate
+from gantry_twin.paths.contours import TimingLaw, paper_ellipse
+from gantry_twin.plant.model import Plant
 from gantry_twin.scenario import build, load_scenario
-from gantry_twin.simulate import simulate
 from gantry_twin.sysid.identify import identify, plant_xml
 from gantry_twin.sysid.logs import Log, read_log, write_log
 from gantry_twin.sysid.trajectory import design, log_of, random_plant, run_on_twin

@@ -67,9 +67,9 @@ def test_lugre_needs_constant_velocity_stretches(tmp_path, capsys):
 
 
 def _circle_rms_um(plant) -> float:
-    from gantry_twin.contours import TimingLaw, circle
     from gantry_twin.controllers import create
-    from gantry_twin.simulate import simulate
+    from gantry_twin.loop.simulate import simulate
+    from gantry_twin.paths.contours import TimingLaw, circle
 
     trace = simulate(plant, circle(), TimingLaw(2.0), create("diarc"), duration_s=2.0 * np.pi)
     n = trace.filled

@@ -119,8 +119,8 @@ def graph() -> dict[str, set[str]]:
 
 
 def test_the_package_is_found(graph):
-    assert {f"{PACKAGE}.simulate", f"{PACKAGE}.plant", CLI, f"{PACKAGE}.controllers"} <= set(graph)
-    assert f"{PACKAGE}.plant" in graph[f"{PACKAGE}.simulate"]
+    assert {f"{PACKAGE}.loop.simulate", f"{PACKAGE}.plant.model", CLI, f"{PACKAGE}.controllers"} <= set(graph)
+    assert f"{PACKAGE}.plant.model" in graph[f"{PACKAGE}.loop.simulate"]
     assert f"{PACKAGE}.run" in graph[f"{CLI}.app"]
 
 
@@ -171,9 +171,85 @@ def test_no_module_over_the_line_limit(name):
     assert lines <= MAX_LINES, f"{name}: {lines} lines (limit {MAX_LINES}; about 500 unless its docstring says why)"
 
 
-LOOP = f"{PACKAGE}.simulate"
+#: The rooms, bottom up (docs/architecture.md): a room is a subpackage of gantry_twin or one of the few modules at its
+#: root. A module imports from its own room or from a room on a lower tier, never from its own tier's other rooms or
+#: upwards. The package's ``__init__`` (the public API) and ``__main__`` (the command line) stand outside the tiers.
+TIERS: tuple[tuple[str, ...], ...] = (
+    ("settings", "theta", "inputs"),
+    ("numerics",),
+    ("paths",),
+    ("plant",),
+    ("controllers", "gcode"),
+    ("loop",),
+    ("metrics", "sysid"),
+    ("health",),
+    ("outputs", "telemetry"),
+    ("scenario",),
+    ("run",),
+    ("sweep",),
+    ("reports", "calibration", "tune"),
+    ("cli",),
+)
+TIER = {room: level for level, rooms in enumerate(TIERS) for room in rooms}
+ENTRY = {PACKAGE, f"{PACKAGE}.__main__"}
+MAX_ROOT_MODULES = 12
+
+
+def room_of(name: str) -> str:
+    """``gantry_twin.plant.model`` -> ``plant``; ``gantry_twin.run`` -> ``run``."""
+    return name.split(".")[1]
+
+
+def upward_imports(graph: dict[str, set[str]]) -> list[str]:
+    """Every import that goes sideways (another room of the same tier) or up, as ``a -> b``."""
+    return sorted(
+        f"{name} -> {target}"
+        for name, targets in graph.items()
+        if name not in ENTRY
+        for target in targets
+        if room_of(name) != room_of(target) and TIER[room_of(target)] >= TIER[room_of(name)]
+    )
+
+
+def test_upward_imports_are_found():
+    graph = {
+        f"{PACKAGE}.plant.model": {f"{PACKAGE}.numerics.jit", f"{PACKAGE}.plant.friction"},
+        f"{PACKAGE}.plant.friction": {f"{PACKAGE}.loop.trace"},
+        f"{PACKAGE}.gcode.reader": {f"{PACKAGE}.controllers.base"},
+        f"{PACKAGE}.loop.trace": set(),
+        f"{PACKAGE}.numerics.jit": set(),
+        f"{PACKAGE}.controllers.base": set(),
+    }
+    assert upward_imports(graph) == [
+        f"{PACKAGE}.gcode.reader -> {PACKAGE}.controllers.base",
+        f"{PACKAGE}.plant.friction -> {PACKAGE}.loop.trace",
+    ]
+
+
+def test_every_room_has_its_tier(graph):
+    rooms = {room_of(name) for name in graph if name not in ENTRY}
+    assert rooms == set(TIER), f"rooms without a tier: {sorted(rooms - set(TIER))}; gone: {sorted(set(TIER) - rooms)}"
+
+
+def test_imports_flow_down_the_tiers(graph):
+    found = upward_imports(graph)
+    assert found == [], "imports sideways or up the tiers (docs/architecture.md):\n" + "\n".join(found)
+
+
+def test_the_root_holds_few_modules():
+    root = sorted(path.name for path in SRC.glob("*.py"))
+    assert len(root) <= MAX_ROOT_MODULES, f"{len(root)} modules at the package root (at most {MAX_ROOT_MODULES}): {root}"
+
+
+def test_the_architecture_doc_names_every_room():
+    text = (ROOT / "docs" / "architecture.md").read_text(encoding="utf-8")
+    missing = [room for room in TIER if not (f"`{room}/`" in text or f"`{room}`" in text)]
+    assert missing == [], f"docs/architecture.md does not describe {missing}"
+
+
+LOOP = f"{PACKAGE}.loop.simulate"
 #: The loop's modules: the driver and the one sample it runs.
-LOOP_MODULES = (LOOP, f"{PACKAGE}.sample_loop")
+LOOP_MODULES = (LOOP, f"{PACKAGE}.loop.sample")
 #: The loop runs any controller through the plug-in protocol; these belong to particular controllers.
 CONTROLLER_WORDS = ("DRC", "DARC", "DIARC", "PD", "drc", "darc", "diarc", "theta_hat", "dc_hat", "gamma_diag")
 
@@ -211,7 +287,7 @@ def private_imports_in(directory: Path) -> list[str]:
 
 def test_private_imports_are_found(tmp_path):
     bad = tmp_path / "bad.py"
-    bad.write_text("from gantry_twin.cli.app import _scenario_path\nfrom gantry_twin.plant import AXES\n")
+    bad.write_text("from gantry_twin.cli.app import _scenario_path\nfrom gantry_twin.plant.model import AXES\n")
     assert private_imports_in(tmp_path) == [f"{bad}:1: from gantry_twin.cli.app import _scenario_path"]
     inside = "src/gantry_twin/cli/__init__.py:1: from gantry_twin.cli.app import _helper"
     assert _private_across_modules([inside, f"{bad}:1: from gantry_twin.cli.app import _x"]) == [

@@ -15,10 +15,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gantry_twin import libm
-from gantry_twin.contours import TimingLaw, circle, paper_ellipse, reference
 from gantry_twin.gcode import read_program
 from gantry_twin.gcode.planner import plan_program
+from gantry_twin.numerics import libm
+from gantry_twin.paths.contours import TimingLaw, circle, paper_ellipse, reference
 
 PROGRAM = Path(__file__).resolve().parents[1] / "programs" / "bracket.ngc"
 

@@ -20,8 +20,8 @@ import pytest
 
 from gantry_twin import Payload, Plant, TimingLaw, circle, simulate
 from gantry_twin.controllers import create
-from gantry_twin.faults import CoggingRipple, FrictionDrift, PlantChanges
-from gantry_twin.friction import Friction, FrictionError, LuGreAxis
+from gantry_twin.plant.faults import CoggingRipple, FrictionDrift, PlantChanges
+from gantry_twin.plant.friction import Friction, FrictionError, LuGreAxis
 from gantry_twin.run import execute
 from gantry_twin.scenario import ScenarioError, build, load_scenario
 from gantry_twin.scenario.files import shipped, shipped_scenarios

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from gantry_twin.loop.trace import Trace
 from gantry_twin.metrics import RunMetrics, carried_sum
-from gantry_twin.trace import Trace
 
 TS = 2e-4
 

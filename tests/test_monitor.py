@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 
 from gantry_twin import Plant, SensingConfig, TimingLaw, circle, simulate
-from gantry_twin._jit import reference
 from gantry_twin.controllers import create
 from gantry_twin.health.excitation import FilteredRegressors, accumulate_information, accumulate_moment
 from gantry_twin.health.monitor import (
@@ -21,7 +20,8 @@ from gantry_twin.health.monitor import (
     MachineMonitor,
     monitor_trace,
 )
-from gantry_twin.trace import Trace
+from gantry_twin.loop.trace import Trace
+from gantry_twin.numerics.jit import reference
 
 TS = 2.0e-4
 BASE = (0.12, 0.50, 0.50, 0.70, 0.10, 0.15, 0.0, 0.0)

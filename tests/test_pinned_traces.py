@@ -5,7 +5,7 @@ Each shipped scenario runs on its default machine, the rig plant (models/rig.xml
 circle (keys ``scenario/controller@paper``).
 
 The digests hold on any x86-64 machine: what the loop reads is computed with the C library's sin,
-cos and atan2 (``gantry_twin.libm``, tests/test_libm.py), not numpy's SIMD loops, whose last bits
+cos and atan2 (``gantry_twin.numerics.libm``, tests/test_libm.py), not numpy's SIMD loops, whose last bits
 depend on the CPU.
 
 The digests in ``tests/data/trace_digests.json``: a run that changes any bit of any trace array

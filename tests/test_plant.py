@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from gantry_twin import Payload, Plant
-from gantry_twin.plant import PAYLOAD_MAX_KG, PAYLOAD_OFFSET_MAX_M, THETA_NAMES, moving_masses_kg
+from gantry_twin.plant.model import PAYLOAD_MAX_KG, PAYLOAD_OFFSET_MAX_M, THETA_NAMES, moving_masses_kg
 
 from .helpers import DAMPING_N_S_PER_M, FRICTION_N, GEAR_N_PER_V, MASS_NO_LOAD_KG
 

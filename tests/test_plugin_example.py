@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from gantry_twin.simulate import compiled_available
+from gantry_twin.loop.simulate import compiled_available
 
 ROOT = Path(__file__).resolve().parent.parent
 EXAMPLE = ROOT / "examples" / "gantry-example-pd"
@@ -29,7 +29,7 @@ import numpy as np
 from gantry_twin import Plant, TimingLaw, circle, simulate
 from gantry_twin.controllers import available, create
 from gantry_twin.controllers.base import compiled_step_of
-from gantry_twin.sample_loop import chunk_kernel
+from gantry_twin.loop.sample import chunk_kernel
 
 traces = {b: simulate(Plant(), circle(), TimingLaw(2.0), create("example_pd"), 0.3, backend=b)
           for b in ("compiled", "reference")}

@@ -10,7 +10,7 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from gantry_twin.plant import THETA_NAMES, Plant
+from gantry_twin.plant.model import THETA_NAMES, Plant
 from gantry_twin.reports import paper as report
 from gantry_twin.reports import paper_figures
 

@@ -1,4 +1,4 @@
-"""The rig plant's own properties (gantry_twin.plant, models/rig.xml; docs/rig-plant.md).
+"""The rig plant's own properties (gantry_twin.plant.model, models/rig.xml; docs/rig-plant.md).
 
 The static input offset dN(q) and the force ripple are input forces at the true position: checked
 against an open-loop solution written out here and against a plain mj_step loop fed the formula
@@ -17,9 +17,7 @@ import pytest
 
 from gantry_twin import Plant, TimingLaw, circle, paper_ellipse, simulate
 from gantry_twin.controllers import PD
-from gantry_twin.friction import lugre_parameters
-from gantry_twin.plant import PlantSettings, default_model_path
-from gantry_twin.plant_effects import (
+from gantry_twin.plant.effects import (
     ForceRipple,
     InputOffset,
     OffsetAxis,
@@ -27,6 +25,8 @@ from gantry_twin.plant_effects import (
     RippleHarmonic,
     file_properties,
 )
+from gantry_twin.plant.friction import lugre_parameters
+from gantry_twin.plant.model import PlantSettings, default_model_path
 from gantry_twin.scenario import ScenarioError, build, load_scenario, shipped
 
 from .helpers import DAMPING_N_S_PER_M, FRICTION_N, GEAR_N_PER_V, MASS_NO_LOAD_KG, TRAVEL_END_M

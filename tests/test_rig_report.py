@@ -10,7 +10,7 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from gantry_twin.contours import reference
+from gantry_twin.paths.contours import reference
 from gantry_twin.reports import paper as report
 from gantry_twin.reports import rig as rig_report
 from gantry_twin.scenario import build, load_scenario, shipped

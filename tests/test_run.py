@@ -20,11 +20,11 @@ from gantry_twin.cli import app as cli
 from gantry_twin.controllers import PD, register, unregister
 from gantry_twin.controllers.base import CompiledStep
 from gantry_twin.controllers.pd import PDParams, pd_command
+from gantry_twin.loop.simulate import compiled_available
 from gantry_twin.outputs.summary import summary_json
 from gantry_twin.outputs.tracefile import trace_table
 from gantry_twin.run import RunWriter, execute, run_and_write, trace_size
 from gantry_twin.scenario import build, load_scenario, shipped
-from gantry_twin.simulate import compiled_available
 
 from .helpers import run_main
 
@@ -353,7 +353,7 @@ def test_the_run_time_leaves_the_compile_out_and_run_info_gives_it(tmp_path):
     import io
     import time
 
-    from gantry_twin.compiling import CompileNotice
+    from gantry_twin.loop.compiling import CompileNotice
 
     class SlowStart:  # stands for a compile: it holds the run between its start and its first chunk
         def on_start(self, run, trace):
@@ -381,7 +381,8 @@ def test_run_scenario_times_a_compile_as_gantry_twin_run_does(tmp_path, monkeypa
     """run_info.json of a run written from Python: compile_s is the compile, wall_time_s the rest."""
     import time
 
-    from gantry_twin import compiling, run_scenario
+    from gantry_twin import run_scenario
+    from gantry_twin.loop import compiling
 
     def slow_start(self, run, trace):  # stands for a compile, between the run's start and its first chunk
         original(self, run, trace)
@@ -403,7 +404,7 @@ def test_run_scenario_times_a_compile_as_gantry_twin_run_does(tmp_path, monkeypa
 def test_compile_of_a_plug_in_whose_short_run_fails_is_exit_1_one_line(capsys, faulty_controllers, monkeypatch):
     import importlib
 
-    simulate_module = importlib.import_module("gantry_twin.simulate")  # the package's ``simulate`` is the function
+    simulate_module = importlib.import_module("gantry_twin.loop.simulate")  # the package's ``simulate`` is the function
     monkeypatch.setattr(simulate_module, "loop_needs_compiling", lambda controller: True)  # cached or not
     code, stdout, err = run_main(["compile", "--controller", "faulty_compiled"], capsys)
     line = one_line(err.split("\n", 1)[1] if err.startswith("gantry-twin (faulty_compiled): compiling") else err)

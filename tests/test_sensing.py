@@ -8,7 +8,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from gantry_twin import Plant, TimingLaw, Trace, circle, create, simulate
-from gantry_twin.sensing import Encoder, SensingConfig, quantize
+from gantry_twin.plant.sensing import Encoder, SensingConfig, quantize
 
 TS_S = 0.2e-3
 RES_M = 0.5e-6

@@ -10,13 +10,13 @@ import numpy as np
 import pytest
 
 from gantry_twin.controllers import DARC, DIARC, DRC, PD, ArcGains, EstimatorSettings, register, unregister
-from gantry_twin.estimation import LeastSquaresSettings
-from gantry_twin.faults import CoggingRipple, EncoderGlitch, FrictionDrift, PayloadChange, VelocityNoise
 from gantry_twin.health.monitor import ExcitationSettings, HealthSettings
-from gantry_twin.plant import Payload
+from gantry_twin.numerics.estimation import LeastSquaresSettings
+from gantry_twin.plant.faults import CoggingRipple, EncoderGlitch, FrictionDrift, PayloadChange, VelocityNoise
+from gantry_twin.plant.model import Payload
+from gantry_twin.plant.sensing import SensingConfig
 from gantry_twin.scenario import ScenarioError, validate_data
 from gantry_twin.scenario.schema import typed_options
-from gantry_twin.sensing import SensingConfig
 from gantry_twin.settings import QUOTE_MAX_CHARS, Count, Range, Vector, quote, validated
 
 

@@ -24,10 +24,10 @@ import pyarrow.parquet as pq
 import pytest
 
 from gantry_twin.cli import app as cli
+from gantry_twin.loop.trace import Trace
 from gantry_twin.metrics import axial_rms_um, max_abs_command_v
 from gantry_twin.sweep import load_sweep, plan_sweep
 from gantry_twin.sweep.points import override
-from gantry_twin.trace import Trace
 
 from .helpers import run_main
 from .test_sweep_spec import MINIMAL

@@ -14,8 +14,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from gantry_twin.contours import TimingLaw, circle, contour_error, paper_ellipse, reference
-from gantry_twin.taskframe import (
+from gantry_twin.paths.contours import TimingLaw, circle, contour_error, paper_ellipse, reference
+from gantry_twin.paths.taskframe import (
     J,
     error_gains,
     frame,

@@ -19,7 +19,7 @@ import rerun as rr
 
 from gantry_twin import Payload, Plant, TimingLaw, circle, create, simulate
 from gantry_twin.cli.telemetry import add_telemetry_arguments, telemetry_observers
-from gantry_twin.plant import THETA_NAMES
+from gantry_twin.plant.model import THETA_NAMES
 from gantry_twin.telemetry import (
     RealtimePacer,
     RerunObserver,
@@ -401,7 +401,7 @@ def test_health_alarms_are_events_on_the_timeline(tmp_path):
 
 def test_true_value_line_follows_plant_changes(tmp_path):
     """After a 5 kg pick-up the 'true' line of M1 shows the new mass, not the initial one."""
-    from gantry_twin.faults import PayloadChange, PlantChanges
+    from gantry_twin.plant.faults import PayloadChange, PlantChanges
 
     path = tmp_path / "pickup.rrd"
     changes = PlantChanges(payload_change=(PayloadChange(time_s=0.5, mass_kg=5.0),))

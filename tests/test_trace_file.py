@@ -12,7 +12,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from gantry_twin.outputs.tracefile import FLOAT64_COLUMNS, TRACE_COLUMNS
-from gantry_twin.plant import THETA_NAMES
+from gantry_twin.plant.model import THETA_NAMES
 from gantry_twin.run import execute, write_run
 from gantry_twin.scenario import build, load_scenario, shipped
 

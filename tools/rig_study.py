@@ -37,7 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from gantry_twin.calibration import lugre_fields
-from gantry_twin.plant import Plant, moving_masses_kg
+from gantry_twin.plant.model import Plant, moving_masses_kg
 from gantry_twin.reports.paper import PAPER_CONTOUR_UM, paper_matrix, run_matrix
 
 AXES = ("x", "y")

@@ -8,8 +8,8 @@ from typing import Any
 
 import numpy as np
 
-from gantry_twin.plant import THETA_NAMES
-from gantry_twin.trace import Trace
+from gantry_twin.loop.trace import Trace
+from gantry_twin.plant.model import THETA_NAMES
 
 
 @dataclass(frozen=True)
@@ -109,7 +109,7 @@ class WholeRunMetrics:
     contour_rms_um, contour_max_um: rms and max of abs(eps_c) over it;
     axial_rms_um (X, Y): rms of e = q - q_d over it, micrometres;
     command_window_s: [0, end]; max_abs_command_v (X, Y): largest abs(u) of the
-    command as applied, volts (its saturation: :class:`gantry_twin.events.TravelWatch`);
+    command as applied, volts (its saturation: :class:`gantry_twin.loop.events.TravelWatch`);
     periods_start_s, period_s, period_rms_um: rms of abs(eps_c) over each period
     [start + k T, start + (k + 1) T) from the end of the start ramp, the last
     one up to the end of the run (shorter when the run is not whole periods).
@@ -297,6 +297,6 @@ def axial_rms_um(trace: Trace, window_s: tuple[float, float]) -> np.ndarray:
 def max_abs_command_v(trace: Trace) -> np.ndarray:
     """The largest |u| of the recorded (clipped) command over the whole run, per axis (X, Y), volts.
 
-    (The fraction of samples at the DAC limit is :class:`gantry_twin.events.TravelWatch`'s ``saturation``.)
+    (The fraction of samples at the DAC limit is :class:`gantry_twin.loop.events.TravelWatch`'s ``saturation``.)
     """
     return np.abs(trace.u_v[: trace.filled]).max(axis=0)

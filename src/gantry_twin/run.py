@@ -22,9 +22,11 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 from gantry_twin.controllers.base import compiled_step_of
-from gantry_twin.events import TravelWatch
 from gantry_twin.gcode.part_error import PartErrorWatch
 from gantry_twin.gcode.sampling import Plan
+from gantry_twin.loop.events import TravelWatch
+from gantry_twin.loop.simulate import sample_count, simulate
+from gantry_twin.loop.trace import Observer, SimulationError, Trace
 from gantry_twin.metrics import RunMetrics
 from gantry_twin.outputs.files import (
     atomic_write_text,
@@ -36,11 +38,9 @@ from gantry_twin.outputs.files import (
 from gantry_twin.outputs.signals import SwallowedInterrupt, signals_held
 from gantry_twin.outputs.summary import Failure, RunSummary, run_summary, summary_json
 from gantry_twin.outputs.tracefile import TRACE_COLUMNS, TRACE_FILE, TraceWriter, stored_row_bytes
-from gantry_twin.plant import THETA_NAMES
+from gantry_twin.plant.model import THETA_NAMES
 from gantry_twin.scenario import BuiltRun, dump_yaml
 from gantry_twin.scenario.building import estimate_confidence
-from gantry_twin.simulate import sample_count, simulate
-from gantry_twin.trace import Observer, SimulationError, Trace
 
 #: The files :class:`RunWriter` leaves in a run's directory (docs/cli.md); summary.json is written last.
 SUMMARY_FILE = "summary.json"
@@ -160,7 +160,7 @@ class RunWriter:
         self.plots_skipped: str | None = None
         scenario = built.scenario
         self.metrics = run_metrics(built)
-        self.travel = TravelWatch(built.plant)  # events, end_stop_contacts, saturation (gantry_twin.events)
+        self.travel = TravelWatch(built.plant)  # events, end_stop_contacts, saturation (gantry_twin.loop.events)
         self.part = part_watch(built)  # a part program's error (gantry_twin.gcode), None for other contours
         self.trace: TraceWriter | None = None
         self._made = [p for p in (self.out, *self.out.parents) if not p.exists()]  # deepest first
@@ -378,7 +378,7 @@ def run_scenario(
     (summary.json, scenario.yaml, trace.parquet, run_info.json). Raises
     ScenarioError (one line) for bad input, SimulationError for a fault.
     """
-    from gantry_twin.compiling import compile_timer
+    from gantry_twin.loop.compiling import compile_timer
     from gantry_twin.scenario import build, load_scenario, resolve_scenario
 
     path = resolve_scenario(str(scenario))

@@ -21,7 +21,7 @@ from gantry_twin.calibration.fit import (
 from gantry_twin.calibration.plantfile import BODIES_FILE, plant_xml
 from gantry_twin.outputs.files import atomic_write, atomic_write_text
 from gantry_twin.outputs.signals import stop_signals_interrupt
-from gantry_twin.plant import default_model_path
+from gantry_twin.plant.model import default_model_path
 from gantry_twin.scenario import build
 
 FIT_FILE = "fit.json"

@@ -31,8 +31,8 @@ from gantry_twin.calibration.spec import (
     Target,
     friction_field,
 )
-from gantry_twin.friction import FS_OVER_FC_DEFAULT, STRIBECK_RATIO, stribeck_fit
-from gantry_twin.plant import Plant, moving_masses_kg
+from gantry_twin.plant.friction import FS_OVER_FC_DEFAULT, STRIBECK_RATIO, stribeck_fit
+from gantry_twin.plant.model import Plant, moving_masses_kg
 from gantry_twin.scenario import ScenarioError, apply_overrides, build, load_scenario, resolve_scenario, validate_data
 from gantry_twin.sweep.points import STATUS_OK, override
 from gantry_twin.theta import AXES
@@ -184,8 +184,8 @@ def lugre_fields(
     """One axis' LuGre fields (SI) from its shape and the identification's Af, B (docs/rig-plant.md):
 
     Fc = Af kf / (1 + (r - 1) a), Fs = r Fc, sigma2 = B kf - (Fs - Fc) b with (a, b) =
-    :func:`gantry_twin.friction.stribeck_fit` (vs) and r = Fs / Fc, so that
-    :func:`gantry_twin.friction.identified_af_b` returns Af kf and B kf; sigma0 = Fc / pre-sliding distance,
+    :func:`gantry_twin.plant.friction.stribeck_fit` (vs) and r = Fs / Fc, so that
+    :func:`gantry_twin.plant.friction.identified_af_b` returns Af kf and B kf; sigma0 = Fc / pre-sliding distance,
     sigma1 = zeta 2 sqrt(sigma0 m).
     """
     r = min(max(shape["fs_over_fc"], STRIBECK_RATIO[0]), STRIBECK_RATIO[1])

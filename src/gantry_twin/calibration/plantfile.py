@@ -1,13 +1,13 @@
 """The fitted plant as an MJCF file a scenario can use (``plant: {file: DIR/plant.xml}``): the machine's bodies
 included whole (a copy of models/gantry.xml beside it) and the fitted properties as the ``<custom>`` numerics
-that :func:`gantry_twin.plant_effects.file_properties` reads (docs/rig-plant.md), as models/rig.xml carries them."""
+that :func:`gantry_twin.plant.effects.file_properties` reads (docs/rig-plant.md), as models/rig.xml carries them."""
 
 from __future__ import annotations
 
 from xml.sax.saxutils import escape
 
-from gantry_twin.plant import Plant
-from gantry_twin.plant_effects import NUMERIC
+from gantry_twin.plant.effects import NUMERIC
+from gantry_twin.plant.model import Plant
 from gantry_twin.theta import AXES
 
 #: The machine's file the plant file includes (copied beside it).
@@ -29,7 +29,7 @@ def plant_xml(plant: Plant, command: str, values: dict[str, float]) -> str:
         "  the fitted values:",
         escape(fitted),
         "  The machine's bodies are gantry.xml's (included); the numerics are read by",
-        "  gantry_twin.plant_effects.file_properties (docs/rig-plant.md). Use: plant: {file: <this file>}.",
+        "  gantry_twin.plant.effects.file_properties (docs/rig-plant.md). Use: plant: {file: <this file>}.",
         "-->",
         '<mujoco model="gantry_calibrated">',
         f'  <include file="{BODIES_FILE}"/>',

@@ -91,7 +91,7 @@ class Free(Model):
 
 class Identification(Model):
     """What the machine's own identification returned (X, Y; the paper's volt units): B V/(m/s) and Af V set
-    Fc and sigma2 of a LuGre plant by the closed form (:func:`gantry_twin.friction.identified_af_b` returns
+    Fc and sigma2 of a LuGre plant by the closed form (:func:`gantry_twin.plant.friction.identified_af_b` returns
     them); M V/(m/s^2), if given, is checked against the plant (a calibration does not move masses)."""
 
     B: Vector(Positive, AXES)  # noqa: N815 -- the paper's symbol

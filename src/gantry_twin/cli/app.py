@@ -55,8 +55,8 @@ from gantry_twin.cli.common import (  # noqa: F401 -- the exit codes: tests and 
 from gantry_twin.cli.printing import format_health, format_summary, touched_end_stop, travel_warnings
 from gantry_twin.cli.progress import ProgressBar, add_progress_arguments, progress_bar, progress_wanted  # noqa: F401 -- ProgressBar: tests
 from gantry_twin.cli.telemetry import add_telemetry_arguments, telemetry_observers
-from gantry_twin.compiling import compile_notice
 from gantry_twin.controllers import available
+from gantry_twin.loop.compiling import compile_notice
 from gantry_twin.outputs.export import ExportError
 from gantry_twin.outputs.rundirs import LATEST, new_run_dir, point_latest
 from gantry_twin.outputs.signals import stop_signals_interrupt

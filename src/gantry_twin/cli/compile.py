@@ -30,13 +30,13 @@ def add_arguments(parser: argparse.ArgumentParser, default_scenario: str) -> Non
 def command(args: argparse.Namespace) -> int:
     """Compile (or find cached) each named controller's loop with a short run of the default scenario; exit 0 when
     every loop is ready. An unknown name is BadInput (exit 2); a loop that fails to compile or run, exit 1."""
-    from gantry_twin._jit import cache_dir
-    from gantry_twin.compiling import Ticker, compile_message, expected_compile_s, loop_of
     from gantry_twin.controllers import available
     from gantry_twin.controllers.base import compiled_step_of
+    from gantry_twin.loop.compiling import Ticker, compile_message, expected_compile_s, loop_of
+    from gantry_twin.loop.simulate import compiled_available, loop_needs_compiling
+    from gantry_twin.numerics.jit import cache_dir
     from gantry_twin.run import run_scenario
     from gantry_twin.scenario import build, load_scenario, resolve_scenario
-    from gantry_twin.simulate import compiled_available, loop_needs_compiling
     from gantry_twin.sweep.engine import compile_lock
 
     names = list(dict.fromkeys(args.controller or BUILT_IN))

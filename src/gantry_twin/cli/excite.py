@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 from gantry_twin.cli.common import PROG
-from gantry_twin.plant import Payload, Plant
+from gantry_twin.plant.model import Payload, Plant
 from gantry_twin.sysid.logs import write_columns, write_log
 from gantry_twin.sysid.trajectory import design, log_of, run_on_twin, trajectory_table, with_plateaus
 
@@ -30,7 +30,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def command(args: argparse.Namespace) -> int:
     """Write DIR/trajectory.csv and (unless --no-run) DIR/log.parquet from the twin. Exit code."""
-    from gantry_twin.trace import SimulationError
+    from gantry_twin.loop.trace import SimulationError
 
     out: Path = args.out
     try:

@@ -20,7 +20,7 @@ from pathlib import Path
 import yaml
 
 from gantry_twin.outputs.files import atomic_write_text
-from gantry_twin.plant import AXES, Plant
+from gantry_twin.plant.model import AXES, Plant
 from gantry_twin.sysid.identify import Identified, IdentifySettings, UnphysicalFit, identify, plant_xml
 from gantry_twin.sysid.logs import Log, check_sample_period, read_log
 from gantry_twin.sysid.lugre import LuGreFit, identify_lugre

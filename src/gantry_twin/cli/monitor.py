@@ -4,19 +4,31 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
+from typing import TextIO
 
 from gantry_twin.cli.common import PROG
-from gantry_twin.compiling import replay_compile_notice
 from gantry_twin.controllers import DIARC, create
+from gantry_twin.health.estimator_replay import estimator_replay
 from gantry_twin.health.log_monitor import monitor_log
+from gantry_twin.loop.compiling import compile_message
+from gantry_twin.numerics.jit import is_cached
 from gantry_twin.outputs.files import atomic_write_text
 from gantry_twin.outputs.summary import RunSummary, log_summary, summary_json
 from gantry_twin.outputs.tracefile import TRACE_FILE
-from gantry_twin.plant import Plant
+from gantry_twin.plant.model import Plant
 from gantry_twin.run import SCENARIO_FILE
 from gantry_twin.scenario import apply_overrides, controller_options, load_scenario, make_monitor, validate_data
 from gantry_twin.sysid.logs import check_sample_period, log_chunks, scan_log
+
+
+def replay_compile_notice(prog: str, stream: TextIO | None = None) -> bool:
+    """``monitor --log``: print the compile line if the estimator's replay kernel will compile first; True if so."""
+    if is_cached(estimator_replay):
+        return False
+    print(compile_message(prog).replace("the 0.2 ms loop", "the estimator's replay"), file=stream or sys.stderr)
+    return True
 
 
 def run_log(log: Path, scenario: Path | None) -> tuple[Path, Path | None, str]:

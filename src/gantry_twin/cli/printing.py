@@ -5,11 +5,11 @@ from __future__ import annotations
 from collections.abc import Sequence
 from pathlib import Path
 
-from gantry_twin.events import END_STOP, SATURATION_WARNING_FRACTION
 from gantry_twin.health.monitor import Alarm
+from gantry_twin.loop.events import END_STOP, SATURATION_WARNING_FRACTION
 from gantry_twin.outputs.plots import run_label
 from gantry_twin.outputs.summary import Estimate, Health, RunSummary
-from gantry_twin.plant import AXES
+from gantry_twin.plant.model import AXES
 from gantry_twin.settings import signed_pct
 
 #: The printed summary lists the rms of each period when the run has at most this many (else the first and last).

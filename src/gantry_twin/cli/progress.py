@@ -6,7 +6,7 @@ import argparse
 import sys
 from typing import Any
 
-from gantry_twin.trace import RunInfo, Trace
+from gantry_twin.loop.trace import RunInfo, Trace
 
 
 class ProgressBar:

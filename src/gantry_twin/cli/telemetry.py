@@ -20,6 +20,7 @@ os.environ.setdefault("RUST_LOG", "warn,re_log_encoding::rrd=off,re_sdk::recordi
 
 import rerun as rr  # noqa: E402 -- after its log filter
 
+from gantry_twin.loop.trace import Observer  # noqa: E402
 from gantry_twin.outputs.files import (  # noqa: E402
     NotRegularFileError,
     check_replaceable,
@@ -37,7 +38,6 @@ from gantry_twin.telemetry.sinks import (  # noqa: E402
     require_display,
     spawn_native_viewer,
 )
-from gantry_twin.trace import Observer  # noqa: E402
 
 #: How long a recording's last data may take to reach its file, s.
 SAVE_FLUSH_TIMEOUT_S = 60.0

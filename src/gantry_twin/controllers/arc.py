@@ -30,8 +30,6 @@ from typing import NamedTuple
 
 import numpy as np
 
-from gantry_twin._jit import kernel
-from gantry_twin._jit import reference as uncompiled
 from gantry_twin.controllers.base import (
     U_MAX_V,
     CompiledStep,
@@ -53,12 +51,14 @@ from gantry_twin.controllers.estimator import (
     placeholder_estimator,
 )
 from gantry_twin.controllers.law import ArcGains, LawWork, Theta, arc_law, law_work
-from gantry_twin.estimation import (
+from gantry_twin.numerics.estimation import (
     clip,
     least_squares_work,
     project_box,
 )
-from gantry_twin.plant import THETA_NAMES
+from gantry_twin.numerics.jit import kernel
+from gantry_twin.numerics.jit import reference as uncompiled
+from gantry_twin.plant.model import THETA_NAMES
 from gantry_twin.settings import Range, Vector
 
 #: DARC's adaptation rates (paper section 5).

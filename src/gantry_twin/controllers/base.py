@@ -22,7 +22,7 @@ from typing import Any, NamedTuple, Protocol, runtime_checkable
 
 import numpy as np
 
-from gantry_twin._jit import reference
+from gantry_twin.numerics.jit import reference
 from gantry_twin.settings import quote, shorten
 
 ENTRY_POINT_GROUP = "gantry_twin.controllers"
@@ -30,7 +30,7 @@ ENTRY_POINT_GROUP = "gantry_twin.controllers"
 #: The DS1103 DAC range (X, Y), volts: a controller's limits until ``reset`` gives it the plant's (RunContext.u_max_v).
 U_MAX_V = (10.0, 10.0)
 
-#: Columns of a reference row (:meth:`ReferenceSample.row`, :meth:`gantry_twin.contours.Reference.packed`):
+#: Columns of a reference row (:meth:`ReferenceSample.row`, :meth:`gantry_twin.paths.contours.Reference.packed`):
 #: q_d (2,) m, q_d' (2,) m/s, q_d'' (2,) m/s^2, alpha rad, alpha' rad/s, alpha'' rad/s^2.
 REF_Q, REF_DQ, REF_DDQ, REF_ALPHA, REF_DALPHA, REF_DDALPHA = 0, 2, 4, 6, 7, 8
 
@@ -61,7 +61,7 @@ class ReferenceSample:
 
     @classmethod
     def from_row(cls, row: np.ndarray) -> ReferenceSample:
-        """From a row of :meth:`gantry_twin.contours.Reference.packed`."""
+        """From a row of :meth:`gantry_twin.paths.contours.Reference.packed`."""
         return cls(row[0:2], row[2:4], row[4:6], float(row[6]), float(row[7]), float(row[8]))
 
     def row(self) -> np.ndarray:

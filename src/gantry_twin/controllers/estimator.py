@@ -9,9 +9,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from gantry_twin._jit import kernel
 from gantry_twin.controllers.law import ArcGains
-from gantry_twin.estimation import (
+from gantry_twin.numerics.estimation import (
     PAPER_FILTER_HZ,
     PAPER_FILTER_ZETA,
     FilterDiscretisation,
@@ -28,7 +27,8 @@ from gantry_twin.estimation import (
     least_squares_update,
     least_squares_work,
 )
-from gantry_twin.plant import AXES
+from gantry_twin.numerics.jit import kernel
+from gantry_twin.plant.model import AXES
 from gantry_twin.settings import VOLTS_MAX_V, OrNamed, Range, Vector, validated
 
 #: Entries of EstimatorState.clock.

@@ -7,7 +7,7 @@
     u   = clip(Phi theta^ - dc^ + u_s)               (eq. 13, 17, 21)
 
 The controllers differ only in where theta^ and dc^ come from. The
-per-sample functions are numba kernels (:mod:`gantry_twin._jit`) writing
+per-sample functions are numba kernels (:mod:`gantry_twin.numerics.jit`) writing
 into a preallocated :class:`LawWork`.
 """
 
@@ -17,12 +17,12 @@ from typing import NamedTuple
 
 import numpy as np
 
-from gantry_twin._jit import kernel
 from gantry_twin.controllers.base import REF_ALPHA, REF_DALPHA, REF_DDALPHA, REF_DDQ, REF_DQ, REF_Q
-from gantry_twin.estimation import FRICTION_SLOPE_S_M, FrictionSlope, clip, friction_shape
-from gantry_twin.plant import THETA_NAMES
+from gantry_twin.numerics.estimation import FRICTION_SLOPE_S_M, FrictionSlope, clip, friction_shape
+from gantry_twin.numerics.jit import kernel
+from gantry_twin.paths.taskframe import error_gains, sliding_variable
+from gantry_twin.plant.model import THETA_NAMES
 from gantry_twin.settings import Number, Range, Real, Vector, rule, validated
-from gantry_twin.taskframe import error_gains, sliding_variable
 
 #: The paper's initial estimates theta0 (section 5), volt units.
 THETA0 = (0.1, 0.55, 0.35, 0.5, 0.1, 0.15, 0.0, 0.0)

@@ -17,8 +17,6 @@ from typing import NamedTuple
 
 import numpy as np
 
-from gantry_twin._jit import kernel
-from gantry_twin._jit import reference as uncompiled
 from gantry_twin.controllers.base import (
     REF_DDQ,
     REF_DQ,
@@ -29,8 +27,10 @@ from gantry_twin.controllers.base import (
     ReferenceSample,
     RunContext,
 )
-from gantry_twin.estimation import clip
-from gantry_twin.plant import AXES
+from gantry_twin.numerics.estimation import clip
+from gantry_twin.numerics.jit import kernel
+from gantry_twin.numerics.jit import reference as uncompiled
+from gantry_twin.plant.model import AXES
 from gantry_twin.settings import Range, Vector
 from gantry_twin.theta import NOMINAL_THETA, per_axis
 

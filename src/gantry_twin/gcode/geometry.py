@@ -17,7 +17,7 @@ from typing import Literal
 
 import numpy as np
 
-from gantry_twin import libm
+from gantry_twin.numerics import libm
 
 
 @dataclass(frozen=True, slots=True)

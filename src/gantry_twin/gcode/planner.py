@@ -43,7 +43,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from gantry_twin import libm
 from gantry_twin.gcode.geometry import Dwell, MoveTable
 from gantry_twin.gcode.profiles import (
     half_ramp_distance,
@@ -55,6 +54,7 @@ from gantry_twin.gcode.profiles import (
 )
 from gantry_twin.gcode.reader import GcodeError, Program
 from gantry_twin.gcode.sampling import Plan
+from gantry_twin.numerics import libm
 from gantry_twin.settings import VOLTS_MAX_V
 
 #: The motors' force constant (models/gantry.xml: gear = kf), N/V.

@@ -4,12 +4,12 @@
 each move's phases of constant jerk and the timeline. At a time t the
 latest move started runs; during a blend the move before it still runs its
 ramp out, and the two motions' displacements add (the module docstring of
-:mod:`gantry_twin.gcode.planner`). It is also a :class:`~gantry_twin.contours.Contour`
+:mod:`gantry_twin.gcode.planner`). It is also a :class:`~gantry_twin.paths.contours.Contour`
 whose parameter is time (phi = t, phi' = 1): ``reference`` gives the loop's
-:class:`~gantry_twin.contours.Reference` directly and ``contour_error`` the
+:class:`~gantry_twin.paths.contours.Reference` directly and ``contour_error`` the
 distance to the planned path, which is what
-:class:`~gantry_twin.contours.ReferenceStream` and
-:func:`~gantry_twin.contours.contour_error` use for such a contour.
+:class:`~gantry_twin.paths.contours.ReferenceStream` and
+:func:`~gantry_twin.paths.contours.contour_error` use for such a contour.
 """
 
 from __future__ import annotations
@@ -18,9 +18,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gantry_twin import libm
-from gantry_twin.contours import Reference
 from gantry_twin.gcode.geometry import MoveTable
+from gantry_twin.numerics import libm
+from gantry_twin.paths.contours import Reference
 
 
 @dataclass(frozen=True)

@@ -27,8 +27,8 @@ from gantry_twin.health.excitation import (
     normalised_excitation,
     quantisation_noise,
 )
-from gantry_twin.plant import AXES, THETA_NAMES
-from gantry_twin.trace import Trace
+from gantry_twin.loop.trace import Trace
+from gantry_twin.plant.model import AXES, THETA_NAMES
 
 
 class EstimateConfidence:

@@ -1,14 +1,14 @@
 """DIARC's indirect estimator over recorded samples, one compiled loop (used by :mod:`gantry_twin.health.log_monitor`).
 
 A module of its own: a kernel's module and the modules it imports key the
-compiled cache (:func:`gantry_twin._jit.cache_dir`), so this one imports
+compiled cache (:func:`gantry_twin.numerics.jit.cache_dir`), so this one imports
 only the estimator's kernels.
 """
 
 from __future__ import annotations
 
-from gantry_twin._jit import kernel
 from gantry_twin.controllers.estimator import estimator_start, estimator_update
+from gantry_twin.numerics.jit import kernel
 
 
 @kernel  # with reference counting: a row of theta_out takes a whole array (numba lowers that through NRT)

@@ -17,8 +17,7 @@ from typing import Protocol
 
 import numpy as np
 
-from gantry_twin._jit import kernel
-from gantry_twin.estimation import (
+from gantry_twin.numerics.estimation import (
     FRICTION_SLOPE_S_M,
     PAPER_FILTER_HZ,
     PAPER_FILTER_ZETA,
@@ -30,7 +29,8 @@ from gantry_twin.estimation import (
     filter_steady_state,
     friction_shape,
 )
-from gantry_twin.sensing import ENCODER_RESOLUTION_M
+from gantry_twin.numerics.jit import kernel
+from gantry_twin.plant.sensing import ENCODER_RESOLUTION_M
 from gantry_twin.settings import (
     VOLTS_MAX_V,
     NonNegative,

@@ -32,8 +32,8 @@ from gantry_twin.controllers.base import U_MAX_V, Measurement, RunContext
 from gantry_twin.health.estimator_replay import estimator_replay
 from gantry_twin.health.monitor import MachineMonitor
 from gantry_twin.health.tally import MonitorTally
+from gantry_twin.loop.trace import Trace
 from gantry_twin.sysid.logs import Log, LogChunk, LogInfo
-from gantry_twin.trace import Trace
 
 #: summary.json's estimates: the mean over the log's last ESTIMATE_WINDOW_S (at most half the log), s.
 ESTIMATE_WINDOW_S = 10.0

@@ -33,7 +33,7 @@ from gantry_twin.health.tally import (  # noqa: F401 (the status codes are part 
     UNTRUSTWORTHY,
     MonitorTally,
 )
-from gantry_twin.plant import THETA_NAMES, THETA_UNITS
+from gantry_twin.plant.model import THETA_NAMES, THETA_UNITS
 from gantry_twin.settings import (
     Positive,
     Range,

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from gantry_twin.plant import THETA_NAMES
+from gantry_twin.plant.model import THETA_NAMES
 
 #: Status codes of a monitor report's ``status`` and their names (gantry_twin.health.monitor uses them).
 STATUS_NAMES: tuple[str, ...] = ("baseline", "not excited", "ok", "drifting", "alarm", "untrustworthy")

@@ -37,7 +37,7 @@ import numpy as np
 
 from gantry_twin.outputs.part_plot import PartBins, PartSeries, fig_part
 from gantry_twin.outputs.summary import RunSummary
-from gantry_twin.plant import AXES, THETA_NAMES, short_label
+from gantry_twin.plant.model import AXES, THETA_NAMES, short_label
 
 #: Each series is cut into at most this many bins (the points drawn per line).
 PLOT_BINS = 3000

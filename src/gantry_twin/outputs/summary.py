@@ -18,7 +18,7 @@ from pydantic import ValidationError
 
 from gantry_twin.inputs import InputFileError, read_input_file
 from gantry_twin.metrics import RunMetrics, WholeRunMetrics, estimate_errors_pct
-from gantry_twin.plant import AXES, THETA_NAMES
+from gantry_twin.plant.model import AXES, THETA_NAMES
 from gantry_twin.settings import Model, describe, shorten
 
 #: Version of the summary.json layout; bumped on any incompatible change.
@@ -328,7 +328,7 @@ def run_summary(
                 out["confidence"] = metrics.confidence.statistics()
     if health is not None:
         out["health"] = health_summary(health)
-    out.update(travel or {})  # events, end_stop_contacts, saturation (gantry_twin.events.TravelWatch.summary)
+    out.update(travel or {})  # events, end_stop_contacts, saturation (gantry_twin.loop.events.TravelWatch.summary)
     if part is not None and failure is None:
         out["part_error"] = part
     return RunSummary.model_validate(out)

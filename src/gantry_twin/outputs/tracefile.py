@@ -11,10 +11,10 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from gantry_twin.loop.trace import RunInfo, Trace
 from gantry_twin.outputs.files import PARQUET_OPTIONS, commit, discard, temporary_file
 from gantry_twin.outputs.signals import signals_held
-from gantry_twin.plant import AXES, THETA_NAMES
-from gantry_twin.trace import RunInfo, Trace
+from gantry_twin.plant.model import AXES, THETA_NAMES
 
 #: A run's trace file in its directory (docs/cli.md).
 TRACE_FILE = "trace.parquet"

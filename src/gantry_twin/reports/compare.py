@@ -25,7 +25,7 @@ from typing import Any
 from gantry_twin.inputs import InputFileError
 from gantry_twin.outputs.rundirs import resolve_run
 from gantry_twin.outputs.summary import RunSummary, SummaryError
-from gantry_twin.plant import AXES, THETA_NAMES
+from gantry_twin.plant.model import AXES, THETA_NAMES
 from gantry_twin.settings import signed_pct
 
 #: Where compare writes without --out: RUNS_DIR/compare/<UTC time>-<id>/ (RUNS_DIR of the command line).

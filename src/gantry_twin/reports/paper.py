@@ -29,7 +29,7 @@ import numpy as np
 from gantry_twin.metrics import contour_metrics, error_pct, steady_estimates, steady_true_parameters
 from gantry_twin.outputs.files import atomic_write_text
 from gantry_twin.outputs.plots import envelope
-from gantry_twin.plant import THETA_NAMES, short_label
+from gantry_twin.plant.model import THETA_NAMES, short_label
 from gantry_twin.reports.paper_figures import write_figures
 from gantry_twin.run import execute, summarise
 from gantry_twin.scenario import build, load_scenario, shipped

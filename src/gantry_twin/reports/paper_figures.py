@@ -15,7 +15,7 @@ from typing import Any
 
 from gantry_twin.outputs.files import atomic_write
 from gantry_twin.outputs.plots import DPI, legend_below
-from gantry_twin.plant import THETA_NAMES, THETA_UNITS
+from gantry_twin.plant.model import THETA_NAMES, THETA_UNITS
 
 #: Height of one row of a legend below the panels (font size 7), inches.
 LEGEND_ROW_IN = 0.17

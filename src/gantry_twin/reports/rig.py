@@ -26,12 +26,12 @@ from typing import Any
 
 import numpy as np
 
-from gantry_twin.contours import reference
 from gantry_twin.inputs import InputFileError, read_input_file
 from gantry_twin.metrics import error_pct
 from gantry_twin.outputs.files import atomic_write, atomic_write_text
 from gantry_twin.outputs.plots import DPI
-from gantry_twin.plant import THETA_NAMES, PlantSettings
+from gantry_twin.paths.contours import reference
+from gantry_twin.plant.model import THETA_NAMES, PlantSettings
 from gantry_twin.reports.paper import CONTOURS, CONTROLLERS, PAPER_CONTOUR_UM, SET_SCENARIOS, Case, CaseResult
 from gantry_twin.run import execute
 from gantry_twin.scenario import BuiltRun, ScenarioError, build, load_scenario, shipped
@@ -308,7 +308,7 @@ def monitor_alarms(rig: Sequence[str], seconds: float) -> list[str]:
 
 
 def plant_label(case: Case) -> str:
-    """A case's plant in words, for the report's headings (:attr:`gantry_twin.plant.PlantSettings.label`)."""
+    """A case's plant in words, for the report's headings (:attr:`gantry_twin.plant.model.PlantSettings.label`)."""
     return load_scenario(case.scenario_path, case.overrides, case.controller).plant.label
 
 

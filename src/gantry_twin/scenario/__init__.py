@@ -12,7 +12,7 @@ circle, no load, no disturbance, quantised sensing, 30 s. The modules, in the or
   key.path=value`` overrides and checks the cross-field rules (windows
   inside the duration).
 * :mod:`.building`: :func:`build` turns a scenario into the objects
-  :func:`gantry_twin.simulate.simulate` takes, and checks what needs the
+  :func:`gantry_twin.loop.simulate.simulate` takes, and checks what needs the
   compiled model (the contour inside the travel) and the controller.
 * :mod:`.files`: the shipped scenarios; :mod:`.listing`: ``gantry-twin scenarios``.
 

@@ -15,22 +15,22 @@ from pathlib import Path
 
 import numpy as np
 
-from gantry_twin.contours import Contour, Ellipse, TimingLaw
 from gantry_twin.controllers import Controller, EstimatorSettings, PluginError, create
-from gantry_twin.estimation import FRICTION_SLOPE_S_M
-from gantry_twin.faults import PlantChanges
-from gantry_twin.friction import FrictionError
 from gantry_twin.gcode.reader import GcodeError
 from gantry_twin.health.confidence import EstimateConfidence
 from gantry_twin.health.monitor import Baseline, ExcitationSettings, HealthSettings, MachineMonitor
+from gantry_twin.loop.simulate import Disturbance
+from gantry_twin.numerics.estimation import FRICTION_SLOPE_S_M
 from gantry_twin.outputs.summary import RunSummary, SummaryError
-from gantry_twin.plant import AXES, Plant, default_model_path
+from gantry_twin.paths.contours import Contour, Ellipse, TimingLaw
+from gantry_twin.plant.faults import PlantChanges
+from gantry_twin.plant.friction import FrictionError
+from gantry_twin.plant.model import AXES, Plant, default_model_path
+from gantry_twin.plant.sensing import SensingConfig
 from gantry_twin.scenario.errors import ScenarioError
 from gantry_twin.scenario.loading import controller_options
 from gantry_twin.scenario.schema import GcodeSpec, Scenario
-from gantry_twin.sensing import SensingConfig
 from gantry_twin.settings import quote, shorten
-from gantry_twin.simulate import Disturbance
 
 #: Clearance kept between a contour and the end of travel, metres.
 TRAVEL_MARGIN_M = 0.005

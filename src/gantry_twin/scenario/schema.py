@@ -22,20 +22,20 @@ import numpy as np
 from pydantic import Field, create_model, model_validator
 from pydantic_core import PydanticCustomError
 
-from gantry_twin import libm
-from gantry_twin.contours import Ellipse, TimingLaw
 from gantry_twin.controllers import available
-from gantry_twin.estimation import FilterHz
-from gantry_twin.faults import PlantChanges
 from gantry_twin.gcode.planner import AxisLimits, PlanOptions, default_limits, plan_program
 from gantry_twin.gcode.reader import read_program
 from gantry_twin.gcode.sampling import Plan
 from gantry_twin.health.excitation import ExcitationSettings, ExcitationWindowS, MinParameterV
 from gantry_twin.health.monitor import DecisionIntervalS, HealthSettings
-from gantry_twin.plant import Payload, PlantSettings
-from gantry_twin.sensing import SensingConfig
+from gantry_twin.loop.simulate import Disturbance
+from gantry_twin.numerics import libm
+from gantry_twin.numerics.estimation import FilterHz
+from gantry_twin.paths.contours import Ellipse, TimingLaw
+from gantry_twin.plant.faults import PlantChanges
+from gantry_twin.plant.model import Payload, PlantSettings
+from gantry_twin.plant.sensing import SensingConfig
 from gantry_twin.settings import VOLTS_MAX_V, Frequency, Label, Model, Range, Real, Seconds, Window, quote
-from gantry_twin.simulate import Disturbance
 
 #: Longest run accepted, s (30 s is the paper's; an hour is 18 M samples).
 DURATION_MAX_S = 3600.0

@@ -29,7 +29,7 @@ from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import replace
 from typing import Any
 
-from gantry_twin._jit import cache_dir
+from gantry_twin.numerics.jit import cache_dir
 from gantry_twin.run import execute, package_version
 from gantry_twin.scenario import Scenario, build, validate_data
 
@@ -275,7 +275,7 @@ def prepare_workers(client: Any, resolved: Sequence[dict[str, Any]], source: str
 def _compile_notice(distinct: Sequence[dict[str, Any]], source: str) -> contextlib.AbstractContextManager[Any]:
     """The driver's line while the workers warm up, when their loops compile first (the numba cache of this
     install: a local cluster's workers share it), counting seconds on a terminal; nothing otherwise."""
-    from gantry_twin.compiling import batch_compile_notice
+    from gantry_twin.loop.compiling import batch_compile_notice
 
     controllers = []
     for r in distinct:

@@ -35,7 +35,7 @@ import yaml
 
 from gantry_twin.metrics import axial_rms_um, max_abs_command_v
 from gantry_twin.outputs.summary import RunSummary
-from gantry_twin.plant import AXES
+from gantry_twin.plant.model import AXES
 from gantry_twin.run import RUN_FILES, execute, package_version, summarise, write_run
 from gantry_twin.scenario import ScenarioError, apply_overrides, build, read_scenario_file, validate_data
 from gantry_twin.sweep.sampling import draws

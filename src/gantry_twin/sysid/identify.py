@@ -2,7 +2,7 @@
 
 The model ``M q'' + B q' + Af sign(q') + dN = u`` (volts, while the axis slides) passes on both sides
 through the estimator's filter Hf, discretised as DIARC's estimator does it
-(:func:`gantry_twin.estimation.filter_axis`), which gives eq. (25)'s regression
+(:func:`gantry_twin.numerics.estimation.filter_axis`), which gives eq. (25)'s regression
 ``u_f = [x_f'', x_f', Sf_f, -1_f] [M, B, Af, dN]^T``, one row per sample. Offline, Sf is that of a centred
 velocity with a steep slope, and the samples whose filter memory (``stick_memory_s``) holds one slower than
 ``sliding_speed_m_s`` are left out (the axis may stick). 95 % intervals: Newey-West (:func:`hac_covariance`).
@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gantry_twin.estimation import (
+from gantry_twin.numerics.estimation import (
     FilterHz,
     FilterZeta,
     FrictionSlope,
@@ -28,7 +28,7 @@ from gantry_twin.estimation import (
     filter_steady_state,
     friction_shape,
 )
-from gantry_twin.plant import AXES, THETA_NAMES, THETA_UNITS, build_spec, moving_masses_kg
+from gantry_twin.plant.model import AXES, THETA_NAMES, THETA_UNITS, build_spec, moving_masses_kg
 from gantry_twin.settings import Count, Range, validated
 from gantry_twin.sysid.logs import Log, centred_velocity
 

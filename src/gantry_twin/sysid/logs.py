@@ -32,7 +32,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from gantry_twin.plant import AXES, Plant
+from gantry_twin.plant.model import AXES, Plant
 from gantry_twin.settings import VOLTS_MAX_V, shorten
 
 #: The columns every log has (SI units and volts).

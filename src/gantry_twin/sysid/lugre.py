@@ -1,10 +1,10 @@
-"""``identify --friction lugre``: the LuGre parameters of each axis from logs (model: :mod:`gantry_twin.friction`).
+"""``identify --friction lugre``: the LuGre parameters of each axis from logs (:mod:`gantry_twin.plant.friction`).
 
 Three stages, each on what the previous one found:
 
 1. M, B, Af, dN by the linear regression of :func:`gantry_twin.sysid.identify.identify`;
 2. Fc, Fs, vs, sigma2 from the friction force of the filtered regression, binned by velocity and fitted to
-   :func:`gantry_twin.friction.steady_force_n`; below ``fast_speed_m_s`` only steady samples count
+   :func:`gantry_twin.plant.friction.steady_force_n`; below ``fast_speed_m_s`` only steady samples count
    (:func:`steady_samples`: the plateaus of ``gantry-twin excite --plateaus``);
 3. sigma0, sigma1 from windows around the velocity reversals replayed open loop through the plant of stages
    1-2 (:func:`gantry_twin.sysid.replay.replay_windows`), each window's offset + slope removed (:func:`detrend`).
@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gantry_twin.friction import (
+from gantry_twin.plant.friction import (
     PRESLIDING_M,
     STRIBECK_RATIO,
     VS_RANGE_M_S,
@@ -31,7 +31,7 @@ from gantry_twin.friction import (
     LuGreParameters,
     steady_force_n,
 )
-from gantry_twin.plant import AXES, Plant, moving_masses_kg
+from gantry_twin.plant.model import AXES, Plant, moving_masses_kg
 from gantry_twin.settings import Count, Frequency, Range, validated
 from gantry_twin.sysid.identify import Identified, axis_regressions, plant_xml
 from gantry_twin.sysid.logs import Log, centred_velocity

@@ -19,7 +19,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from gantry_twin.plant import AXES, Plant
+from gantry_twin.plant.model import AXES, Plant
 from gantry_twin.sysid.logs import Log
 
 #: Default replay window, s.

@@ -18,8 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from gantry_twin.contours import TimingLaw
-from gantry_twin.plant import Payload, Plant
+from gantry_twin.paths.contours import TimingLaw
+from gantry_twin.plant.model import Payload, Plant
 
 #: Position limit of the trajectory, m: the 255 mm half travel less a margin for the tracking error.
 POSITION_LIMIT_M = 0.2
@@ -274,7 +274,7 @@ def random_lugre_plant(rng: np.random.Generator) -> Plant:
     """A LuGre twin drawn for the LuGre identification acceptance (docs/logs.md): payload 0-10 kg, each
     axis' sigma2 and Fc within +-30 % of the model's B kf and Af kf, and Fs / Fc, vs, the pre-sliding distance
     and sigma1 from :data:`LUGRE_DRAW`."""
-    from gantry_twin.friction import Friction, LuGreAxis
+    from gantry_twin.plant.friction import Friction, LuGreAxis
 
     payload = float(rng.uniform(0.0, 10.0))
     base = Plant()
@@ -294,11 +294,11 @@ def run_on_twin(path: Multisine | Sequenced, plant: Plant, sensing=None, prog: s
     """Run the trajectory on the twin under PD control (module docstring); the trace.
 
     prog: a command's name, to announce on stderr (counting seconds on a terminal) a first compile of the loop
-    (:func:`gantry_twin.compiling.compile_notice`); None: nothing is printed.
+    (:func:`gantry_twin.loop.compiling.compile_notice`); None: nothing is printed.
     """
-    from gantry_twin.compiling import compile_notice
     from gantry_twin.controllers import create
-    from gantry_twin.simulate import simulate
+    from gantry_twin.loop.compiling import compile_notice
+    from gantry_twin.loop.simulate import simulate
 
     controller = create("pd")
     observers = () if prog is None else (compile_notice(controller, prog),)

@@ -14,8 +14,8 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from gantry_twin.contours import contour_error
-from gantry_twin.plant import Plant
+from gantry_twin.paths.contours import contour_error
+from gantry_twin.plant.model import Plant
 
 #: Default magnification of the contour error in the XY view (1 um drawn as 10 mm).
 ERROR_MAGNIFICATION = 10_000.0

@@ -1,6 +1,6 @@
 """The rerun observer: logs one run, as it is simulated, to its own recording (rerun-sdk 0.41).
 
-:class:`RerunObserver` is a :class:`gantry_twin.trace.Observer`: it only reads the trace, and logs to its own
+:class:`RerunObserver` is a :class:`gantry_twin.loop.trace.Observer`: it only reads the trace, and logs to its own
 :class:`rerun.RecordingStream` (never the global one, so two runs in one process stay apart). Samples are
 buffered and sent as columns (``send_columns``) at the end of a chunk, at most every ``flush_interval_s`` of
 wall time; the 3D transforms, the XY contour and the estimates are decimated (the ``*_RATE_HZ`` constants).
@@ -22,10 +22,11 @@ from pathlib import Path
 import numpy as np
 import rerun as rr
 
-from gantry_twin.contours import reference
 from gantry_twin.gcode.part_error import distance_to_program
 from gantry_twin.gcode.sampling import Plan
-from gantry_twin.plant import THETA_NAMES, THETA_UNITS
+from gantry_twin.loop.trace import RunInfo, Trace
+from gantry_twin.paths.contours import reference
+from gantry_twin.plant.model import THETA_NAMES, THETA_UNITS
 from gantry_twin.telemetry.columns import TimeIndex, scalar_column
 from gantry_twin.telemetry.dashboard import (
     ERROR_MAGNIFICATION,
@@ -39,7 +40,6 @@ from gantry_twin.telemetry.dashboard import (
     plot_range,
 )
 from gantry_twin.telemetry.sinks import check_grpc_url, require_display, spawn_native_viewer
-from gantry_twin.trace import RunInfo, Trace
 
 #: Rate of the 3D transforms, Hz.
 MARKER_RATE_HZ = 50.0

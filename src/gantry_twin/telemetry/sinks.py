@@ -21,8 +21,8 @@ from pathlib import Path
 
 import rerun as rr
 
+from gantry_twin.loop.trace import RunInfo, Trace
 from gantry_twin.settings import quote
-from gantry_twin.trace import RunInfo, Trace
 
 #: Every server and viewer this module starts listens on the loopback interface only.
 LOCALHOST = "127.0.0.1"

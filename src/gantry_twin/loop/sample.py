@@ -1,6 +1,6 @@
 """One sample of the 0.2 ms loop, written once (docs/equations.md, "Sensing and timing"): plant changes, the
 encoder, the controller's step, clipping, recording, MuJoCo's ``mj_step``; and the chunk kernel that runs
-it for a run of samples with a controller's compiled step (:func:`chunk_kernel`). :mod:`gantry_twin.simulate`
+it for a run of samples with a controller's compiled step (:func:`chunk_kernel`). :mod:`gantry_twin.loop.simulate`
 drives it; it names no controller and no contour.
 """
 
@@ -19,18 +19,18 @@ from numba import types
 from numba.core.errors import NumbaError
 from numba.core.registry import CPUDispatcher
 
-from gantry_twin._jit import kernel, source_digest, specialise
 from gantry_twin.controllers.base import (
     CompiledStep,
 )
-from gantry_twin.estimation import clip
-from gantry_twin.faults import (
+from gantry_twin.numerics.estimation import clip
+from gantry_twin.numerics.jit import kernel, source_digest, specialise
+from gantry_twin.plant.effects import amplifier_output, plant_input_v
+from gantry_twin.plant.faults import (
     apply_plant_changes,
     cogging_force,
     sensor_glitches,
 )
-from gantry_twin.plant_effects import amplifier_output, plant_input_v
-from gantry_twin.sensing import encoder_measure
+from gantry_twin.plant.sensing import encoder_measure
 
 
 def load_mj_step() -> types.ExternalFunction | None:
@@ -60,8 +60,8 @@ mj_step = load_mj_step()
 class PlantIO(NamedTuple):
     """What the loop touches in MuJoCo: raw pointers, views into mjData, indices, the DAC limits (2,) V,
     physics steps per sample, the plant's own input offset and force ripple
-    (:func:`gantry_twin.plant_effects.input_table`), the amplifier's delay (samples), current-loop gain per
-    sample and state (:class:`gantry_twin.plant_effects.Amplifier`).
+    (:func:`gantry_twin.plant.effects.input_table`), the amplifier's delay (samples), current-loop gain per
+    sample and state (:class:`gantry_twin.plant.effects.Amplifier`).
     """
 
     model_address: int

@@ -26,8 +26,8 @@ from typing import Literal, Protocol
 
 import numpy as np
 
-from gantry_twin import libm
-from gantry_twin._jit import kernel
+from gantry_twin.numerics import libm
+from gantry_twin.numerics.jit import kernel
 from gantry_twin.settings import quote
 
 

@@ -1,6 +1,6 @@
 """Small dense linear algebra for the per-sample kernels: Cholesky solves and lambda_max.
 
-Numba kernels (:mod:`gantry_twin._jit`) on float64 arrays, no LAPACK: the
+Numba kernels (:mod:`gantry_twin.numerics.jit`) on float64 arrays, no LAPACK: the
 matrices are 2 x 2 to 8 x 8 and change a little every 0.2 ms sample, so a
 warm-started iteration beats a full decomposition (docs/performance.md), and
 an OpenBLAS call would leave its threads spinning on the other core while the
@@ -19,7 +19,7 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from gantry_twin._jit import kernel
+from gantry_twin.numerics.jit import kernel
 
 
 def _openblas_libraries() -> list[ctypes.CDLL]:

@@ -132,7 +132,7 @@ def apply_friction(spec: mujoco.MjSpec, friction: Friction, axes: tuple[str, ...
     friction-only dcmotor ``<axis>_friction`` after every other actuator (the
     control and disturbance motors keep their indices and ctrl slots). The
     model file's timestep stays the control sample: the caller divides it into the
-    sub-steps (:class:`gantry_twin.plant.Plant`).
+    sub-steps (:class:`gantry_twin.plant.model.Plant`).
     """
     integrator, _ = friction.integration()
     if friction.lugre:

@@ -8,7 +8,7 @@ Two machines are shipped (``plant.model``, docs/rig-plant.md): ``paper``,
 models/gantry.xml, the paper's model (eq. (1): Coulomb + viscous friction,
 no offset); ``rig``, models/rig.xml, the same machine with the properties
 the paper's rig shows and its model leaves out, read from the file's
-``<custom>`` numerics: LuGre friction per axis (:mod:`gantry_twin.friction`),
+``<custom>`` numerics: LuGre friction per axis (:mod:`gantry_twin.plant.friction`),
 a static input offset dN(q) (:class:`InputOffset`: the paper's dN1, dN2,
 theta 7-8, constant plus a part linear in position) and a position-periodic
 force ripple (:class:`ForceRipple`, up to three harmonics of one pitch).
@@ -32,8 +32,16 @@ import numpy as np
 from pydantic import model_validator
 from pydantic_core import ArgsKwargs
 
-from gantry_twin.contours import Contour
-from gantry_twin.friction import (
+from gantry_twin.inputs import check_input_file
+from gantry_twin.paths.contours import Contour
+from gantry_twin.plant.effects import (
+    Amplifier,
+    ForceRipple,
+    InputOffset,
+    file_properties,
+    input_table,
+)
+from gantry_twin.plant.friction import (
     Friction,
     LuGreParameters,
     apply_friction,
@@ -42,14 +50,6 @@ from gantry_twin.friction import (
     identified_af_b,
     lugre_parameters,
     steady_bristle_m,
-)
-from gantry_twin.inputs import check_input_file
-from gantry_twin.plant_effects import (
-    Amplifier,
-    ForceRipple,
-    InputOffset,
-    file_properties,
-    input_table,
 )
 from gantry_twin.settings import Range, Vector, rule, validated
 from gantry_twin.theta import AXES, THETA_NAMES, THETA_UNITS, Axis  # noqa: F401 -- the plant's names for them
@@ -84,7 +84,7 @@ def default_model_path(model: PlantModel = "paper") -> Path:
     packaged = resources.files("gantry_twin") / "models" / name
     if packaged.is_file():
         return Path(str(packaged))
-    return Path(__file__).resolve().parents[2] / "models" / name
+    return Path(__file__).resolve().parents[3] / "models" / name
 
 
 def short_label(label: str) -> str:
@@ -115,7 +115,7 @@ class PlantSettings:
     paper's ideal model); none when ``file`` is given without it. file: an MJCF model in place of
     the shipped one (e.g. ``gantry-twin identify``'s plant.xml), relative to
     the scenario file. friction, offset, ripple: the friction model
-    (:mod:`gantry_twin.friction`), the static input offset and the force
+    (:mod:`gantry_twin.plant.friction`), the static input offset and the force
     ripple; None: the model file's own (its numerics, :func:`file_properties`;
     for models/gantry.xml its Coulomb friction, no offset, no ripple). A
     value given replaces the file's whole property.
@@ -178,7 +178,7 @@ def build_spec(
 
     payload_body: add the body even for a 0 kg payload (MuJoCo accepts a
     massless welded body), so that a run can change its mass (a pick-up).
-    friction: see :mod:`gantry_twin.friction` (None: the file's own, its
+    friction: see :mod:`gantry_twin.plant.friction` (None: the file's own, its
     LuGre numerics (:func:`file_properties`) or else its Coulomb friction).
     The model file's timestep stays the control sample.
     """
@@ -223,11 +223,11 @@ class Plant:
     ) -> None:
         """payload_body: always build the payload body (even at 0 kg) so its mass can change during a run.
 
-        friction, offset, ripple: the friction model (:mod:`gantry_twin.friction`),
+        friction, offset, ripple: the friction model (:mod:`gantry_twin.plant.friction`),
         the static input offset and the force ripple; None: the model file's
         own (:func:`file_properties`; models/gantry.xml: Coulomb friction, no
         offset, no ripple). amplifier: the computation delay and current loop
-        (:class:`Amplifier`; None: neither). Raises :class:`gantry_twin.friction.FrictionError`
+        (:class:`Amplifier`; None: neither). Raises :class:`gantry_twin.plant.friction.FrictionError`
         for LuGre parameters outside their physical range.
         """
         self.payload = payload or Payload()
@@ -272,7 +272,7 @@ class Plant:
         """Put the carriages at q (m) moving at dq (m/s), controls at zero.
 
         LuGre's bristles start deflected as in steady sliding at dq
-        (:func:`gantry_twin.friction.steady_bristle_m`; undeflected at rest).
+        (:func:`gantry_twin.plant.friction.steady_bristle_m`; undeflected at rest).
         """
         mujoco.mj_resetData(self.model, self.data)
         self.data.qpos[self.qpos_index] = q_m
@@ -348,7 +348,7 @@ def true_parameters(
     damping from ``dof_damping``, Coulomb level from ``dof_frictionloss``,
     each divided by the motor gear (N/V). An axis with LuGre friction
     (friction_index: its actuator, -1 for none) has the B and Af of the
-    paper's identification applied to it (:func:`gantry_twin.friction.identified_af_b`).
+    paper's identification applied to it (:func:`gantry_twin.plant.friction.identified_af_b`).
     dN is zero here: a plant's static input offset is added by
     :meth:`Plant.true_parameters`.
     """

@@ -6,7 +6,7 @@ start, the least squares of eq. (27-28) and the projections (eq. 9, 16): the
 equations are in docs/equations.md ("The estimator"). The per-sample kernels
 serve DIARC's step; :func:`filter_run` and :func:`filter_axis` run the same
 filters over whole signals (excitation, identification). Cholesky and
-lambda_max are in :mod:`gantry_twin.linalg`.
+lambda_max are in :mod:`gantry_twin.numerics.linalg`.
 """
 
 from __future__ import annotations
@@ -19,16 +19,16 @@ from typing import NamedTuple
 import numpy as np
 from scipy.linalg import expm
 
-from gantry_twin._jit import kernel, reference
-from gantry_twin.linalg import (
+from gantry_twin.numerics.jit import kernel, reference
+from gantry_twin.numerics.linalg import (
     cholesky_factor,
     cholesky_solve,
     cholesky_substitute,
     largest_eigenvalue,
     one_blas_thread,
 )
-from gantry_twin.plant import AXES, THETA_NAMES
 from gantry_twin.settings import Range, Vector, validated
+from gantry_twin.theta import AXES, THETA_NAMES
 
 #: The slope of the paper's smooth Coulomb shape Sf(v) = (2/pi) atan(9000 v), s/m (section 5).
 FRICTION_SLOPE_S_M = 9000.0

@@ -21,7 +21,7 @@ time and the sample; the samples before it are recorded, shown to the
 observers and kept in the error's ``trace``.
 
 One sample is written once, in :func:`run_chunk`: plant changes
-(:mod:`gantry_twin.faults`), the encoder (:mod:`gantry_twin.sensing`), the
+(:mod:`gantry_twin.plant.faults`), the encoder (:mod:`gantry_twin.plant.sensing`), the
 controller, clipping and recording, MuJoCo's step. Two backends run it
 (docs/performance.md):
 
@@ -45,9 +45,6 @@ from typing import Literal, TypeVar
 import mujoco
 import numpy as np
 
-from gantry_twin._jit import is_cached, specialise
-from gantry_twin._jit import reference as uncompiled
-from gantry_twin.contours import Contour, Reference, ReferenceStream, TimingLaw, contour_error
 from gantry_twin.controllers.base import (
     CompiledStep,
     Controller,
@@ -56,14 +53,7 @@ from gantry_twin.controllers.base import (
     RunContext,
     compiled_step_of,
 )
-from gantry_twin.faults import (
-    ChangeSchedule,
-    PlantChanges,
-    change_schedule,
-    sensor_glitches,
-)
-from gantry_twin.plant import Plant, operating_point_m
-from gantry_twin.sample_loop import (
+from gantry_twin.loop.sample import (
     STATUS_BAD_COMMAND,
     STATUS_BAD_MEASUREMENT,
     PlantIO,
@@ -75,9 +65,19 @@ from gantry_twin.sample_loop import (
     record_and_step,
     run_chunk,
 )
-from gantry_twin.sensing import Encoder, SensingConfig, encoder_measure
-from gantry_twin.taskframe import normal_errors
-from gantry_twin.trace import Observer, RunInfo, SimulationError, Trace
+from gantry_twin.loop.trace import Observer, RunInfo, SimulationError, Trace
+from gantry_twin.numerics.jit import is_cached, specialise
+from gantry_twin.numerics.jit import reference as uncompiled
+from gantry_twin.paths.contours import Contour, Reference, ReferenceStream, TimingLaw, contour_error
+from gantry_twin.paths.taskframe import normal_errors
+from gantry_twin.plant.faults import (
+    ChangeSchedule,
+    PlantChanges,
+    change_schedule,
+    sensor_glitches,
+)
+from gantry_twin.plant.model import Plant, operating_point_m
+from gantry_twin.plant.sensing import Encoder, SensingConfig, encoder_measure
 
 T = TypeVar("T")
 
@@ -106,7 +106,7 @@ def loop_needs_compiling(controller: Controller) -> bool:
 
 def _chunk_for(compiled: CompiledStep) -> Callable[..., tuple[int, int]]:
     """The chunk kernel to call: without reference counting, unless only the one with it is cached (a step that
-    allocates: the one without fails to compile, :func:`gantry_twin.sample_loop.needs_reference_counting`)."""
+    allocates: the one without fails to compile, :func:`gantry_twin.loop.sample.needs_reference_counting`)."""
     plain = chunk_kernel(compiled)
     counted = chunk_kernel(compiled, nrt=True)
     return counted if is_cached(counted) and not is_cached(plain) else plain
@@ -145,7 +145,7 @@ def simulate(
     when MuJoCo's library is found, else reference), ``compiled`` or
     ``reference``; both give the same trace (tests/test_backends.py).
     changes: faults applied to the plant and the sensor during the run
-    (:mod:`gantry_twin.faults`), never shown to the controller; the trace
+    (:mod:`gantry_twin.plant.faults`), never shown to the controller; the trace
     then records the true theta over time (``true_theta_t``). A payload
     change needs a plant built with ``payload_body=True``. The model's
     damping, friction and masses are restored after the run.

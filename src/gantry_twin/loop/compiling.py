@@ -1,6 +1,6 @@
 """The notice shown when a compiled loop will compile first: how long it should take, and the time so far.
 
-:func:`compile_notice` asks :func:`gantry_twin.simulate.loop_needs_compiling`
+:func:`compile_notice` asks :func:`gantry_twin.loop.simulate.loop_needs_compiling`
 (numba's own cache, for this install path and machine); when a compile will
 happen, the observer it returns writes one line on stderr as the run starts
 and, when stderr is a terminal, counts the elapsed seconds on that line until
@@ -21,8 +21,8 @@ from typing import TextIO
 
 from gantry_twin.controllers import Controller
 from gantry_twin.controllers.base import compiled_step_of
-from gantry_twin.simulate import loop_needs_compiling
-from gantry_twin.trace import RunInfo, Trace
+from gantry_twin.loop.simulate import loop_needs_compiling
+from gantry_twin.loop.trace import RunInfo, Trace
 
 #: Expected time of a cold compile of one controller's loop, s, at most: the slowest built-in loop (DIARC's, which
 #: DRC and DARC share) from an empty cache on the slower of the 2-core VMs measured in docs/performance.md
@@ -171,17 +171,6 @@ def compile_notice(controller: Controller, prog: str) -> CompileNotice | _Quiet:
 def compile_timer(controller: Controller) -> CompileTimer | _Quiet:
     """A :class:`CompileTimer` if running ``controller`` will first compile its loop, else a quiet observer."""
     return CompileTimer() if loop_needs_compiling(controller) else _Quiet()
-
-
-def replay_compile_notice(prog: str, stream: TextIO | None = None) -> bool:
-    """``monitor --log``: print the compile line if the estimator's replay kernel will compile first; True if so."""
-    from gantry_twin._jit import is_cached
-    from gantry_twin.health.estimator_replay import estimator_replay
-
-    if is_cached(estimator_replay):
-        return False
-    print(compile_message(prog).replace("the 0.2 ms loop", "the estimator's replay"), file=stream or sys.stderr)
-    return True
 
 
 def workers_compile_message(prog: str, loops: int, expected_s: int) -> str:

@@ -13,7 +13,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from gantry_twin._jit import kernel, reference
+from gantry_twin.numerics.jit import kernel, reference
 from gantry_twin.settings import Range, validated
 
 #: The Anorad gantry's encoder resolution after quadrature, metres.
@@ -74,7 +74,7 @@ def encoder_read(encoder, q_m):
 def encoder_measure(encoder, q_m, dq_m_s, offset_m, hold, velocity_noise_m_s, position, velocity):
     """Measured position m and velocity m/s (2,) from the true joint state, into position and velocity.
 
-    Glitches (gantry_twin.faults): ``offset_m`` (2,) is added to the reading
+    Glitches (gantry_twin.plant.faults): ``offset_m`` (2,) is added to the reading
     (a spike); ``hold`` repeats the previous reading of both axes;
     ``velocity_noise_m_s`` (2,) is added to the velocity; pass an empty array
     (0,) for none (adding zeros would turn a reading of -0.0 into 0.0). A bad

@@ -17,9 +17,9 @@ from typing import Literal, NamedTuple
 
 import numpy as np
 
-from gantry_twin._jit import kernel, reference
-from gantry_twin.friction import identified_af_b, lugre_parameters
-from gantry_twin.plant import AXES, Axis, PayloadMass, Plant, moving_masses_kg
+from gantry_twin.numerics.jit import kernel, reference
+from gantry_twin.plant.friction import identified_af_b, lugre_parameters
+from gantry_twin.plant.model import AXES, Axis, PayloadMass, Plant, moving_masses_kg
 from gantry_twin.settings import Count, Range, Vector, fmt, rule, validated
 
 #: Latest time a change may name, s.

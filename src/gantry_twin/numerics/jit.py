@@ -47,7 +47,7 @@ def kernel_sources(package: Path | None = None) -> list[Path]:
     A kernel reads the globals it uses (constants, other kernels) when it is
     compiled, so the compiled code depends on these files and no others.
     """
-    package = package or Path(__file__).resolve().parent
+    package = package or Path(__file__).resolve().parents[1]
     modules = {p.relative_to(package).with_suffix("").as_posix().replace("/", "."): p for p in package.rglob("*.py")}
     kernels = {name for name, path in modules.items() if "@kernel" in path.read_text(encoding="utf-8")}
     found = set(kernels)
@@ -56,7 +56,9 @@ def kernel_sources(package: Path | None = None) -> list[Path]:
             words = line.split()
             if len(words) > 1 and words[0] == "from" and words[1].startswith("gantry_twin."):
                 target = words[1].removeprefix("gantry_twin.")
-                found.update(m for m in (target, f"{target}.__init__") if m in modules)
+                names = [w.strip(",()") for w in words[3:]] if len(words) > 3 and words[2] == "import" else []
+                candidates = (target, f"{target}.__init__", *(f"{target}.{name}" for name in names))
+                found.update(m for m in candidates if m in modules)
     return sorted(modules[name] for name in found)
 
 

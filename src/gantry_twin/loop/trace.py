@@ -1,6 +1,6 @@
 """What a run produces and who watches it: the trace, the run's context, observers.
 
-Below the loop (:mod:`gantry_twin.simulate`) so that everything downstream
+Below the loop (:mod:`gantry_twin.loop.simulate`) so that everything downstream
 (metrics, results, telemetry, the monitor) can read a trace without
 importing the loop.
 """
@@ -12,8 +12,8 @@ from typing import Protocol
 
 import numpy as np
 
-from gantry_twin.contours import Contour, Reference, TimingLaw
-from gantry_twin.plant import Plant
+from gantry_twin.paths.contours import Contour, Reference, TimingLaw
+from gantry_twin.plant.model import Plant
 
 
 class SimulationError(RuntimeError):
@@ -40,7 +40,7 @@ class Trace:
     (DIARC: theta_hat (N, 8), dc_hat (N, 2), gamma_diag (N, 8),
     gamma_lambda_max (N,)); true_theta (8,) volt units from the model at t = 0.
     true_theta_t (N, 8): the true theta at each sample when the run's
-    :class:`~gantry_twin.faults.PlantChanges` move it (None otherwise: it is
+    :class:`~gantry_twin.plant.faults.PlantChanges` move it (None otherwise: it is
     ``true_theta`` throughout; :meth:`true_parameters_t` gives it either way).
     ``filled``: how many samples of the run hold data (all of them after the run).
 

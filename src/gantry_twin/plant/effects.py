@@ -16,8 +16,8 @@ from typing import NamedTuple
 import mujoco
 import numpy as np
 
-from gantry_twin._jit import kernel
-from gantry_twin.friction import Friction, LuGreAxis
+from gantry_twin.numerics.jit import kernel
+from gantry_twin.plant.friction import Friction, LuGreAxis
 from gantry_twin.settings import Count, Range, fmt, rule, validated
 from gantry_twin.theta import AXES
 

@@ -10,7 +10,7 @@ The equations (docs/equations.md, the task frame and the error dynamics):
     L'  = alpha'' J + T' Lambda T + T Lambda T'
 
 Lambda = diag(lambda_n, lambda_t) acts in the task frame; s = T s_c.
-The per-sample functions are numba kernels (:mod:`gantry_twin._jit`): they
+The per-sample functions are numba kernels (:mod:`gantry_twin.numerics.jit`): they
 take one sample (scalar alpha, 2-vectors) and write into ``out`` arrays when
 given, so the compiled 0.2 ms loop allocates nothing; called without ``out``
 they return new arrays.
@@ -22,7 +22,7 @@ import math
 
 import numpy as np
 
-from gantry_twin._jit import kernel
+from gantry_twin.numerics.jit import kernel
 
 #: T R, the constant skew matrix of the frame's rotation.
 J = np.array([[0.0, 1.0], [-1.0, 0.0]])

@@ -10,7 +10,7 @@ its event gives the time of the first, the travel end and the furthest
 position reached.
 
 **Saturation.** The fraction of samples whose (clipped) command sits at the
-control motor's ``ctrlrange`` limit (:attr:`gantry_twin.plant.Plant.ctrl_range_v`),
+control motor's ``ctrlrange`` limit (:attr:`gantry_twin.plant.model.Plant.ctrl_range_v`),
 per axis; above :data:`SATURATION_WARNING_FRACTION` the command line warns.
 
 :class:`TravelWatch` scans chunk by chunk (a simulate ``Observer``: it needs
@@ -31,8 +31,8 @@ from typing import Any
 
 import numpy as np
 
-from gantry_twin.plant import AXES, Plant
-from gantry_twin.trace import RunInfo, Trace
+from gantry_twin.loop.trace import RunInfo, Trace
+from gantry_twin.plant.model import AXES, Plant
 
 #: summary.json lists at most this many end-stop events (the first in time);
 #: ``end_stop_contacts`` counts them all.
