@@ -186,7 +186,7 @@ TIERS: tuple[tuple[str, ...], ...] = (
     ("outputs", "telemetry"),
     ("scenario",),
     ("run",),
-    ("sweep",),
+    ("sweep", "link"),
     ("reports", "calibration", "tune"),
     ("cli",),
 )

@@ -61,7 +61,9 @@ def execute(built: BuiltRun, observers: Sequence[Observer] = ()) -> Trace:
     return _simulate(built, observers)
 
 
-def _simulate(built: BuiltRun, observers: Sequence[Observer], hold_s: float | None = None) -> Trace:
+def _simulate(
+    built: BuiltRun, observers: Sequence[Observer], hold_s: float | None = None, chunk_s: float | None = None
+) -> Trace:
     s = built.scenario
     if built.monitor is not None:
         # First, so that observers after it (telemetry) see this chunk's alarms.
@@ -81,6 +83,7 @@ def _simulate(built: BuiltRun, observers: Sequence[Observer], hold_s: float | No
         controller_name=s.controller.name,
         changes=built.changes,
         hold_s=hold_s,
+        **({} if chunk_s is None else {"chunk_s": chunk_s}),  # simulate's own default otherwise
     )
 
 
@@ -185,8 +188,11 @@ class RunWriter:
         extra = [w for w in (self.part, self.trace) if w is not None]
         return [SwallowedInterrupt(), self.metrics, self.travel, *extra]
 
-    def run(self, observers: Sequence[Observer] = (), hold_s: float | None = HOLD_S) -> RunOutcome:
+    def run(
+        self, observers: Sequence[Observer] = (), hold_s: float | None = HOLD_S, chunk_s: float | None = None
+    ) -> RunOutcome:
         """Simulate the scenario holding ``hold_s`` of it in memory, writing it as it goes, and :meth:`finish`.
+        ``chunk_s``: simulated seconds between two calls of the observers (None: the loop's default).
 
         A run stopped by a :class:`SimulationError` is written too (the trace
         up to the fault, ``status: failed``); any other error, or an
@@ -195,7 +201,7 @@ class RunWriter:
         started = time.perf_counter()
         failure, fault = None, None
         try:
-            trace: Trace | None = _simulate(self.built, [*self.observers(), *observers], hold_s)
+            trace: Trace | None = _simulate(self.built, [*self.observers(), *observers], hold_s, chunk_s)
         except SimulationError as error:
             trace, fault = error.trace, error
             failure = Failure(error.time_s, error.step, f"{type(error).__name__}: {error}")

@@ -36,9 +36,12 @@ from gantry_twin.cli import export as export_command
 from gantry_twin.cli import identify as identify_command
 from gantry_twin.cli import report as report_command
 from gantry_twin.cli import runs as runs_command
+from gantry_twin.cli import serve as serve_command
+from gantry_twin.cli import shadow as shadow_command
 from gantry_twin.cli import sweep as sweep_command
 from gantry_twin.cli import tune as tune_command
 from gantry_twin.cli.common import (  # noqa: F401 -- the exit codes: tests and callers take them from here
+    DEFAULT_SCENARIO,
     EXIT_ALARM,
     EXIT_BAD_INPUT,
     EXIT_END_STOP,
@@ -47,9 +50,12 @@ from gantry_twin.cli.common import (  # noqa: F401 -- the exit codes: tests and 
     EXIT_OK,
     EXIT_RUN_FAILED,
     PROG,
+    RUNS_DIR,
     BadInput,
     checked_out,
     failed,
+    out_dir,
+    scenario_path,
     writable_out,
 )
 from gantry_twin.cli.printing import format_health, format_summary, touched_end_stop, travel_warnings
@@ -63,11 +69,9 @@ from gantry_twin.outputs.signals import stop_signals_interrupt
 from gantry_twin.reports.compare import CompareError
 from gantry_twin.run import LARGE_TRACE_BYTES, RunWriter, package_version, trace_size
 from gantry_twin.scenario import (
-    Scenario,
     ScenarioError,
     build,
     load_scenario,
-    resolve_scenario,
     shipped,
 )
 from gantry_twin.scenario.listing import listing
@@ -92,9 +96,7 @@ docs: docs/cli.md (every command, exit codes), docs/scenarios.md (every field)."
 #: File names ``run`` takes as a G-code part program rather than a scenario.
 PROGRAM_SUFFIXES = (".ngc", ".nc", ".gcode")
 #: The scenario ``run`` uses when none is given.
-DEFAULT_SCENARIO = "no_load_circle"
 #: Where outputs go by default: RUNS_DIR/<scenario name>/, RUNS_DIR/report/.
-RUNS_DIR = Path("runs")
 
 
 class _Parser(argparse.ArgumentParser):
@@ -116,7 +118,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(
         dest="command",
         required=True,
-        metavar="{run,monitor,validate,report,sweep,calibrate,tune,scenarios,sweeps,runs,export,compare,identify,excite,compile}",
+        metavar="{run,monitor,validate,report,sweep,calibrate,tune,scenarios,sweeps,runs,export,compare,identify,excite,compile,serve}",
         parser_class=_Parser,
     )
 
@@ -152,6 +154,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_strict(monitor)
     add_progress_arguments(monitor)
     add_telemetry_arguments(monitor)
+    shadow_command.add_arguments(monitor)
 
     validate = sub.add_parser("validate", help="check scenario files without running them")
     validate.set_defaults(func=_validate)
@@ -192,6 +195,11 @@ def build_parser() -> argparse.ArgumentParser:
     compare = sub.add_parser("compare", help="the figures of runs side by side, and their plots overlaid")
     compare_command.add_arguments(compare, RUNS_DIR)
     compare.set_defaults(func=compare_command.command)
+    serve = sub.add_parser("serve", help="run a scenario and serve it as a machine over OPC UA")
+    serve_command.add_arguments(serve)
+    _add_controller(serve)
+    _add_set(serve)
+    serve.set_defaults(func=serve_command.command)
     compile_parser = sub.add_parser("compile", help="compile the loops for this install before a first run")
     compile_command.add_arguments(compile_parser, DEFAULT_SCENARIO)
     compile_parser.set_defaults(func=compile_command.command)
@@ -282,34 +290,20 @@ def _sweeps(args: argparse.Namespace) -> int:
 
 def _monitor(args: argparse.Namespace) -> int:
     """``monitor``: a scenario run with the health monitor, or (``--log``) the monitor over a recorded log."""
+    if args.opcua is not None:
+        if args.log is not None:
+            raise BadInput("monitor: --log or --opcua, not both")
+        return shadow_command.command(args, format_health)
     return _monitor_log(args) if args.log is not None else _run(args)
-
-
-def _scenario_path(arg: str | None) -> Path:
-    """A file path, or the name of a shipped scenario (``no_load_circle``) when no such file exists."""
-    if arg is None:
-        return shipped(DEFAULT_SCENARIO)
-    try:
-        return resolve_scenario(arg)
-    except FileNotFoundError as exc:
-        raise BadInput(str(exc)) from None
 
 
 def _validate(args: argparse.Namespace) -> int:
     for arg in args.scenario:
-        name = str(_scenario_path(arg))
+        name = str(scenario_path(arg))
         scenario = load_scenario(name, args.overrides, args.controller)
         build(scenario, name)
         print(f"{name}: ok ({scenario.controller.name}, {scenario.contour.type}, {scenario.duration_s:g} s)")
     return EXIT_OK
-
-
-def _out_dir(args: argparse.Namespace, scenario: Scenario) -> Path:
-    """--out, else a new run directory under runs/<name>/ (gantry_twin.outputs.rundirs)."""
-    if args.out is not None:
-        return checked_out(args.out)
-    base = checked_out(RUNS_DIR / (scenario.outputs.dir or str(scenario.name)))  # labels (settings.Label): under runs/
-    return new_run_dir(base)
 
 
 def _writer(out: Path, built: Any, args: argparse.Namespace) -> RunWriter:
@@ -346,7 +340,7 @@ def _monitor_log(args: argparse.Namespace) -> int:
     """``monitor --log``: DIARC's estimator and the health monitor over a log (gantry_twin.health.log_monitor)."""
     from gantry_twin.cli.monitor import monitor_log_command, run_log
 
-    scenario = None if args.scenario is None else _scenario_path(args.scenario)
+    scenario = None if args.scenario is None else scenario_path(args.scenario)
     log, scenario, note = run_log(Path(args.log), scenario)
     args.log = str(log)
     if note:
@@ -384,7 +378,7 @@ def _run(args: argparse.Namespace) -> int:
         raise BadInput("monitor: give a SCENARIO to run, or --log LOG")
     if getattr(args, "baseline", None) is not None:
         raise BadInput("--baseline: only with --log (a scenario names its baseline in monitor.baseline_summary)")
-    path = _scenario_path(args.scenario)
+    path = scenario_path(args.scenario)
     overrides = list(args.overrides)
     program = None
     if path.suffix.lower() in PROGRAM_SUFFIXES:  # a part program runs in the default scenario (docs/gcode.md)
@@ -402,7 +396,7 @@ def _run(args: argparse.Namespace) -> int:
         if program is not None and exc.field == "contour.file":
             raise BadInput(exc.message) from None  # FILE:LINE: WORD: what is wrong
         raise
-    out = _out_dir(args, scenario)
+    out = out_dir(args.out, scenario)
     with _writer(out, built, args) as writer:
         telemetry = telemetry_observers(args)  # checks every option before anything runs
         with telemetry:  # at once: an interrupt from here on removes --save's temporary

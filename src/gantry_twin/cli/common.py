@@ -9,6 +9,9 @@ import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
+from gantry_twin.outputs.rundirs import new_run_dir
+from gantry_twin.scenario import Scenario, resolve_scenario, shipped
+
 PROG = "gantry-twin"
 
 EXIT_OK = 0
@@ -18,6 +21,12 @@ EXIT_ALARM = 3
 EXIT_END_STOP = 4
 EXIT_NOT_JUDGED = 5  # monitor: no parameter was ever judged (all in the baseline window or not excited)
 EXIT_INTERRUPTED = 128  # + the signal's number, as shells report it: 130 SIGINT, 143 SIGTERM, 129 SIGHUP
+
+
+#: The scenario a command runs when none is named.
+DEFAULT_SCENARIO = "no_load_circle"
+#: Where a run's directory goes when --out names none.
+RUNS_DIR = Path("runs")
 
 
 class BadInput(Exception):
@@ -60,3 +69,21 @@ def failed(what: str, exc: Exception) -> int:
     message = str(exc).splitlines()[0] if str(exc) else ""
     print(f"{PROG}: {what} failed: {type(exc).__name__}: {message}", file=sys.stderr)
     return EXIT_RUN_FAILED
+
+
+def scenario_path(arg: str | None) -> Path:
+    """A file path, or the name of a shipped scenario (``no_load_circle``) when no such file exists."""
+    if arg is None:
+        return shipped(DEFAULT_SCENARIO)
+    try:
+        return resolve_scenario(arg)
+    except FileNotFoundError as exc:
+        raise BadInput(str(exc)) from None
+
+
+def out_dir(out: Path | None, scenario: Scenario) -> Path:
+    """--out, else a new run directory under runs/<name>/ (gantry_twin.outputs.rundirs)."""
+    if out is not None:
+        return checked_out(out)
+    base = checked_out(RUNS_DIR / (scenario.outputs.dir or str(scenario.name)))  # labels (settings.Label): under runs/
+    return new_run_dir(base)

@@ -47,16 +47,12 @@ def run_log(log: Path, scenario: Path | None) -> tuple[Path, Path | None, str]:
     return log, beside, f"{PROG}: monitor --log {log}: the run's own settings, from {beside}"
 
 
-def monitor_log_command(args: argparse.Namespace, scenario_path: Path | None, out: Path) -> RunSummary:
-    """Run it, write out/summary.json, return it.
-
-    The scenario (default: every field's default) gives DIARC's gains and
-    estimator and the monitor's settings; ``--baseline`` a commissioning
-    run's summary.json (as ``monitor.baseline_summary``). Raises LogError,
-    ScenarioError or ValueError (bad input: exit 2).
-    """
+def monitor_settings(args: argparse.Namespace, scenario_path: Path | None, what: str) -> tuple:
+    """The scenario (default: every field's default), DIARC with its gains and estimator, and the health monitor
+    with its settings, for ``monitor --log`` and ``monitor --opcua`` (``what``); ``--baseline`` a commissioning
+    run's summary.json (as ``monitor.baseline_summary``). ValueError if the controller is not DIARC."""
     overrides = ["monitor.enable=true", *args.overrides]
-    if args.baseline is not None:
+    if getattr(args, "baseline", None) is not None:
         overrides.append(f"monitor.baseline_summary={json.dumps(str(Path(args.baseline).resolve()))}")
     if scenario_path is not None:
         source = str(scenario_path)
@@ -68,9 +64,20 @@ def monitor_log_command(args: argparse.Namespace, scenario_path: Path | None, ou
     controller = create(scenario.controller.name, **controller_options(scenario, source))
     if not isinstance(controller, DIARC):
         raise ValueError(
-            f"monitor --log runs DIARC's estimator; the scenario's controller is {scenario.controller.name}"
+            f"monitor {what} runs DIARC's estimator; the scenario's controller is {scenario.controller.name}"
         )
-    monitor = make_monitor(scenario, controller, source)
+    return scenario, controller, make_monitor(scenario, controller, source)
+
+
+def monitor_log_command(args: argparse.Namespace, scenario_path: Path | None, out: Path) -> RunSummary:
+    """Run it, write out/summary.json, return it.
+
+    The scenario (default: every field's default) gives DIARC's gains and
+    estimator and the monitor's settings; ``--baseline`` a commissioning
+    run's summary.json (as ``monitor.baseline_summary``). Raises LogError,
+    ScenarioError or ValueError (bad input: exit 2).
+    """
+    scenario, controller, monitor = monitor_settings(args, scenario_path, "--log")
     log = scan_log(args.log)  # checked whole before the replay, a chunk at a time; then read again, likewise
     check_sample_period(f"--log {args.log}", log.sample_period_s, Plant().timestep_s)
     end = log.t_last_s

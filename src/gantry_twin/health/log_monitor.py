@@ -106,19 +106,37 @@ def monitor_log(info: LogInfo, chunks: Iterable[LogChunk], controller: DIARC, mo
     """DIARC's estimator and the health monitor over a log's chunks, one at a time (``info``: the log's
     :func:`~gantry_twin.sysid.logs.scan_log`); the tally of the monitor's periods (its alarms, statuses, the
     mean estimates over :func:`estimate_window_s`)."""
-    replay = EstimatorReplay(controller, info.sample_period_s)
-    tally = MonitorTally(estimate_window_s(info))
-    started = False
+    stream = StreamMonitor(controller, monitor, info.sample_period_s, MonitorTally(estimate_window_s(info)))
     for chunk in _first_has_two(chunks):
-        trace = chunk_trace(chunk, replay.estimates(chunk), info.sample_period_s)
-        if not started:
-            monitor.on_start(None, trace)
-            started = True
-        monitor.on_chunk(trace, chunk.first, chunk.first + chunk.t_s.size)
-        tally.add(monitor.report(clear=True))
-    monitor.on_end(None)
-    tally.add(monitor.report(clear=True))
-    return tally
+        stream.feed(chunk)
+    return stream.finish()
+
+
+class StreamMonitor:
+    """DIARC's estimator and the health monitor over a stream of chunks that arrive one at a time (a log read a
+    chunk at a time, or a machine followed live): :meth:`feed` each in order, then :meth:`finish`. The first
+    chunk needs two samples. ``on_chunk(trace, start, stop)``, when given, sees each chunk's trace piece with
+    its estimates (a trace writer, a dashboard)."""
+
+    def __init__(self, controller: DIARC, monitor: MachineMonitor, sample_period_s: float, tally: MonitorTally) -> None:
+        self.replay = EstimatorReplay(controller, sample_period_s)
+        self.monitor, self.ts, self.tally = monitor, sample_period_s, tally
+        self.started = False
+
+    def feed(self, chunk: LogChunk) -> Trace:
+        """Estimate and judge one chunk; its trace piece (with theta_hat)."""
+        trace = chunk_trace(chunk, self.replay.estimates(chunk), self.ts)
+        if not self.started:
+            self.monitor.on_start(None, trace)
+            self.started = True
+        self.monitor.on_chunk(trace, chunk.first, chunk.first + chunk.t_s.size)
+        self.tally.add(self.monitor.report(clear=True))
+        return trace
+
+    def finish(self) -> MonitorTally:
+        self.monitor.on_end(None)
+        self.tally.add(self.monitor.report(clear=True))
+        return self.tally
 
 
 def _first_has_two(chunks: Iterable[LogChunk]) -> Iterator[LogChunk]:

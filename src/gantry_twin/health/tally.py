@@ -17,7 +17,7 @@ class MonitorTally:
     over a window), added a :class:`MonitorReport` at a time: what ``monitor --log`` keeps of a log of any
     length (:meth:`MachineMonitor.report` with ``clear=True`` after each chunk), memory independent of it."""
 
-    def __init__(self, estimate_window_s: tuple[float, float] | None = None) -> None:
+    def __init__(self, estimate_window_s: tuple[float, float] | None = None, trailing_s: float = 0.0) -> None:
         self.periods = 0
         self.first_t: list[float] = []  # the first two periods' end times: the monitor's period
         self.level_final: np.ndarray | None = None
@@ -31,6 +31,10 @@ class MonitorTally:
         self.estimate_window_s = estimate_window_s
         self.estimate_sum = np.zeros(8)
         self.estimate_count = 0
+        #: A stream whose end is not known ahead (``monitor --opcua``): the periods' estimates of the last
+        #: ``trailing_s`` are kept until :meth:`close_window` names the window.
+        self.trailing_s = float(trailing_s)
+        self._trailing: list[tuple[np.ndarray, np.ndarray]] = []
 
     @classmethod
     def of(cls, report) -> MonitorTally:  # a gantry_twin.health.monitor.MonitorReport
@@ -57,11 +61,27 @@ class MonitorTally:
             for code in range(len(STATUS_NAMES)):
                 self.status_periods[:, code] += (report.status == code).sum(axis=0)
             self.last_status = np.asarray(report.status[-1])
+        if report.estimate is not None and self.estimate_window_s is None and self.trailing_s > 0:
+            self._trailing.append((np.asarray(report.t_s, dtype=float), np.asarray(report.estimate, dtype=float)))
+            newest = float(report.t_s[-1])
+            while self._trailing and float(self._trailing[0][0][-1]) < newest - self.trailing_s:
+                self._trailing.pop(0)
         if report.estimate is not None and self.estimate_window_s is not None:
             lo, hi = self.estimate_window_s
             inside = (report.t_s >= lo) & (report.t_s <= hi)
             self.estimate_sum += report.estimate[inside].sum(axis=0)
             self.estimate_count += int(inside.sum())
+
+    def close_window(self, window_s: tuple[float, float]) -> None:
+        """The estimate window of a stream, once its end is known: the mean of :meth:`estimates_mean` is taken
+        over the trailing periods inside it (at most ``trailing_s`` back)."""
+        self.estimate_window_s = window_s
+        lo, hi = window_s
+        for t_s, estimate in self._trailing:
+            inside = (t_s >= lo) & (t_s <= hi)
+            self.estimate_sum += estimate[inside].sum(axis=0)
+            self.estimate_count += int(inside.sum())
+        self._trailing = []
 
     @property
     def period_s(self) -> float:

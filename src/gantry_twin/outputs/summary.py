@@ -174,6 +174,25 @@ class PartErrorRecord(Model):
     worst_corners: list[PartCorner]
 
 
+class LiveLink(Model):
+    """``monitor --opcua``: what came over the link (docs/live-link.md)."""
+
+    endpoint: str
+    mode: Literal["blocks", "scalars"]
+    sample_period_s: float | None
+    samples: int
+    first_index: int | None
+    covered_s: float
+    gaps: int
+    missing_samples: int
+    invalid_samples: int
+    reconnects: int
+    ended_by: str
+    residual_windows: int
+    residual_rms_um: dict[str, float] | None = None
+    residual_max_um: dict[str, float] | None = None
+
+
 class RunSummary(Model):
     """summary.json: the one type every producer writes and every consumer reads (docs/cli.md, "summary.json").
 
@@ -206,6 +225,7 @@ class RunSummary(Model):
     end_stop_contacts: dict[str, int] | None = None
     saturation: dict[str, Saturation] | None = None
     part_error: PartErrorRecord | None = None
+    live: LiveLink | None = None
 
     @property
     def failed(self) -> bool:
@@ -401,7 +421,7 @@ def summary_json(summary: RunSummary) -> str:
     return json.dumps(summary.as_dict(), indent=2, allow_nan=False) + "\n"
 
 
-def log_summary(log: Any, tally: Any) -> RunSummary:
+def log_summary(log: Any, tally: Any, live: dict[str, Any] | None = None) -> RunSummary:
     """summary.json of ``monitor --log``: the log (:class:`gantry_twin.sysid.logs.LogInfo`), the mean estimates
     over the tally's window and the ``health`` section, from the
     :class:`~gantry_twin.health.tally.MonitorTally` of the monitor's periods."""
@@ -419,4 +439,6 @@ def log_summary(log: Any, tally: Any) -> RunSummary:
         data["estimates_window_s"] = list(tally.estimate_window_s)
         data["estimates"] = {name: {"estimate": float(v)} for name, v in zip(THETA_NAMES, mean, strict=True)}
     data["health"] = health_summary(tally)
+    if live is not None:
+        data["live"] = live
     return RunSummary.model_validate(data)

@@ -21,7 +21,7 @@ naming the file, the field path and what is allowed. docs/scenarios.md is the
 reference of every field.
 """
 
-from gantry_twin.scenario.building import BuiltRun, build, make_monitor
+from gantry_twin.scenario.building import BuiltRun, build, make_monitor, scenario_plant
 from gantry_twin.scenario.errors import ScenarioError
 from gantry_twin.scenario.files import display_source, resolve_scenario, scenarios_dir, shipped, shipped_scenarios
 from gantry_twin.scenario.loading import (
@@ -46,6 +46,7 @@ __all__ = [
     "dump_yaml",
     "load_scenario",
     "make_monitor",
+    "scenario_plant",
     "parse_yaml",
     "read_scenario_file",
     "resolve_scenario",

@@ -60,7 +60,7 @@ def build(scenario: Scenario, source: str = "<scenario>") -> BuiltRun:
     """Compile the plant, make the controller and check the contour fits the travel."""
     changes = None if scenario.changes.empty else scenario.changes
     payload_body = changes is not None and bool(changes.payload_change)
-    plant = _plant(scenario, payload_body, source)
+    plant = scenario_plant(scenario, payload_body, source)
     path = _contour_path(scenario, source)
     scenario = _follow_the_plan(scenario, path, plant.timestep_s, source)
     _check_travel(plant, path, source)
@@ -111,7 +111,7 @@ def _contour_path(scenario: Scenario, source: str) -> Contour:
         raise ScenarioError(source, "contour.file", str(exc)) from None
 
 
-def _plant(scenario: Scenario, payload_body: bool, source: str) -> Plant:
+def scenario_plant(scenario: Scenario, payload_body: bool, source: str) -> Plant:
     """The compiled plant: the shipped model (``plant.model``), or ``plant.file`` (relative to the scenario file),
     with the scenario's friction, offset and ripple where given (else the file's own)."""
     settings = scenario.plant

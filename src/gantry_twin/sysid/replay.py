@@ -1,7 +1,9 @@
 """How well an identified plant reproduces a log: replay the logged commands through it (docs/logs.md).
 
 The logged u is applied open loop to the identified MJCF model (MuJoCo's
-own dry friction, not the regression's) in windows of ``window_s``, each
+own dry friction, not the regression's), with the plant's own input (its
+static offset and force ripple, :func:`gantry_twin.plant.effects.plant_input_v`,
+at the measured position) in windows of ``window_s``, each
 started from the measured state (the logged position, and the slope of a
 local quadratic fit over ``VELOCITY_FIT_S`` around it, Savitzky-Golay: the
 encoder's steps then leave micrometres per second of error): a whole log
@@ -19,6 +21,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from gantry_twin.plant.effects import plant_input_v
 from gantry_twin.plant.model import AXES, Plant
 from gantry_twin.sysid.logs import Log
 
@@ -92,9 +95,13 @@ def replay_windows(plant: Plant, log: Log, starts: np.ndarray, length: int) -> n
         plant.reset(log.q_m[k], slope @ log.q_m[k - half : k + half + 1])
         mujoco.mj_getState(model, plant.data, initial[i], spec)
     control = np.zeros((starts.size, length, model.nu))
+    table = plant.input_table()
     for i, k in enumerate(starts):
         stop = min(k + length, n - 1)
         control[i, : stop - k][:, plant.motor_index] = log.u_v[k:stop]
+        for axis in range(len(AXES)):  # the plant's own input, offset and ripple, at the measured position
+            q = log.q_m[k:stop, axis]
+            control[i, : stop - k, plant.disturbance_index[axis]] = [plant_input_v(table, axis, x) for x in q]
     control = np.repeat(control, sub, axis=1)
     state, _ = rollout.rollout(model, data, initial, control)
     return state[:, sub - 1 :: sub, :][:, :, 1 + plant.qpos_index]

@@ -1,0 +1,233 @@
+"""The OPC UA side of ``monitor --opcua``: a client in a thread of its own that subscribes to a machine's nodes
+(:mod:`gantry_twin.link.nodemap`) and hands what comes to the caller's thread as :class:`Received` items,
+reconnecting with backoff when the connection is lost (docs/live-link.md).
+
+Subscriptions ask for a queue of :data:`QUEUE_SIZE` values per monitored item, so that no block is dropped
+between two publishing intervals of :data:`PUBLISHING_INTERVAL_MS` (at most 50 blocks in that time at real
+time); the server revises it, and the revised size is reported.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import queue
+import threading
+import time
+from dataclasses import dataclass
+from typing import Any
+
+from asyncua import Client, ua
+
+from gantry_twin.link.address_space import UNITS
+from gantry_twin.link.blocks import SIGNALS, BlockError, decode
+from gantry_twin.link.nodemap import NodeMap
+
+#: The publishing interval asked for, ms.
+PUBLISHING_INTERVAL_MS = 100
+#: Values queued per monitored item between two publications (blocks: 10 s at real time).
+QUEUE_SIZE = 500
+#: Waits between reconnection attempts, s (then the last, again).
+BACKOFF_S = (0.5, 1.0, 2.0, 4.0)
+#: How long one connection attempt may take, s.
+CONNECT_TIMEOUT_S = 4.0
+
+
+class ClientError(ValueError):
+    """What the machine's server said or lacks, in one line (a node that does not exist, a wrong unit)."""
+
+
+@dataclass(frozen=True)
+class Received:
+    """One thing from the machine: ``kind`` block (value: a Block), scalar (name, value, SourceTimestamp in s),
+    state (value: the run state), connected (value: the sample period the server says, or None), lost (value:
+    why), error (value: the one-line message: the stream cannot go on)."""
+
+    kind: str
+    value: Any
+    name: str = ""
+    time_s: float = 0.0
+
+
+class MachineClient:
+    """Subscribes to ``nodes`` on ``endpoint`` in a thread of its own; :meth:`get` the next :class:`Received`.
+    ``first_connect_s``: how long to keep trying before the first connection (then an error item)."""
+
+    def __init__(self, endpoint: str, nodes: NodeMap, first_connect_s: float = 10.0) -> None:
+        self.endpoint, self.nodes, self.first_connect_s = endpoint, nodes, float(first_connect_s)
+        self.items: queue.Queue[Received] = queue.Queue()
+        self.revised_queue_size: int | None = None
+        self._stop = threading.Event()
+        self._connected = False
+        self._thread = threading.Thread(target=self._run, name="opcua-client", daemon=True)
+
+    def start(self) -> MachineClient:
+        self._thread.start()
+        return self
+
+    def get(self, timeout_s: float) -> Received | None:
+        try:
+            return self.items.get(timeout=timeout_s)
+        except queue.Empty:
+            return None
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(15.0)
+
+    # -- the client's thread --
+    def _run(self) -> None:
+        for name in ("asyncua", "asyncua.client", "asyncua.client.ua_client", "asyncua.common.subscription"):
+            logging.getLogger(name).setLevel(logging.CRITICAL)
+        try:
+            asyncio.run(self._main())
+        except Exception as exc:  # a bug here must not hang the caller: it ends the stream with the reason
+            self.items.put(Received("error", f"opcua client: {type(exc).__name__}: {exc}"))
+
+    async def _main(self) -> None:
+        deadline = time.monotonic() + self.first_connect_s
+        connected_once, attempt = False, 0
+        while not self._stop.is_set():
+            try:
+                await self._session()
+                return  # stopped by the caller
+            except ClientError as exc:
+                self.items.put(Received("error", str(exc)))
+                return
+            except (OSError, TimeoutError, ua.UaError, ConnectionError) as exc:
+                why = _one_line(exc)
+            if self._connected:
+                connected_once = True
+                self.items.put(Received("lost", why))
+                attempt = 0
+            elif not connected_once and time.monotonic() >= deadline:
+                self.items.put(
+                    Received(
+                        "error",
+                        f"--opcua {self.endpoint}: no machine answered within {self.first_connect_s:g} s ({why})",
+                    )
+                )
+                return
+            wait = BACKOFF_S[min(attempt, len(BACKOFF_S) - 1)]
+            attempt += 1
+            await asyncio.sleep(wait)
+
+    async def _session(self) -> None:
+        self._connected = False
+        client = Client(self.endpoint, timeout=CONNECT_TIMEOUT_S)
+        await asyncio.wait_for(client.connect(auto_reconnect=False), CONNECT_TIMEOUT_S + 1)
+        try:
+            self._connected = True
+            nodes = await self._resolve(client)
+            period = await self._period(client)
+            self.items.put(Received("connected", period))
+            handler = _Handler(self)
+            subscription = await client.create_subscription(PUBLISHING_INTERVAL_MS, handler)
+            handler.by_node = {node.nodeid: name for name, node in nodes.items()}
+            await subscription.subscribe_data_change(list(nodes.values()), queuesize=QUEUE_SIZE)
+            while not self._stop.is_set():
+                await asyncio.sleep(0.25)
+                await asyncio.wait_for(client.check_connection(), CONNECT_TIMEOUT_S)
+        finally:
+            with contextlib.suppress(Exception):
+                await asyncio.wait_for(client.disconnect(), 3.0)
+
+    async def _resolve(self, client: Client) -> dict[str, Any]:
+        """The nodes to subscribe to, by signal name; ClientError naming a node the server does not have or whose
+        unit is not the declared one."""
+        m = self.nodes
+        wanted: dict[str, str] = {}
+        if m.blocks:
+            wanted["block"] = m.blocks
+        else:
+            wanted.update({name: signal.node for name, signal in m.signals.items()})
+        if m.run_state:
+            wanted["state"] = m.run_state
+        out = {}
+        for name, text in wanted.items():
+            try:
+                node = client.get_node(await _node_id(client, text))
+                await node.read_browse_name()
+            except (ua.UaError, ValueError) as exc:
+                raise ClientError(f"--opcua {self.endpoint}: node {text} ({name}): {_one_line(exc)}") from None
+            out[name] = node
+        if m.blocks:
+            units = await _child_value(out["block"], "BlockUnits")
+            expected = [unit for _, unit in SIGNALS]
+            if units is not None and list(units) != expected:
+                raise ClientError(
+                    f"--opcua {self.endpoint}: node {m.blocks}: BlockUnits {list(units)} is not the expected {expected}"
+                )
+        else:
+            for name, signal in m.signals.items():
+                eu = await _child_value(out[name], "EngineeringUnits")
+                code = UNITS.get(signal.unit, (None,))[0]
+                if eu is not None and getattr(eu, "UnitId", code) != code:
+                    shown = getattr(getattr(eu, "DisplayName", None), "Text", None) or eu.UnitId
+                    raise ClientError(
+                        f"--opcua {self.endpoint}: node {signal.node} ({name}): its EngineeringUnits are {shown}, "
+                        f"the node map declares {signal.unit}"
+                    )
+        return out
+
+    async def _period(self, client: Client) -> float | None:
+        if self.nodes.sample_period_s is not None:
+            return self.nodes.sample_period_s
+        from gantry_twin.link.address_space import TWIN
+        from gantry_twin.link.nodemap import twin_node
+
+        try:
+            return float(await client.get_node(await _node_id(client, twin_node(f"{TWIN}.SamplePeriod"))).read_value())
+        except (ua.UaError, ValueError, TypeError):
+            return None
+
+
+class _Handler:
+    def __init__(self, owner: MachineClient) -> None:
+        self.owner, self.by_node = owner, {}
+
+    def datachange_notification(self, node, value, data) -> None:
+        name = self.by_node.get(node.nodeid)
+        put = self.owner.items.put
+        if name == "block":
+            try:
+                block = decode(value)
+            except BlockError as exc:
+                put(Received("error", f"--opcua {self.owner.endpoint}: {exc}"))
+                return
+            if block is not None:
+                put(Received("block", block))
+            return
+        if name == "state":
+            put(Received("state", str(value)))
+        elif name is not None:
+            stamp = data.monitored_item.Value.SourceTimestamp
+            put(Received("scalar", value, name, stamp.timestamp() if stamp is not None else time.time()))
+
+    def status_change_notification(self, status) -> None:
+        self.owner.items.put(Received("lost", f"subscription status {status}"))
+
+
+async def _node_id(client: Client, text: str) -> ua.NodeId:
+    """``nsu=URI;s=Name`` resolved to the server's index; any other text form parsed as it is."""
+    if text.startswith("nsu="):
+        uri, _, rest = text[4:].partition(";")
+        try:
+            index = await client.get_namespace_index(uri)
+        except ValueError:
+            raise ValueError(f"the server has no namespace {uri}") from None
+        text = f"ns={index};{rest}"
+    return ua.NodeId.from_string(text)
+
+
+async def _child_value(node, name: str) -> Any:
+    for child in await node.get_properties():
+        if (await child.read_browse_name()).Name == name:
+            return await child.read_value()
+    return None
+
+
+def _one_line(exc: BaseException) -> str:
+    lines = str(exc).strip().splitlines()
+    return lines[0] if lines else type(exc).__name__
