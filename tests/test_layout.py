@@ -238,7 +238,7 @@ def test_imports_flow_down_the_tiers(graph):
 
 def test_the_root_holds_few_modules():
     root = sorted(path.name for path in SRC.glob("*.py"))
-    assert len(root) <= MAX_ROOT_MODULES, f"{len(root)} modules at the package root (at most {MAX_ROOT_MODULES}): {root}"
+    assert len(root) <= MAX_ROOT_MODULES, f"{len(root)} modules at the root (at most {MAX_ROOT_MODULES}): {root}"
 
 
 def test_the_architecture_doc_names_every_room():

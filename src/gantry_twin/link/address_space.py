@@ -107,7 +107,7 @@ async def build_address_space(server: Server, scenario: str, plant: str, control
     cnc = await b.obj(server.nodes.objects, "CncInterface")
     axes = await b.obj(cnc, "CncInterface.CncAxisList")
     for axis in AXES:
-        a = await b.obj(axes, f"CncInterface.CncAxisList.{axis}")
+        a = await b.obj(axes, a_path(axis))
         await b.var(a, f"{a_path(axis)}.ActStatus", AXIS_STATUS["Parked"], I32)
         for pos in ("PosDirect", "PosIndirect"):
             p = await b.var(a, f"{a_path(axis)}.{pos}", 0.0, D, "m")
@@ -144,7 +144,8 @@ async def build_address_space(server: Server, scenario: str, plant: str, control
 
 
 def a_path(axis: str) -> str:
-    return f"CncInterface.CncAxisList.{axis}"
+    """The browse path of an axis' object: ``x`` -> ``CncInterface.CncAxisList.X``."""
+    return f"CncInterface.CncAxisList.{axis.upper()}"
 
 
 CHANNEL = "CncInterface.CncChannelList.Channel1"

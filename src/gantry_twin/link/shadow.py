@@ -45,6 +45,8 @@ FEED_PERIOD_S = 0.2
 PART_SAMPLES = 5000
 #: After the machine says ``finished``, how long to wait for what it sent before it, s.
 FINISH_GRACE_S = 1.0
+#: The residual of each window, a CSV line each as they come (t_start_s, rms and max per axis, um).
+RESIDUAL_FILE = "residual.csv"
 COLUMNS = ("t_s", "x_m", "y_m", "u_x_v", "u_y_v", "x_d_m", "y_d_m")
 BLOCK_COLUMNS = ("t_s", "x_meas_m", "y_meas_m", "u_x_v", "u_y_v", "x_d_m", "y_d_m")
 
@@ -98,7 +100,7 @@ class Shadow:
         self._parts = 0
         self._fed = 0
         self._residual_rows: list[np.ndarray] = []
-        self.residuals: list[tuple[np.ndarray, np.ndarray]] = []  # per window: rms (2,), max (2,), m
+        self.residuals: list[tuple[float, np.ndarray, np.ndarray]] = []  # per window: start s, rms (2,), max (2,), m
         self._scalars: dict[float, dict[str, float]] = {}
         self._previous: int | None = None  # the first index of the last block of this connection
         self.connections = 0
@@ -266,7 +268,12 @@ class Shadow:
         r = replay(self.plant, log, WINDOW_S).residual_m
         covered = r[np.isfinite(r).all(axis=1)]
         if covered.shape[0]:
-            self.residuals.append((np.sqrt((covered**2).mean(axis=0)), np.abs(covered).max(axis=0)))
+            rms, peak = np.sqrt((covered**2).mean(axis=0)), np.abs(covered).max(axis=0)
+            self.residuals.append((float(held[0, 0]), rms, peak))
+            with open(self.out / RESIDUAL_FILE, "a", encoding="utf-8") as fh:  # a line a window, as they come
+                if len(self.residuals) == 1:
+                    fh.write("t_start_s,rms_x_um,rms_y_um,max_x_um,max_y_um\n")
+                fh.write(",".join(f"{v:.6g}" for v in (held[0, 0], *(rms * 1e6), *(peak * 1e6))) + "\n")
         self._residual_rows = [held[window:]]
 
     def live_section(self, ended_by: str | None = None) -> dict:
@@ -287,8 +294,8 @@ class Shadow:
             "residual_windows": len(self.residuals),
         }
         if self.residuals:
-            rms = np.sqrt(np.mean([r[0] ** 2 for r in self.residuals], axis=0)) * 1e6
-            peak = np.max([r[1] for r in self.residuals], axis=0) * 1e6
+            rms = np.sqrt(np.mean([r[1] ** 2 for r in self.residuals], axis=0)) * 1e6
+            peak = np.max([r[2] for r in self.residuals], axis=0) * 1e6
             out["residual_rms_um"] = {a: float(v) for a, v in zip(AXES, rms, strict=True)}
             out["residual_max_um"] = {a: float(v) for a, v in zip(AXES, peak, strict=True)}
         return out

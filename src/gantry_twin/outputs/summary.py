@@ -440,5 +440,5 @@ def log_summary(log: Any, tally: Any, live: dict[str, Any] | None = None) -> Run
         data["estimates"] = {name: {"estimate": float(v)} for name, v in zip(THETA_NAMES, mean, strict=True)}
     data["health"] = health_summary(tally)
     if live is not None:
-        data["live"] = live
+        data["live"], data["log"] = live, live["endpoint"]  # an endpoint is no path
     return RunSummary.model_validate(data)
