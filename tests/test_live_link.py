@@ -7,6 +7,7 @@ every process a test starts is killed in a ``finally``; every wait is bounded.
 from __future__ import annotations
 
 import json
+import math
 import os
 import re
 import signal
@@ -260,3 +261,103 @@ def test_a_killed_shadow_leaves_a_readable_trace(tmp_path):
     assert len(parts) >= 3
     t = np.concatenate([pq.read_table(p).column("t_s").to_numpy() for p in parts])
     assert np.allclose(np.diff(t), 2e-4, rtol=0, atol=1e-9)
+
+
+class FakeMachine:
+    """A machine that publishes the blocks a test writes (serve's own server, fed by hand): a context manager."""
+
+    def __init__(self, port: int = 0) -> None:
+        from gantry_twin.link.security import Security
+        from gantry_twin.link.server import Served, TwinServer
+
+        self.server = TwinServer(Served("fake", "fake plant", "diarc", 2e-4), "127.0.0.1", port, Security("127.0.0.1"))
+
+    def __enter__(self) -> FakeMachine:
+        self.server.__enter__()
+        self.endpoint = f"opc.tcp://127.0.0.1:{self.server.bound_port}"
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.server.close()
+
+    def wait_for_subscriber(self) -> None:
+        assert self.server.wait_for_subscribers(1, 30.0), "no subscriber came within 30 s"
+
+    def send(self, first_index: int, n: int, fill: float | None = None, time_too: bool = False) -> None:
+        """Samples [first_index, first_index + n): a slow circle (or ``fill`` in every signal but the time, and in
+        the time too with ``time_too``), one block."""
+        k = np.arange(first_index, first_index + n, dtype=float)
+        values = np.zeros((n, len(SIGNALS)))
+        values[:, 0] = k * 2e-4
+        values[:, 1], values[:, 2] = 0.1 * np.cos(k * 2e-4), 0.1 * np.sin(k * 2e-4)
+        values[:, 7], values[:, 8] = np.cos(k * 2e-4), np.sin(k * 2e-4)
+        if fill is not None:
+            values[:, 0 if time_too else 1 :] = fill
+        self.server.put(("samples", np.column_stack([values, k])))
+        self.server.drain()
+
+    def finish(self) -> None:
+        self.server.put(("state", "finished"))
+        self.server.drain()
+
+
+def _follow(endpoint: str, out: Path, *extra: str) -> subprocess.Popen:
+    return subprocess.Popen(
+        [*CLI, "monitor", "--opcua", endpoint, "--out", str(out), "--duration", "60", *extra],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+
+
+@pytest.mark.parametrize(
+    ("script", "expected"),
+    [
+        ([(1000, 100), (500, 100)], "sample indices went back (a block from 500 after one from 1000)"),
+        ([(0, 100, math.nan), (100, 100, math.nan)], "0 valid samples came (200 with NaN); nothing to judge"),
+        ([(0, 100), (100, 100, -1.0, True)], None),  # times going back: t = -1 after t = 0.0198
+    ],
+    ids=["decreasing_indices", "only_nan", "decreasing_times"],
+)
+def test_shadow_refuses_a_stream_it_cannot_judge(tmp_path, script, expected):
+    with FakeMachine() as machine:
+        follow = _follow(machine.endpoint, tmp_path / "o")
+        try:
+            machine.wait_for_subscriber()
+            for step in script:
+                machine.send(*step)
+            machine.finish()
+            _, err = follow.communicate(timeout=WAIT_S)
+        finally:
+            _stop(follow)
+    lines = err.strip().splitlines()
+    assert follow.returncode == 2 and lines and "Traceback" not in err, err
+    assert (expected or "sample times went back (at t = -1 s)") in lines[-1]
+
+
+def test_shadow_counts_a_gap_and_a_reconnect_and_invents_no_sample(tmp_path):
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    out = tmp_path / "o"
+    with FakeMachine(port) as machine:
+        follow = _follow(machine.endpoint, out)
+        machine.wait_for_subscriber()
+        machine.send(0, 5000)
+        machine.send(5000, 5000)
+        time.sleep(1.0)  # the subscriber has read them (its publishing interval is 0.1 s)
+    try:
+        with FakeMachine(port) as machine:  # the machine back, 2000 samples later
+            machine.wait_for_subscriber()
+            machine.send(12_000, 5000)
+            machine.finish()
+            out_text, err = follow.communicate(timeout=WAIT_S)
+    finally:
+        _stop(follow)
+    live = RunSummary.read(out / "summary.json").live
+    assert "connection to" in err and "lost" in err
+    assert (live.samples, live.gaps, live.missing_samples, live.reconnects) == (15_000, 1, 2000, 1), live
+    t = np.concatenate([pq.read_table(p).column("t_s").to_numpy() for p in sorted((out / "trace").glob("*.parquet"))])
+    assert t.size == 15_000 and np.all(np.diff(t) > 0)  # what came, nothing in the gap

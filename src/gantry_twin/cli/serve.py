@@ -15,8 +15,8 @@ from gantry_twin.plant.model import short_label
 WAIT_S = 60.0
 #: The default endpoint's port (OPC UA's registered port).
 DEFAULT_PORT = 4840
-#: Simulated seconds between two hand-overs of samples to the server: 100 samples, so that at real time a
-#: sample waits at most this long for its block.
+#: Simulated seconds between two hand-overs of samples to the server when paced: 100 samples, so that at real
+#: time a sample waits at most this long for its block (unpaced, the loop's own chunk: fewer calls).
 SERVE_CHUNK_S = 0.02
 
 
@@ -132,9 +132,10 @@ def command(args: argparse.Namespace) -> int:
             except OSError as exc:
                 raise BadInput(f"--out {out}: cannot write there ({exc.strerror or exc})") from None
             with writer:
-                link = LinkObserver(server, index, offset_s, _describe(scenario))
+                pace = 0.0 if math.isinf(args.realtime) else args.realtime
+                link = LinkObserver(server, index, offset_s, _describe(scenario), pace)
                 pacer = [] if math.isinf(args.realtime) else [RealtimePacer(args.realtime)]
-                outcome = writer.run([link, *pacer], chunk_s=SERVE_CHUNK_S)
+                outcome = writer.run([link, *pacer], chunk_s=SERVE_CHUNK_S if pacer else None)
             index, offset_s = link.end_index, offset_s + outcome.summary.duration_s
             if args.out is None:
                 point_latest(out)

@@ -8,6 +8,7 @@ Two objects under Objects, in the twin's namespace :data:`NAMESPACE`:
   ``ActPos``, ``CmdPos`` and ``RemDist`` in metres (``EngineeringUnits``); ``CncChannelList/Channel1`` with
   ``ActStatus``, ``ActProgramStatus`` and ``ActProgramName``.
 - ``GantryTwin``: the twin's own: ``RunState``, ``Scenario``, ``Plant``, ``Controller``, ``SamplePeriod``, the
+  wall clock of the pass's t = 0 and the pace (``RunStartedAt``, ``RealtimeFactor``), the
   decimated scalar view (``SampleIndex``, ``Time``, ``ContourError``, ``Command``, ``Theta`` with ``ThetaNames``
   and ``ThetaUnits``, ``Trusted``), every sample in ``SampleBlock`` (:mod:`gantry_twin.link.blocks`, its signals
   in ``BlockSignals`` and ``BlockUnits``), ``SamplesPublished``, and the methods ``Start``, ``Stop``, ``Reset``.
@@ -128,6 +129,8 @@ async def build_address_space(server: Server, scenario: str, plant: str, control
     await b.var(twin, f"{TWIN}.Plant", plant, S)
     await b.var(twin, f"{TWIN}.Controller", controller, S)
     await b.var(twin, f"{TWIN}.SamplePeriod", ts, D, "s")
+    await b.var(twin, f"{TWIN}.RunStartedAt", 0.0, D, "s")  # wall clock (s since 1970) when this pass's t = 0
+    await b.var(twin, f"{TWIN}.RealtimeFactor", 0.0, D)  # sim time / wall time; 0: as fast as it runs
     await b.var(twin, f"{TWIN}.SampleIndex", -1, I64)
     await b.var(twin, f"{TWIN}.Time", 0.0, D, "s")
     await b.var(twin, f"{TWIN}.ContourError", 0.0, D, "m")

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from gantry_twin.loop.trace import Trace
-from gantry_twin.outputs.tracefile import trace_table
+from gantry_twin.outputs.tracefile import TRACE_COLUMNS, stored_dtype
 from gantry_twin.theta import THETA_NAMES, THETA_UNITS
 
 #: The header's fields, in order.
@@ -95,10 +95,15 @@ def decode(flat: object, signals: int = len(SIGNALS)) -> Block | None:
 
 def trace_values(trace: Trace, start: int, stop: int) -> np.ndarray:
     """Samples [start, stop) of a run's trace as (n, len(SIGNALS)) float64, each value as trace.parquet stores it
-    (NaN for a signal the run does not have)."""
-    table = trace_table(trace, 1, start, stop)
+    (:func:`gantry_twin.outputs.tracefile.stored_dtype`; NaN for a signal the run does not have)."""
+    rows = trace.rows(start, stop)
     values = np.full((stop - start, len(SIGNALS)), np.nan)
+    theta = trace.controller_state.get("theta_hat")
     for j, name in enumerate(SIGNAL_NAMES):
-        if name in table.column_names:
-            values[:, j] = table.column(name).to_numpy()
+        if name in TRACE_COLUMNS:
+            attribute, column = TRACE_COLUMNS[name]
+            series = getattr(trace, attribute)[rows]
+            values[:, j] = (series if column is None else series[:, column]).astype(stored_dtype(name))
+        elif theta is not None:  # theta_hat_<name>: the controller's logged estimate
+            values[:, j] = theta[rows][:, THETA_NAMES.index(name.removeprefix("theta_hat_"))].astype(stored_dtype(name))
     return values

@@ -104,6 +104,7 @@ class Shadow:
         self._scalars: dict[float, dict[str, float]] = {}
         self._previous: int | None = None  # the first index of the last block of this connection
         self.connections = 0
+        self.backlog_max = 0  # the most items received and not yet handled, seen between two
 
     def run(self, duration_s: float | None, first_connect_s: float) -> MachineClient:
         """Follow the machine until ``duration_s`` of wall time, its run state ``finished`` or ``failed``, or an
@@ -119,6 +120,7 @@ class Shadow:
                 if now >= end or now >= finishing_at:
                     self.s.ended_by = self.s.ended_by or "--duration"
                     break
+                self.backlog_max = max(self.backlog_max, client.items.qsize())
                 item = client.get(min(FEED_PERIOD_S, end - now, max(0.0, finishing_at - now)))
                 if item is not None and not (item.kind in ("lost", "connected") and finishing_at < math.inf):
                     if self._take(item):  # a machine that finished closes its connection: not a loss
@@ -292,6 +294,7 @@ class Shadow:
             "reconnects": max(0, self.connections - 1),
             "ended_by": ended_by or s.ended_by or "--duration",
             "residual_windows": len(self.residuals),
+            "backlog_max_items": self.backlog_max,
         }
         if self.residuals:
             rms = np.sqrt(np.mean([r[1] ** 2 for r in self.residuals], axis=0)) * 1e6

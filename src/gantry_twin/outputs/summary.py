@@ -189,6 +189,9 @@ class LiveLink(Model):
     reconnects: int
     ended_by: str
     residual_windows: int
+    #: The most items (blocks, scalar values) received and not yet estimated at once: stays small when the
+    #: shadow keeps up with the machine.
+    backlog_max_items: int
     residual_rms_um: dict[str, float] | None = None
     residual_max_um: dict[str, float] | None = None
 
