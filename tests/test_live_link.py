@@ -6,6 +6,7 @@ every process a test starts is killed in a ``finally``; every wait is bounded.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
@@ -361,3 +362,114 @@ def test_shadow_counts_a_gap_and_a_reconnect_and_invents_no_sample(tmp_path):
     assert (live.samples, live.gaps, live.missing_samples, live.reconnects) == (15_000, 1, 2000, 1), live
     t = np.concatenate([pq.read_table(p).column("t_s").to_numpy() for p in sorted((out / "trace").glob("*.parquet"))])
     assert t.size == 15_000 and np.all(np.diff(t) > 0)  # what came, nothing in the gap
+
+
+def _rss_mb(pid: int) -> float:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    return math.nan
+
+
+@pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="reads a process's memory from /proc")
+def test_hostile_clients_do_not_cost_a_subscriber_a_sample(tmp_path):
+    """200 sessions never closed, 1000 monitored items, a browse of everything, a client that stops reading its
+    socket, malformed messages and a wrong password ten times, while a subscriber reads every block."""
+    import asyncio
+    import socket
+
+    from asyncua import Client, ua
+
+    from gantry_twin.link.blocks import decode
+    from gantry_twin.link.security import user_entry
+
+    users = tmp_path / "users.yaml"
+    users.write_text(json.dumps({"users": {"ann": user_entry("right", "operator")}}))
+    out = tmp_path / "run"
+    serve, endpoint = _start_serve(
+        tmp_path,
+        "no_load_circle",
+        *("--set", "duration_s=10", "--realtime", "2", "--wait-subscribers", "1", "--linger", "2"),
+        *("--users", str(users), "--out", str(out)),
+    )
+    host, port = "127.0.0.1", int(endpoint.rsplit(":", 1)[1])
+    rss = [_rss_mb(serve.pid)]
+    received: list[tuple[int, int]] = []
+    done = {"finished": False}
+
+    class Legit:
+        def datachange_notification(self, node, value, data):
+            if isinstance(value, str):
+                done["finished"] = value == "finished"
+            elif (block := decode(value)) is not None:
+                received.append((block.first_index, block.samples))
+
+    class Ignore:
+        def datachange_notification(self, node, value, data):
+            pass
+
+    async def hostile():
+        idle = []
+        for _ in range(200):  # sessions opened and never closed
+            c = Client(endpoint, timeout=10)
+            await c.connect()
+            idle.append(c)
+            rss.append(_rss_mb(serve.pid))
+        browsed = await _browse_all(idle[1], idle[1].nodes.root, depth=6)  # a browse of everything
+        for i in range(10):  # a wrong password, ten times
+            bad = Client(endpoint, timeout=5)
+            bad.set_user("ann")
+            bad.set_password(f"wrong{i}")
+            with pytest.raises((ua.UaError, OSError, TimeoutError, asyncio.TimeoutError)):
+                await bad.connect()
+            with contextlib.suppress(Exception):
+                await bad.disconnect()
+        for payload in (b"\x00" * 64, b"HELF" + b"\xff" * 60, os.urandom(4096), b"MSGF\x10\x00\x00\x00garbage"):
+            with socket.create_connection((host, port), timeout=5) as s:  # malformed messages
+                s.sendall(payload)
+        legit = Client(endpoint, timeout=10)
+        await legit.connect()
+        ns = await legit.get_namespace_index("urn:gantry-twin:opcua")
+        sub = await legit.create_subscription(100, Legit())
+        nodes = [legit.get_node(f"ns={ns};s=GantryTwin.{n}") for n in ("SampleBlock", "RunState")]
+        await sub.subscribe_data_change(nodes, queuesize=500)  # the run starts now (--wait-subscribers 1)
+        many = idle[0]
+        scalars = [many.get_node(f"ns={ns};s=CncInterface.CncAxisList.X.PosDirect.ActPos")] * 1000
+        s2 = await many.create_subscription(100, Ignore())
+        await s2.subscribe_data_change(scalars, queuesize=1)  # 1000 monitored items
+        deaf = idle[2]  # subscribes to every block, then stops reading its socket
+        s3 = await deaf.create_subscription(50, Ignore())
+        await s3.subscribe_data_change(nodes[:1], queuesize=10_000)
+        deaf.uaclient.protocol.transport.pause_reading()
+        deadline = time.monotonic() + WAIT_S
+        while not done["finished"] and time.monotonic() < deadline:
+            rss.append(_rss_mb(serve.pid))
+            await asyncio.sleep(0.2)
+        await asyncio.sleep(0.5)
+        with contextlib.suppress(Exception):
+            await legit.disconnect()
+        return browsed
+
+    try:
+        browsed = asyncio.run(hostile())
+        serve.wait(WAIT_S)
+    finally:
+        _stop(serve)
+    assert serve.returncode == 0, serve.stderr.read()
+    first = np.array([r[0] for r in received])
+    n = np.array([r[1] for r in received])
+    assert first[0] == 0 and np.all(first[1:] == first[:-1] + n[:-1]) and n.sum() == 50_000  # every sample
+    assert max(rss) - rss[0] < 200.0, f"memory grew {max(rss) - rss[0]:.0f} MB"
+    assert browsed > 1000  # the standard address space and the twin's
+    print(f"hostile: memory {rss[0]:.0f} -> {max(rss):.0f} MB, {browsed} nodes browsed", file=sys.stderr)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run", "users.yaml"]  # nothing written outside the run
+
+
+async def _browse_all(client, node, depth: int) -> int:
+    count = 0
+    children = await node.get_children()
+    for child in children:
+        count += 1
+        if depth > 0:
+            count += await _browse_all(client, child, depth - 1)
+    return count

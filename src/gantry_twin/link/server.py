@@ -47,9 +47,11 @@ SCALAR_PERIOD_S = 0.1
 MAX_SAMPLES_PER_BLOCK = 5000
 #: Chunks of samples the loop may be ahead of the publisher before it waits (the run slows; no sample is dropped).
 QUEUE_CHUNKS = 500
-#: Most sessions the server keeps at once (a client opening more is refused by asyncua).
-MAX_SESSIONS = 100
-#: How long a client may stay silent before its session is closed, ms.
+#: The largest message the server takes or sends, bytes (a block of MAX_SAMPLES_PER_BLOCK is 0.7 MB).
+MAX_MESSAGE_BYTES = 8 * 1024 * 1024
+#: The most subscriptions at once, over all sessions.
+MAX_SUBSCRIPTIONS = 200
+#: The longest a session may stay idle before the server closes it (a client asks; it gets at most this), ms.
 SESSION_TIMEOUT_MS = 30_000
 #: Alarm severity (OPC UA: 1-1000) of a health alarm.
 ALARM_SEVERITY = 700
@@ -177,8 +179,8 @@ class TwinServer:
         server.set_endpoint(self.endpoint)
         server.set_server_name("gantry-twin")
         await self.security.apply(server)
-        server.iserver.isession.session_timeout = SESSION_TIMEOUT_MS / 1000.0
-        self._limit_sessions(server)
+        server.iserver.max_session_timeout_ms = SESSION_TIMEOUT_MS  # an idle session is closed after it
+        self._limit(server)
         self.space = await build_address_space(
             server, self.served.scenario, self.served.plant, self.served.controller, self.served.sample_period_s
         )
@@ -194,10 +196,19 @@ class TwinServer:
             with contextlib.suppress(asyncio.CancelledError):
                 await publisher
 
-    def _limit_sessions(self, server: Server) -> None:
-        limits = getattr(server, "limits", None)
-        if limits is not None and hasattr(limits, "max_session_count"):
-            limits.max_session_count = MAX_SESSIONS
+    def _limit(self, server: Server) -> None:
+        """Bounds against a hostile client: messages of at most MAX_MESSAGE_BYTES (asyncua's default is 100 MB),
+        at most MAX_SUBSCRIPTIONS subscriptions in all."""
+        from asyncua.common.connection import TransportLimits
+
+        chunk = 65535
+        server.limits = TransportLimits(
+            max_recv_buffer=chunk,
+            max_send_buffer=chunk,
+            max_chunk_count=MAX_MESSAGE_BYTES // chunk + 1,
+            max_message_size=MAX_MESSAGE_BYTES,
+        )
+        server.iserver.max_subscriptions = MAX_SUBSCRIPTIONS
 
     async def _add_methods(self, server: Server) -> None:
         assert self.space is not None
