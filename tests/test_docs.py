@@ -29,7 +29,9 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCUMENTS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
-MARKERS = {"needs-run", "slow", "no-run"}
+MARKERS = {"needs-run", "needs-serve", "slow", "no-run"}
+#: The endpoint a ``needs-serve`` snippet names; the test puts the one its server listens on in its place.
+DOC_ENDPOINT = "opc.tcp://127.0.0.1:4840"
 #: Snippets not run (``python no-run``), by document and first line, and why.
 NO_RUN = {
     ("docs/telemetry.md", "with telemetry_observers(args) as observers:"): (
@@ -102,6 +104,21 @@ def a_run(tmp_path_factory) -> Path:
     return where
 
 
+@pytest.fixture(scope="module")
+def a_server(tmp_path_factory):
+    """``gantry-twin serve`` on a free loopback port, running its scenario over and over; its endpoint."""
+    where = tmp_path_factory.mktemp("docs_serve")
+    command = [*gantry_twin_command(), "serve", "no_load_circle", "--port", "0", "--loop", "--out", str(where / "o")]
+    proc = subprocess.Popen(command, cwd=where, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    try:
+        match = re.search(r"(opc\.tcp://127\.0\.0\.1:\d+)", proc.stdout.readline())
+        assert match is not None, "serve did not start"
+        yield match.group(1)
+    finally:
+        proc.kill()
+        proc.wait(30)
+
+
 def test_the_documents_have_snippets_and_every_marker_is_known():
     found = snippets()
     assert len(found) >= 6 and {s.document for s in found} >= {"README.md", "docs/cli.md", "docs/telemetry.md"}
@@ -141,6 +158,9 @@ def test_the_snippet_runs(snippet: Snippet, tmp_path, request):
     if "needs-run" in snippet.words:
         made = request.getfixturevalue("a_run")
         shutil.copytree(made, tmp_path, dirs_exist_ok=True)
-    (tmp_path / "snippet.py").write_text(snippet.code)
+    code = snippet.code
+    if "needs-serve" in snippet.words:
+        code = code.replace(DOC_ENDPOINT, request.getfixturevalue("a_server"))
+    (tmp_path / "snippet.py").write_text(code)
     done = run_in(tmp_path, [sys.executable, "snippet.py"])
     assert done.returncode == 0, f"{snippet} failed:\n{done.stderr[-3000:]}"
