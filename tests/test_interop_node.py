@@ -1,0 +1,72 @@
+"""An independent OPC UA stack at the other end of the live link: node-opcua (npm), the most used stack outside C,
+as a client of ``gantry-twin serve`` (docs/live-link.md).
+
+Needs Node.js and ``npm ci`` in tests/interop (``.ci/run`` does it); without them the tests are skipped, saying so.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from .test_live_link import FAST_DRIFT, _start_serve, _stop
+
+INTEROP = Path(__file__).resolve().parent / "interop"
+NODE = shutil.which("node")
+pytestmark = pytest.mark.skipif(
+    NODE is None or not (INTEROP / "node_modules" / "node-opcua").is_dir(),
+    reason="node-opcua is not installed: run `npm ci` in tests/interop (Node.js 20 and npm; .ci/run does it)",
+)
+
+
+def _node_client(endpoint: str, seconds: float, *credentials: str) -> dict:
+    done = subprocess.run(
+        [NODE, str(INTEROP / "twin_client.mjs"), endpoint, str(seconds), *credentials],
+        cwd=INTEROP,
+        capture_output=True,
+        text=True,
+        timeout=seconds + 60,
+    )
+    lines = [line for line in done.stdout.splitlines() if line.startswith("{")]  # node-opcua logs lines too
+    assert lines, f"no JSON from the node client (exit {done.returncode}): {done.stdout[-2000:]} {done.stderr[-2000:]}"
+    return json.loads(lines[-1])
+
+
+def test_node_opcua_browses_reads_counts_every_sample_and_gets_the_alarm(tmp_path):
+    serve, endpoint = _start_serve(
+        tmp_path,
+        "friction_drift_circle",
+        *FAST_DRIFT,
+        *("--realtime", "2", "--wait-subscribers", "1", "--linger", "2", "--out", str(tmp_path / "run")),
+    )
+    try:
+        seen = _node_client(endpoint, 10.0)
+        serve.wait(120)
+    finally:
+        _stop(serve)
+    assert seen["error"] is None, seen["error"]
+    assert {"CncInterface", "GantryTwin"} <= set(seen["browsed"]) and isinstance(seen["actPos"], int | float)
+    first, n = (np.array([b[i] for b in seen["blocks"]], dtype=np.int64) for i in (0, 1))
+    assert first[0] == 0 and np.all(first[1:] == first[:-1] + n[:-1]) and n.sum() == 70_000  # every sample
+    assert seen["finished"]
+    assert [e for e in seen["events"] if "B2 up" in e["message"] and "threshold" in e["message"]], seen["events"]
+
+
+def test_node_opcua_with_a_wrong_password_is_refused(tmp_path):
+    from gantry_twin.link.security import user_entry
+
+    users = tmp_path / "users.yaml"
+    users.write_text(json.dumps({"users": {"ann": user_entry("right", "operator")}}))
+    serve, endpoint = _start_serve(tmp_path, "no_load_circle", "--users", str(users), "--out", str(tmp_path / "r"))
+    try:
+        refused = _node_client(endpoint, 1.0, "ann", "wrong")
+        admitted = _node_client(endpoint, 1.0, "ann", "right")
+    finally:
+        _stop(serve)
+    assert refused["error"] is not None and refused["blocks"] == []
+    assert admitted["error"] is None
