@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import functools
 import os
+import threading
 
 import pytest
 from hypothesis import settings
+from numba.core.dispatcher import Dispatcher
 
 from .helpers import run
 
@@ -13,6 +16,38 @@ from .helpers import run
 # compiles or loads a numba kernel on a loaded machine (seen at 0.45-0.75 s against its 200 ms default).
 settings.register_profile("gantry-twin", deadline=None)
 settings.load_profile("gantry-twin")
+
+
+_compiling = threading.local()
+
+
+def _compile_under_the_lock(compile_):
+    """numba's ``Dispatcher.compile`` (which loads from the disk cache, or compiles on a miss) held under the kernel
+    cache's cross-process lock, the one a sweep's Dask workers and ``gantry-twin compile`` take
+    (sweep.engine.compile_lock): on an empty cache, of two xdist workers that want the same loop, one compiles it
+    and the other waits and then loads what it wrote, instead of both compiling it at once (~15 s of CPU each, and
+    numba's cache is not safe under concurrent writers). Only the outermost call of a thread takes the lock (a loop's
+    compile compiles the kernels it calls). Tests that need a cold compile use their own NUMBA_CACHE_DIR or install
+    path in a new process, which this does not touch; what is compiled or loaded is unchanged.
+    """
+
+    @functools.wraps(compile_)
+    def compile(self, sig):
+        if getattr(_compiling, "depth", 0):
+            return compile_(self, sig)
+        from gantry_twin.sweep.engine import compile_lock
+
+        _compiling.depth = 1
+        try:
+            with compile_lock():
+                return compile_(self, sig)
+        finally:
+            _compiling.depth = 0
+
+    return compile
+
+
+Dispatcher.compile = _compile_under_the_lock(Dispatcher.compile)
 
 
 @pytest.fixture(scope="session")

@@ -94,8 +94,18 @@ def distance_to_moves(points, moves, coarse=4001):
     best = np.full(len(points), np.inf)
     for m in moves:
         u = np.linspace(0.0, m.length_m, coarse)
-        d = np.linalg.norm(points[:, None] - point_on(m, u)[None], axis=2)
-        i = np.argmin(d, axis=1)
+        along = point_on(m, u)
+        # The nearest coarse point, a block of points at a time, each norm as np.linalg.norm computes it (sqrt of
+        # x*x + y*y): the same argmin without a (points, coarse, 2) array of hundreds of MB (a long trace against
+        # 4001 points; memory traffic and the reduction over an axis of two were most of the time).
+        i = np.concatenate(
+            [
+                np.argmin(np.sqrt((x - along[:, 0]) ** 2 + (y - along[:, 1]) ** 2), axis=1)
+                for x, y in (
+                    (block[:, :1], block[:, 1:2]) for block in np.array_split(points, max(1, len(points) // 256))
+                )
+            ]
+        )
         lo, hi = u[np.maximum(i - 1, 0)], u[np.minimum(i + 1, coarse - 1)]
         for _ in range(80):
             a, b = lo + (hi - lo) / 3, hi - (hi - lo) / 3
