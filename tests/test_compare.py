@@ -201,7 +201,7 @@ def test_a_run_that_fails_or_is_interrupted_leaves_latest_as_it_was(tmp_path, ca
     assert os.readlink(base / "latest") == good.name
     assert not (good / "plots").exists()  # --no-plots
 
-    def fault(built, observers, hold_s=None):
+    def fault(built, observers, hold_s=None, chunk_s=None):
         raise SimulationError("injected fault", 0.0, 0)
 
     with monkeypatch.context() as patch:
@@ -213,7 +213,7 @@ def test_a_run_that_fails_or_is_interrupted_leaves_latest_as_it_was(tmp_path, ca
     assert json.loads((failed[0] / "summary.json").read_text())["status"] == "failed"
     assert os.readlink(base / "latest") == good.name
 
-    def interrupt(built, observers, hold_s=None):
+    def interrupt(built, observers, hold_s=None, chunk_s=None):
         raise KeyboardInterrupt
 
     with monkeypatch.context() as patch:

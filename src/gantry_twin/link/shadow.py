@@ -104,7 +104,8 @@ class Shadow:
         self._scalars: dict[float, dict[str, float]] = {}
         self._previous: int | None = None  # the first index of the last block of this connection
         self.connections = 0
-        self.backlog_max = 0  # the most items received and not yet handled, seen between two
+        self.backlog_max = 0  # the most items received and not yet handled at once
+        self.backlog: list[int] = []  # items waiting, read once a second
 
     def run(self, duration_s: float | None, first_connect_s: float) -> MachineClient:
         """Follow the machine until ``duration_s`` of wall time, its run state ``finished`` or ``failed``, or an
@@ -114,13 +115,18 @@ class Shadow:
         end = math.inf if duration_s is None else time.monotonic() + duration_s
         finishing_at = math.inf
         next_feed = time.monotonic() + FEED_PERIOD_S
+        next_backlog = time.monotonic()
         try:
             while True:
                 now = time.monotonic()
                 if now >= end or now >= finishing_at:
                     self.s.ended_by = self.s.ended_by or "--duration"
                     break
-                self.backlog_max = max(self.backlog_max, client.items.qsize())
+                waiting = client.items.qsize()
+                self.backlog_max = max(self.backlog_max, waiting)
+                if now >= next_backlog:  # one reading a second: a backlog that grows shows in the row
+                    self.backlog.append(waiting)
+                    next_backlog = now + 1.0
                 item = client.get(min(FEED_PERIOD_S, end - now, max(0.0, finishing_at - now)))
                 if item is not None and not (item.kind in ("lost", "connected") and finishing_at < math.inf):
                     if self._take(item):  # a machine that finished closes its connection: not a loss
@@ -295,6 +301,7 @@ class Shadow:
             "ended_by": ended_by or s.ended_by or "--duration",
             "residual_windows": len(self.residuals),
             "backlog_max_items": self.backlog_max,
+            "backlog_items_per_s": self.backlog,
         }
         if self.residuals:
             rms = np.sqrt(np.mean([r[1] ** 2 for r in self.residuals], axis=0)) * 1e6

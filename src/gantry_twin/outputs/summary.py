@@ -192,6 +192,8 @@ class LiveLink(Model):
     #: The most items (blocks, scalar values) received and not yet estimated at once: stays small when the
     #: shadow keeps up with the machine.
     backlog_max_items: int
+    #: The items waiting, read once a second of wall time.
+    backlog_items_per_s: list[int] | None = None
     residual_rms_um: dict[str, float] | None = None
     residual_max_um: dict[str, float] | None = None
 
