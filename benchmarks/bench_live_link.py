@@ -80,7 +80,7 @@ def _subscriber(endpoint: str, seconds: float, out: str) -> None:
             block = client.get_node(f"ns={idx};s=GantryTwin.SampleBlock")
             run_state = client.get_node(f"ns={idx};s=GantryTwin.RunState")
             sub = await client.create_subscription(PUBLISHING_INTERVAL_MS, Handler())
-            await sub.subscribe_data_change([block, run_state], queuesize=500)
+            await sub.subscribe_data_change([block, run_state], queuesize=500, sampling_interval=0)
             deadline = time.monotonic() + seconds
             while not state["finished"] and time.monotonic() < deadline:
                 await asyncio.sleep(0.1)

@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import shutil
 import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -70,3 +71,50 @@ def test_node_opcua_with_a_wrong_password_is_refused(tmp_path):
         _stop(serve)
     assert refused["error"] is not None and refused["blocks"] == []
     assert admitted["error"] is None
+
+
+def test_monitor_opcua_follows_a_node_opcua_machine_as_monitor_log_reads_its_trace(tmp_path):
+    """A recorded trace of a fault run, published by node-opcua as blocks of 500 samples: the shadow's alarms and
+    their times are those of monitor --log on the same trace."""
+    from gantry_twin.cli import main
+    from gantry_twin.outputs.summary import RunSummary
+
+    run = tmp_path / "run"
+    assert main(["run", "friction_drift_circle", *FAST_DRIFT, "--out", str(run), "--no-plots"]) == 0
+    assert main(["export", str(run), "--csv", "--out", str(tmp_path / "trace.csv")]) == 0
+    assert (
+        main(["monitor", "friction_drift_circle", *FAST_DRIFT, "--log", str(run), "--out", str(tmp_path / "log")]) == 0
+    )
+    machine = subprocess.Popen(
+        [NODE, str(INTEROP / "machine_server.mjs"), str(tmp_path / "trace.csv"), "500"],
+        cwd=INTEROP,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+    )
+    try:
+        endpoint = None
+        for _ in range(50):  # node-opcua prints its own lines first
+            line = machine.stdout.readline()
+            if line.startswith("listening "):
+                endpoint = line.split()[1]
+                break
+        assert endpoint, "the node-opcua machine did not start"
+        shadow = tmp_path / "shadow"
+        follow = subprocess.run(
+            [sys.executable, "-m", "gantry_twin", "monitor", "friction_drift_circle", *FAST_DRIFT]
+            + ["--opcua", endpoint, "--out", str(shadow), "--duration", "120"],
+            capture_output=True,
+            text=True,
+            timeout=180,
+        )
+        machine.wait(60)
+    finally:
+        _stop(machine)
+    assert follow.returncode == 0, follow.stderr
+    live, log = RunSummary.read(shadow / "summary.json"), RunSummary.read(tmp_path / "log" / "summary.json")
+    assert (live.live.samples, live.live.gaps, live.live.mode) == (70_000, 0, "blocks")
+    block_s = 500 * 2e-4
+    assert [a.parameter for a in live.health.alarms] == [a.parameter for a in log.health.alarms] == ["B2"]
+    for a, b in zip(live.health.alarms, log.health.alarms, strict=True):
+        assert abs(a.time_s - b.time_s) <= block_s

@@ -125,7 +125,8 @@ class MachineClient:
             handler = _Handler(self)
             subscription = await client.create_subscription(PUBLISHING_INTERVAL_MS, handler)
             handler.by_node = {node.nodeid: name for name, node in nodes.items()}
-            await subscription.subscribe_data_change(list(nodes.values()), queuesize=QUEUE_SIZE)
+            # sampling 0: every change (asyncua asks 50 ms unless told, and a sampling server then drops blocks)
+            await subscription.subscribe_data_change(list(nodes.values()), queuesize=QUEUE_SIZE, sampling_interval=0)
             while not self._stop.is_set():
                 await asyncio.sleep(0.25)
                 await asyncio.wait_for(client.check_connection(), CONNECT_TIMEOUT_S)
