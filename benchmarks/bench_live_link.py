@@ -198,13 +198,16 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=60.0)
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--skip-realtime", action="store_true")
+    parser.add_argument("--only", choices=("cost", "realtime", "shadow"), help="run one part")
     args = parser.parse_args()
     print(f"machine: {os.cpu_count()} cores, load average {os.getloadavg()[0]:.2f}")
     with tempfile.TemporaryDirectory() as tmp:
-        cost(Path(tmp), args.seconds, args.repeats)
-        if not args.skip_realtime:
+        if args.only in (None, "cost"):
+            cost(Path(tmp), args.seconds, args.repeats)
+        if args.only == "realtime" or (args.only is None and not args.skip_realtime):
             realtime(Path(tmp), args.seconds)
-        shadow(Path(tmp), min(args.seconds, 40.0))
+        if args.only in (None, "shadow"):
+            shadow(Path(tmp), min(args.seconds, 40.0))
 
 
 if __name__ == "__main__":

@@ -82,7 +82,7 @@ def test_a_served_run_followed_by_the_shadow_monitor_gives_monitor_logs_estimate
     try:
         follow = subprocess.run(
             [*CLI, "monitor", "friction_drift_circle", *FAST_DRIFT, "--opcua", endpoint, "--duration", "100"]
-            + ["--out", str(shadow)],
+            + ["--out", str(shadow), "--residual-every", "1"],
             cwd=tmp_path,
             capture_output=True,
             text=True,
@@ -302,13 +302,35 @@ class FakeMachine:
         self.server.drain()
 
 
-def _follow(endpoint: str, out: Path, *extra: str) -> subprocess.Popen:
-    return subprocess.Popen(
-        [*CLI, "monitor", "--opcua", endpoint, "--out", str(out), "--duration", "60", *extra],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
+class _Follow:
+    """``monitor --opcua`` run by ``main`` in a thread of this process (no interpreter start-up: the machine is in
+    this process too); its output is capsys's. Quacks like the Popen that ``_stop`` stops: it ends by itself
+    (``--duration 60`` bounds it)."""
+
+    def __init__(self, capsys, endpoint: str, out: Path) -> None:
+        import threading
+
+        self.capsys, self.returncode = capsys, None
+        args = ["monitor", "--opcua", endpoint, "--out", str(out), "--duration", "60"]
+        self.thread = threading.Thread(target=self._run, args=(args,), daemon=True)
+        self.thread.start()
+
+    def _run(self, args: list[str]) -> None:
+        self.returncode = main(args)
+
+    def communicate(self, timeout: float) -> tuple[str, str]:
+        self.thread.join(timeout)
+        captured = self.capsys.readouterr()
+        return captured.out, captured.err
+
+    def poll(self) -> int | None:
+        return self.returncode
+
+    def kill(self) -> None:
+        pass
+
+    def wait(self, timeout: float) -> None:
+        self.thread.join(timeout)
 
 
 @pytest.mark.parametrize(
@@ -320,9 +342,9 @@ def _follow(endpoint: str, out: Path, *extra: str) -> subprocess.Popen:
     ],
     ids=["decreasing_indices", "only_nan", "decreasing_times"],
 )
-def test_shadow_refuses_a_stream_it_cannot_judge(tmp_path, script, expected):
+def test_shadow_refuses_a_stream_it_cannot_judge(tmp_path, capsys, script, expected):
     with FakeMachine() as machine:
-        follow = _follow(machine.endpoint, tmp_path / "o")
+        follow = _Follow(capsys, machine.endpoint, tmp_path / "o")
         try:
             machine.wait_for_subscriber()
             for step in script:
@@ -336,7 +358,7 @@ def test_shadow_refuses_a_stream_it_cannot_judge(tmp_path, script, expected):
     assert (expected or "sample times went back (at t = -1 s)") in lines[-1]
 
 
-def test_shadow_counts_a_gap_and_a_reconnect_and_invents_no_sample(tmp_path):
+def test_shadow_counts_a_gap_and_a_reconnect_and_invents_no_sample(tmp_path, capsys):
     import socket
 
     with socket.socket() as s:
@@ -344,7 +366,7 @@ def test_shadow_counts_a_gap_and_a_reconnect_and_invents_no_sample(tmp_path):
         port = s.getsockname()[1]
     out = tmp_path / "o"
     with FakeMachine(port) as machine:
-        follow = _follow(machine.endpoint, out)
+        follow = _Follow(capsys, machine.endpoint, out)
         machine.wait_for_subscriber()
         machine.send(0, 5000)
         machine.send(5000, 5000)

@@ -2,15 +2,18 @@
 
 from __future__ import annotations
 
+import argparse
 import contextlib
+import math
 import os
 import sys
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 
 from gantry_twin.outputs.rundirs import new_run_dir
 from gantry_twin.scenario import Scenario, resolve_scenario, shipped
+from gantry_twin.settings import quote
 
 PROG = "gantry-twin"
 
@@ -87,3 +90,29 @@ def out_dir(out: Path | None, scenario: Scenario) -> Path:
         return checked_out(out)
     base = checked_out(RUNS_DIR / (scenario.outputs.dir or str(scenario.name)))  # labels (settings.Label): under runs/
     return new_run_dir(base)
+
+
+def number_type(
+    what: str,
+    must: str,
+    lo: float,
+    hi: float = math.inf,
+    lo_open: bool = False,
+    integer: bool = False,
+    words: Mapping[str, float] | None = None,
+) -> Callable[[str], float]:
+    """An argparse ``type``: a number in [lo, hi] ((lo, hi] with ``lo_open``; an integer with ``integer``), or one
+    of ``words`` (its value); else ``WHAT must be MUST, got 'TEXT'`` (one line, exit 2)."""
+
+    def parse(text: str) -> float:
+        if words and text.strip().lower() in words:
+            return words[text.strip().lower()]
+        try:
+            value = int(text) if integer else float(text)
+        except ValueError:
+            value = math.nan
+        if not (math.isfinite(value) and (value > lo if lo_open else value >= lo) and value <= hi):
+            raise argparse.ArgumentTypeError(f"{what} must be {must}, got {quote(text)}")
+        return value
+
+    return parse

@@ -7,7 +7,16 @@ import math
 import time
 from pathlib import Path
 
-from gantry_twin.cli.common import EXIT_OK, EXIT_RUN_FAILED, PROG, BadInput, checked_out, out_dir, scenario_path
+from gantry_twin.cli.common import (
+    EXIT_OK,
+    EXIT_RUN_FAILED,
+    PROG,
+    BadInput,
+    checked_out,
+    number_type,
+    out_dir,
+    scenario_path,
+)
 from gantry_twin.outputs.rundirs import point_latest
 from gantry_twin.plant.model import short_label
 
@@ -20,37 +29,10 @@ DEFAULT_PORT = 4840
 SERVE_CHUNK_S = 0.02
 
 
-def _realtime(text: str) -> float:
-    """--realtime: a factor > 0, or ``max`` (as fast as it runs; returned as inf)."""
-    if text.strip().lower() == "max":
-        return math.inf
-    try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"FACTOR must be a number > 0 (1 = real time) or max, got {text!r}")
-    return value
-
-
-def _port(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        value = -1
-    if not 0 <= value <= 65535:
-        raise argparse.ArgumentTypeError(f"PORT must be an integer 0-65535 (0: any free port), got {text!r}")
-    return value
-
-
-def _linger(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
-    if not (math.isfinite(value) and 0 <= value <= 3600):
-        raise argparse.ArgumentTypeError(f"SECONDS must be a number 0-3600, got {text!r}")
-    return value
+#: --realtime: a factor > 0, or ``max`` (as fast as it runs: inf).
+_realtime = number_type("FACTOR", "a number > 0 (1 = real time) or max", 0.0, lo_open=True, words={"max": math.inf})
+_port = number_type("PORT", "an integer 0-65535 (0: any free port)", 0, 65535, integer=True)
+_linger = number_type("SECONDS", "a number 0-3600", 0.0, 3600.0)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 from pathlib import Path
 
@@ -15,19 +14,12 @@ from gantry_twin.cli.common import (
     RUNS_DIR,
     BadInput,
     checked_out,
+    number_type,
     scenario_path,
     writable_out,
 )
 
-
-def _seconds(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
-    if not (math.isfinite(value) and 0 < value <= 7 * 24 * 3600):
-        raise argparse.ArgumentTypeError(f"SECONDS must be a number in (0, 604800], got {text!r}")
-    return value
+_seconds = number_type("SECONDS", "a number in (0, 604800]", 0.0, 7 * 24 * 3600.0, lo_open=True)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -37,6 +29,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--nodes", metavar="FILE", type=Path, help="node map YAML (default: gantry-twin serve's address space)"
     )
     group.add_argument("--duration", metavar="SECONDS", type=_seconds, help="stop after this much wall time")
+    group.add_argument(
+        "--residual-every",
+        metavar="SECONDS",
+        type=_seconds,
+        default=5.0,
+        help="replay a 1 s window through the twin's plant every SECONDS of the machine's time (default 5)",
+    )
     group.add_argument(
         "--connect-timeout",
         metavar="SECONDS",
@@ -81,7 +80,9 @@ def command(args: argparse.Namespace, format_health) -> int:
         print(f"{PROG}: alarm: {alarm.describe()}", flush=True)
 
     with writable_out(out):
-        shadow = Shadow(endpoint, nodes, controller, monitor, plant, plant.timestep_s, out, print_alarm)
+        shadow = Shadow(
+            endpoint, nodes, controller, monitor, plant, plant.timestep_s, out, print_alarm, None, args.residual_every
+        )
         print(f"following {endpoint} ({nodes.mode}); Ctrl-C stops", file=sys.stderr, flush=True)
         ended = None
         try:

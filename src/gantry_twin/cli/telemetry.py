@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import math
 import os
 import sys
 import time
@@ -20,6 +19,7 @@ os.environ.setdefault("RUST_LOG", "warn,re_log_encoding::rrd=off,re_sdk::recordi
 
 import rerun as rr  # noqa: E402 -- after its log filter
 
+from gantry_twin.cli.common import number_type  # noqa: E402
 from gantry_twin.loop.trace import Observer  # noqa: E402
 from gantry_twin.outputs.files import (  # noqa: E402
     NotRegularFileError,
@@ -43,14 +43,7 @@ from gantry_twin.telemetry.sinks import (  # noqa: E402
 SAVE_FLUSH_TIMEOUT_S = 60.0
 
 
-def _realtime_factor(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"FACTOR must be a number > 0 (1 = real time), got {quote(text)}")
-    return value
+_realtime_factor = number_type("FACTOR", "a number > 0 (1 = real time)", 0.0, lo_open=True)
 
 
 def add_telemetry_arguments(parser: argparse.ArgumentParser) -> None:

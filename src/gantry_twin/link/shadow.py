@@ -74,8 +74,9 @@ class Stream:
 
 class Shadow:
     """Follow ``endpoint``'s machine with DIARC's estimator ``controller`` and ``monitor``, its plant ``plant`` for
-    the residual; write into ``out`` (trace parts; the summary is the caller's). ``print_alarm`` is called with
-    each new alarm as it is raised."""
+    the residual, a window of 1 s every ``residual_every_s`` of the machine's time (each costs a MuJoCo rollout of
+    the rig's fine physics: every window would not keep up with a machine at 4x real time); write into ``out``
+    (trace parts; the summary is the caller's). ``print_alarm`` is called with each new alarm as it is raised."""
 
     def __init__(
         self,
@@ -88,6 +89,7 @@ class Shadow:
         out: Path,
         print_alarm: Callable[[object], None],
         stream: TextIO | None = None,
+        residual_every_s: float = 5.0,
     ) -> None:
         self.endpoint, self.nodes, self.controller, self.monitor = endpoint, nodes, controller, monitor
         self.plant, self.machine_period_s, self.out, self.print_alarm = plant, machine_period_s, out, print_alarm
@@ -100,6 +102,8 @@ class Shadow:
         self._parts = 0
         self._fed = 0
         self._residual_rows: list[np.ndarray] = []
+        self.residual_every_s = residual_every_s
+        self._next_residual_s = -math.inf
         self.residuals: list[tuple[float, np.ndarray, np.ndarray]] = []  # per window: start s, rms (2,), max (2,), m
         self._scalars: dict[float, dict[str, float]] = {}
         self._previous: int | None = None  # the first index of the last block of this connection
@@ -263,26 +267,33 @@ class Shadow:
         write_parquet(self.out / "trace" / f"part-{self._parts:06d}.parquet", table)
 
     def _residual(self, rows: np.ndarray) -> None:
-        """Replay the machine's commands through the twin's plant a window at a time (module docstring)."""
+        """Replay the machine's commands through the twin's plant, one window of WINDOW_S every ``residual_every_s``
+        of the machine's time (module docstring); the windows between are not replayed."""
         self._residual_rows.append(rows[:, :5])
         ts = self.s.period_s
         window = int(round(WINDOW_S / ts))
-        half = max(1, int(round(0.5 * VELOCITY_FIT_S / ts)))
+        need = window + 2 * max(1, int(round(0.5 * VELOCITY_FIT_S / ts))) + 2
         held = np.concatenate(self._residual_rows)
-        if held.shape[0] < window + 2 * half + 2:
-            self._residual_rows = [held]
-            return
-        log = Log(self.endpoint, held[:, 0], held[:, 3:5], held[:, 1:3], None, ts)
+        while held.shape[0] >= need:
+            start = float(held[0, 0])
+            if start >= self._next_residual_s - 0.5 * ts:
+                self._next_residual_s = start + self.residual_every_s
+                self._replay_window(held[:need], ts)
+            held = held[window:]
+        self._residual_rows = [held]
+
+    def _replay_window(self, rows: np.ndarray, ts: float) -> None:
+        log = Log(self.endpoint, rows[:, 0], rows[:, 3:5], rows[:, 1:3], None, ts)
         r = replay(self.plant, log, WINDOW_S).residual_m
         covered = r[np.isfinite(r).all(axis=1)]
-        if covered.shape[0]:
-            rms, peak = np.sqrt((covered**2).mean(axis=0)), np.abs(covered).max(axis=0)
-            self.residuals.append((float(held[0, 0]), rms, peak))
-            with open(self.out / RESIDUAL_FILE, "a", encoding="utf-8") as fh:  # a line a window, as they come
-                if len(self.residuals) == 1:
-                    fh.write("t_start_s,rms_x_um,rms_y_um,max_x_um,max_y_um\n")
-                fh.write(",".join(f"{v:.6g}" for v in (held[0, 0], *(rms * 1e6), *(peak * 1e6))) + "\n")
-        self._residual_rows = [held[window:]]
+        if not covered.shape[0]:
+            return
+        rms, peak = np.sqrt((covered**2).mean(axis=0)), np.abs(covered).max(axis=0)
+        self.residuals.append((float(rows[0, 0]), rms, peak))
+        with open(self.out / RESIDUAL_FILE, "a", encoding="utf-8") as fh:  # a line a window, as they come
+            if len(self.residuals) == 1:
+                fh.write("t_start_s,rms_x_um,rms_y_um,max_x_um,max_y_um\n")
+            fh.write(",".join(f"{v:.6g}" for v in (rows[0, 0], *(rms * 1e6), *(peak * 1e6))) + "\n")
 
     def live_section(self, ended_by: str | None = None) -> dict:
         s = self.s
