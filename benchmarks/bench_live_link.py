@@ -5,7 +5,9 @@ the shadow monitor keeps up.
 
 Prints, from one run on one machine:
 
-* **Cost at --realtime max**: the CPU (user + sys of the child process, every thread, ``os.wait4``) of
+* **Cost at --realtime max**: serving's own CPU (the server thread's ``time.thread_time`` and the hand-over's, as
+  serve prints them) over the rest of the serve process; and, for the whole picture, the CPU (user + sys of the
+  child process, every thread, ``os.wait4``) of
   ``gantry-twin serve SCENARIO --realtime max`` with one subscriber reading every block, against
   ``gantry-twin run`` of the same scenario (``--no-plots``), interleaved, ``--repeats`` times; the median ratio.
   Both processes import the same packages and load the same compiled loop.
@@ -23,6 +25,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
+import math
 import os
 import re
 import subprocess
@@ -38,6 +41,12 @@ CLI = [sys.executable, "-m", "gantry_twin"]
 #: one interval; 20 ms is the server's own publication period.
 PUBLISHING_INTERVAL_MS = 20
 SCENARIO = "no_load_circle"
+
+
+def _serving_cost(proc: subprocess.Popen) -> float:
+    """The CPU seconds serve says serving cost (its server thread and the hand-over), from its last line."""
+    match = re.search(r"serving cost ([0-9.]+) s of CPU", proc.stdout.read())
+    return float(match.group(1)) if match else math.nan
 
 
 def _child_cpu(proc: subprocess.Popen) -> float:
@@ -108,10 +117,11 @@ def _cost_pair(tmp: Path, seconds: float, tag: str) -> tuple[float, float, int]:
         tmp, "--set", duration, "--realtime", "max", "--wait-subscribers", "1", "--linger", "1", "--out", str(tmp / tag)
     )
     sub = _subscribe(endpoint, 600, tmp / f"cost{tag}.json")
+    serving = _serving_cost(serve)
     serve_cpu = _child_cpu(serve)
     sub.wait(120)
     arrivals = json.loads((tmp / f"cost{tag}.json").read_text())["arrivals"]
-    return run_cpu, serve_cpu, sum(a[2] for a in arrivals)
+    return run_cpu, serve_cpu, sum(a[2] for a in arrivals), serving
 
 
 def cost(tmp: Path, seconds: float, repeats: int) -> None:
@@ -119,18 +129,22 @@ def cost(tmp: Path, seconds: float, repeats: int) -> None:
     pay once (imports, the compiled loop's load, the server's start and --linger)."""
     short = seconds / 4
     print(f"Cost at --realtime max ({SCENARIO}), CPU s of the process, all threads; {short:g} s and {seconds:g} s:")
-    whole, margin = [], []
+    whole, margin, own = [], [], []
     for i in range(repeats):
-        run_s, serve_s, got_s = _cost_pair(tmp, short, f"s{i}")
-        run_l, serve_l, got_l = _cost_pair(tmp, seconds, f"l{i}")
+        run_s, serve_s, got_s, _ = _cost_pair(tmp, short, f"s{i}")
+        run_l, serve_l, got_l, serving = _cost_pair(tmp, seconds, f"l{i}")
         whole.append(serve_l / run_l)
         margin.append((serve_l - serve_s) / (run_l - run_s))
+        own.append(serving / (serve_l - serving))
         print(
             f"  {short:g} s: run {run_s:6.2f}  serve {serve_s:6.2f} ({got_s} samples read) | "
-            f"{seconds:g} s: run {run_l:6.2f}  serve {serve_l:6.2f} ({got_l} samples read) | "
-            f"whole {whole[-1]:.3f}  margin {margin[-1]:.3f}"
+            f"{seconds:g} s: run {run_l:6.2f}  serve {serve_l:6.2f} ({got_l} samples read), of it serving "
+            f"{serving:.2f} | whole {whole[-1]:.3f}  margin {margin[-1]:.3f}  serving / the rest {own[-1]:.3f}"
         )
-    print(f"  median serve / run: whole process {np.median(whole):.3f}, per simulated second {np.median(margin):.3f}")
+    print(
+        f"  median serve / run: whole process {np.median(whole):.3f}, per simulated second {np.median(margin):.3f}; "
+        f"serving's own CPU (server thread + hand-over) / the rest of the serve process: {np.median(own):.3f}"
+    )
 
 
 def realtime(tmp: Path, seconds: float) -> None:

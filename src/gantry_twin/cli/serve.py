@@ -98,6 +98,7 @@ def command(args: argparse.Namespace) -> int:
     except LinkError as exc:
         raise BadInput(str(exc)) from None
     status = EXIT_OK
+    hand_over_s = 0.0
     try:
         port = server.bound_port
         print(f"serving {scenario.name} on opc.tcp://{args.host}:{port} (Ctrl-C stops)", flush=True)
@@ -119,6 +120,7 @@ def command(args: argparse.Namespace) -> int:
                 pacer = [] if math.isinf(args.realtime) else [RealtimePacer(args.realtime)]
                 outcome = writer.run([link, *pacer], chunk_s=SERVE_CHUNK_S if pacer else None)
             index, offset_s = link.end_index, offset_s + outcome.summary.duration_s
+            hand_over_s += link.cpu_s
             if args.out is None:
                 point_latest(out)
             failed_run = outcome.failed
@@ -136,6 +138,12 @@ def command(args: argparse.Namespace) -> int:
         time.sleep(args.linger)
     finally:
         server.close()
+    total = server.thread_cpu_s + hand_over_s
+    print(
+        f"serving cost {total:.2f} s of CPU: the server's thread {server.thread_cpu_s:.2f} s (its start included), "
+        f"handing samples over {hand_over_s:.2f} s",
+        flush=True,
+    )
     return status
 
 

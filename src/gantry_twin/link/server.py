@@ -99,6 +99,8 @@ class TwinServer:
         self.published_samples = 0
         self.space: AddressSpace | None = None
         self.bound_port = self.port  # the port listened on (the one chosen when ``port`` is 0)
+        #: CPU seconds of the server's own thread (set when it stops): what serving costs besides the hand-over.
+        self.thread_cpu_s = 0.0
 
     @property
     def endpoint(self) -> str:
@@ -195,6 +197,7 @@ class TwinServer:
             publisher.cancel()
             with contextlib.suppress(asyncio.CancelledError):
                 await publisher
+        self.thread_cpu_s = time.thread_time()  # this thread's CPU, all of it the server's
 
     def _limit(self, server: Server) -> None:
         """Bounds against a hostile client: messages of at most MAX_MESSAGE_BYTES (asyncua's default is 100 MB),
@@ -329,6 +332,7 @@ class LinkObserver:
         self.server, self.first_index, self.time_offset_s, self.describe = server, first_index, time_offset_s, describe
         self.realtime = realtime
         self.monitor = None
+        self.cpu_s = 0.0  # CPU seconds of the run's thread spent handing chunks over (not counting a full queue's wait)
         self._alarms_sent = 0
         self.end_index = first_index
 
@@ -342,6 +346,13 @@ class LinkObserver:
     def on_chunk(self, trace: Trace, start: int, stop: int) -> None:
         if stop <= start:
             return
+        started = time.thread_time()
+        try:
+            self._hand_over(trace, start, stop)
+        finally:
+            self.cpu_s += time.thread_time() - started
+
+    def _hand_over(self, trace: Trace, start: int, stop: int) -> None:
         values = trace_values(trace, start, stop)
         values[:, IDX["t_s"]] += self.time_offset_s
         index = np.arange(self.first_index + start, self.first_index + stop, dtype=np.float64)
