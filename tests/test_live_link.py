@@ -495,3 +495,63 @@ async def _browse_all(client, node, depth: int) -> int:
         if depth > 0:
             count += await _browse_all(client, child, depth - 1)
     return count
+
+
+def test_an_operator_stops_and_starts_the_twin_and_nobody_else_can(tmp_path):
+    import asyncio
+
+    from asyncua import Client, ua
+
+    from gantry_twin.link.security import user_entry
+
+    users = tmp_path / "users.yaml"
+    entries = {"op": user_entry("op-pw", "operator"), "view": user_entry("view-pw", "viewer")}
+    users.write_text(json.dumps({"users": entries}))
+    out = tmp_path / "run"
+    serve, endpoint = _start_serve(
+        tmp_path,
+        "no_load_circle",
+        *("--set", "duration_s=3", "--realtime", "1", "--users", str(users), "--linger", "1", "--out", str(out)),
+    )
+
+    async def session(user: str | None = None, password: str | None = None) -> Client:
+        client = Client(endpoint, timeout=10)
+        if user:
+            client.set_user(user)
+            client.set_password(password)
+        await client.connect()
+        return client
+
+    async def wait_state(client: Client, ns: int, wanted: str) -> None:
+        node = client.get_node(f"ns={ns};s=GantryTwin.RunState")
+        deadline = time.monotonic() + 30
+        while await node.read_value() != wanted:
+            assert time.monotonic() < deadline, f"no {wanted} within 30 s"
+            await asyncio.sleep(0.05)
+
+    async def drive() -> None:
+        op, viewer, anonymous = await session("op", "op-pw"), await session("view", "view-pw"), await session()
+        ns = await op.get_namespace_index("urn:gantry-twin:opcua")
+        twin = op.get_node(f"ns={ns};s=GantryTwin")
+        await wait_state(op, ns, "running")
+        for who in (viewer, anonymous):  # reading is everybody's; the methods are the operator's
+            with pytest.raises(ua.UaStatusCodeError, match="BadUserAccessDenied"):
+                await who.get_node(f"ns={ns};s=GantryTwin").call_method(f"{ns}:Stop")
+        with pytest.raises(ua.UaStatusCodeError, match="BadUserAccessDenied"):  # and nobody writes
+            await op.get_node(f"ns={ns};s=GantryTwin.RunState").write_value("finished")
+        await twin.call_method(f"{ns}:Stop")
+        await wait_state(op, ns, "idle")
+        await twin.call_method(f"{ns}:Start")
+        await wait_state(op, ns, "running")
+        for client in (op, viewer, anonymous):
+            await client.disconnect()
+
+    try:
+        asyncio.run(drive())
+        serve.wait(WAIT_S)
+    finally:
+        _stop(serve)
+    assert serve.returncode == 0, serve.stderr.read()
+    stopped, second = RunSummary.read(out / "summary.json"), RunSummary.read(out / "pass-0002" / "summary.json")
+    assert stopped.status == "failed" and "stopped by a client's Stop" in stopped.failure.error
+    assert stopped.failure.time_s < 3.0 and second.status == "ok" and second.duration_s == 3.0

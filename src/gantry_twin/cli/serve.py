@@ -119,23 +119,33 @@ def command(args: argparse.Namespace) -> int:
                 link = LinkObserver(server, index, offset_s, _describe(scenario), pace)
                 pacer = [] if math.isinf(args.realtime) else [RealtimePacer(args.realtime)]
                 outcome = writer.run([link, *pacer], chunk_s=SERVE_CHUNK_S if pacer else None)
-            index, offset_s = link.end_index, offset_s + outcome.summary.duration_s
+            index, offset_s = link.end_index, offset_s + (link.end_index - link.first_index) * built.plant.timestep_s
             hand_over_s += link.cpu_s
             if args.out is None:
                 point_latest(out)
-            failed_run = outcome.failed
-            print(
-                f"pass {passes}: {'failed' if failed_run else 'finished'}, {index} samples served; results in {out}/",
-                flush=True,
-            )
+            failed_run = outcome.failed and link.stopped is None
+            what = f"stopped ({link.stopped})" if link.stopped else "failed" if failed_run else "finished"
+            print(f"pass {passes}: {what}, {index} samples served; results in {out}/", flush=True)
             if outcome.summary.health is not None:
                 print("\n".join(format_health(outcome.summary.health)), flush=True)
-            if failed_run or not args.loop:
-                server.put(("state", "failed" if failed_run else "finished"))
-                status = EXIT_RUN_FAILED if failed_run else EXIT_OK
+            if failed_run:
+                server.put(("state", "failed"))
+                status = EXIT_RUN_FAILED
+                break
+            if link.stopped is None and args.loop:
+                continue
+            if link.stopped == "Reset":
+                index, offset_s = 0, 0.0
+            server.put(("state", "idle" if link.stopped else "finished"))
+            # Stopped: idle until a client's Start (or Ctrl-C). Finished: --linger seconds for a Start, then the end.
+            started, reset = _wait_for_start(server, math.inf if link.stopped else args.linger)
+            if reset:
+                index, offset_s = 0, 0.0
+            if not started:
                 break
         server.drain()
-        time.sleep(args.linger)
+        if status != EXIT_OK:
+            time.sleep(args.linger)  # subscribers read the state failed
     finally:
         server.close()
     total = server.thread_cpu_s + hand_over_s
@@ -147,10 +157,25 @@ def command(args: argparse.Namespace) -> int:
     return status
 
 
+def _wait_for_start(server, timeout_s: float) -> tuple[bool, bool]:
+    """(a client called Start within ``timeout_s``, a client called Reset meanwhile: the next pass's samples count
+    from 0 again)."""
+    deadline, reset = time.monotonic() + timeout_s, False
+    while True:
+        command = server.next_command(min(1.0, deadline - time.monotonic()))
+        reset = reset or command == "Reset"
+        if command == "Start":
+            return True, reset
+        if time.monotonic() >= deadline:
+            return False, reset
+
+
 def _pass_dir(base: Path | None, scenario, passes: int, loop: bool) -> Path:
+    """A pass's run directory: a new one under runs/ for each; with --out, DIR itself for a single pass, and
+    DIR/pass-NNNN for each pass of --loop or started again by a client's Start after the first."""
     if base is None:
         return out_dir(None, scenario)
-    return base / f"pass-{passes:04d}" if loop else base
+    return base / f"pass-{passes:04d}" if loop or passes > 1 else base
 
 
 def _describe(scenario):

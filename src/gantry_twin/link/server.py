@@ -36,7 +36,7 @@ from gantry_twin.link.address_space import (
 )
 from gantry_twin.link.blocks import SIGNAL_NAMES, Block, trace_values
 from gantry_twin.link.security import Security
-from gantry_twin.loop.trace import RunInfo, Trace
+from gantry_twin.loop.trace import RunInfo, SimulationError, Trace
 from gantry_twin.theta import AXES, THETA_NAMES
 
 #: Wall time between two publications of the samples that came, s (about 50 blocks a second at real time).
@@ -96,6 +96,13 @@ class TwinServer:
         self._stopped = threading.Event()
         self._error: BaseException | None = None
         self.commands: queue.Queue[str] = queue.Queue()  # Start, Stop, Reset from clients with the operator role
+
+    def next_command(self, timeout_s: float) -> str | None:
+        """The next Start, Stop or Reset a client called, waiting at most ``timeout_s``; None if none came."""
+        try:
+            return self.commands.get(timeout=max(0.0, timeout_s))
+        except queue.Empty:
+            return None
         self.published_samples = 0
         self.space: AddressSpace | None = None
         self.bound_port = self.port  # the port listened on (the one chosen when ``port`` is 0)
@@ -333,6 +340,7 @@ class LinkObserver:
         self.realtime = realtime
         self.monitor = None
         self.cpu_s = 0.0  # CPU seconds of the run's thread spent handing chunks over (not counting a full queue's wait)
+        self.stopped: str | None = None  # "Stop" or "Reset" when a client's method call ended the pass
         self._alarms_sent = 0
         self.end_index = first_index
 
@@ -351,6 +359,20 @@ class LinkObserver:
             self._hand_over(trace, start, stop)
         finally:
             self.cpu_s += time.thread_time() - started
+        self._obey(trace, stop)
+
+    def _obey(self, trace: Trace, stop: int) -> None:
+        """A client's Stop or Reset (an operator's method call) ends this pass: SimulationError, so that the run's
+        directory keeps what ran (status failed, the reason named); a Start while running is ignored."""
+        while True:
+            try:
+                command = self.server.commands.get_nowait()
+            except queue.Empty:
+                return
+            if command in ("Stop", "Reset"):
+                self.stopped = command
+                t = float(trace.t_s[stop - 1 - trace.first])
+                raise SimulationError(f"stopped by a client's {command} (OPC UA method)", t, stop)
 
     def _hand_over(self, trace: Trace, start: int, stop: int) -> None:
         values = trace_values(trace, start, stop)
