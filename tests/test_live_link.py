@@ -555,3 +555,18 @@ def test_an_operator_stops_and_starts_the_twin_and_nobody_else_can(tmp_path):
     stopped, second = RunSummary.read(out / "summary.json"), RunSummary.read(out / "pass-0002" / "summary.json")
     assert stopped.status == "failed" and "stopped by a client's Stop" in stopped.failure.error
     assert stopped.failure.time_s < 3.0 and second.status == "ok" and second.duration_s == 3.0
+
+
+def test_sigterm_stops_serve_as_it_stops_run(tmp_path):
+    """The sessions are closed and the process ends; the interrupted pass leaves what `run` leaves (nothing)."""
+    out = tmp_path / "run"
+    serve, endpoint = _start_serve(tmp_path, "no_load_circle", "--set", "duration_s=30", "--out", str(out))
+    try:
+        time.sleep(1.5)  # into the pass (real time)
+        serve.send_signal(signal.SIGTERM)
+        serve.wait(60)
+    finally:
+        _stop(serve)
+    err = serve.stderr.read().strip().splitlines()
+    assert serve.returncode == 128 + signal.SIGTERM and err[-1] == "gantry-twin: interrupted (SIGTERM)", err
+    assert not out.exists() and sorted(p.name for p in tmp_path.iterdir()) == []
