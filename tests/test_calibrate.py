@@ -22,7 +22,10 @@ from gantry_twin.scenario import build, load_scenario, shipped
 SHORT = {"plant.model": "rig", "duration_s": 2.5, "window_s": [0.5, 2.5], "estimates_window_s": [1.5, 2.5]}
 TRUE_DN = (0.03, -0.04)
 TRUE_RIPPLE_V = 0.03
-CASES = [(s, c) for s in ("no_load_circle", "no_load_ellipse") for c in ("darc", "drc")]
+#: The measured runs: the circle under two controllers. Its 2.5 s runs move both axes through a reversal, and the two
+#: controllers' different errors separate the offsets from the ripple: the fit meets every tolerance below from its
+#: 37th evaluation on (the ellipse's runs, once targets too, doubled each evaluation's cost and added no accuracy).
+CASES = [("no_load_circle", c) for c in ("darc", "drc")]
 
 
 def _ripple(amplitude_v: float) -> dict:
@@ -61,7 +64,7 @@ def _spec(targets: list[dict]) -> dict:
             {"name": "dN2", "field": "plant.offset.y.constant_v", "range": [-0.1, 0.1], "start": 0.0},
             {"name": "ripple", "field": ripple_fields, "range": [0.0, 0.08], "start": 0.05},
         ],
-        "optimiser": {"evaluations": 50},
+        "optimiser": {"evaluations": 40},
     }
 
 

@@ -1,8 +1,8 @@
 """DIARC's physical parameter estimates against the model's true values.
 
 Steady-state estimate = mean theta^ over the last period of a 30 s run
-(docs/scenarios.md), compared with the reference machine (typed in
-tests/helpers.py, not read back from the code). Checked on the estimates
+(docs/scenarios.md; 15 s for the recommended estimator, settled long before),
+compared with the reference machine (typed in tests/helpers.py, not read back from the code). Checked on the estimates
 themselves, not only the contour error: a zero-order-hold position filter or
 a wrong regressor keeps the contour error small but pins the estimates at
 their bounds.
@@ -20,7 +20,7 @@ from gantry_twin.scenario import build, load_scenario, shipped
 
 from .helpers import THETA_MIN, deviation_pct, run, spec_theta
 
-#: Every test here is a 30 s closed-loop run (seconds each).
+#: Every test here is a 15-30 s closed-loop run (seconds each).
 pytestmark = pytest.mark.slow
 
 PHYSICAL = ("M1", "M2", "B1", "B2", "Af1", "Af2")
@@ -28,10 +28,16 @@ CASES = [(c, load) for c in ("circle", "ellipse") for load in (0.0, 5.0)]
 DURATION_S = 30.0
 
 
-def steady_errors(contour_name, payload_kg, sensing, estimator):
+#: The recommended estimator (10 Hz filters, kappa 0.7 1/s) has settled by 12 s on these contours: its last-period
+#: means at 15 s and at 30 s agree to 0.05 % of each value, so a 15 s run judges the same steady state. The paper's
+#: estimator is still converging at 20 s (B and Af 4-6 % off): its runs stay 30 s long.
+RECOMMENDED_DURATION_S = 15.0
+
+
+def steady_errors(contour_name, payload_kg, sensing, estimator, duration_s=DURATION_S):
     """% deviation of each physical estimate from the reference value, and the last period's theta^ (samples x 8)."""
-    trace, period = run("diarc", contour_name, DURATION_S, payload_kg, sensing=sensing, estimator=estimator)
-    last_period = trace.controller_state["theta_hat"][trace.t_s >= DURATION_S - period]
+    trace, period = run("diarc", contour_name, duration_s, payload_kg, sensing=sensing, estimator=estimator)
+    last_period = trace.controller_state["theta_hat"][trace.t_s >= duration_s - period]
     errors = deviation_pct(last_period.mean(axis=0)[:6], spec_theta(payload_kg)[:6])
     return dict(zip(PHYSICAL, errors, strict=True)), last_period
 
@@ -45,7 +51,9 @@ def test_ideal_sensing_paper_filters_within_5_percent(contour_name, payload_kg):
 
 @pytest.mark.parametrize(("contour_name", "payload_kg"), CASES)
 def test_encoder_with_recommended_estimator_within_5_percent(contour_name, payload_kg):
-    errors, last_period = steady_errors(contour_name, payload_kg, SensingConfig(), RECOMMENDED_ESTIMATOR)
+    errors, last_period = steady_errors(
+        contour_name, payload_kg, SensingConfig(), RECOMMENDED_ESTIMATOR, RECOMMENDED_DURATION_S
+    )
     for name in PHYSICAL:
         assert abs(errors[name]) < 5.0, f"{name}: {errors[name]:+.2f} %"
     # No unmodelled input here, so the nominal disturbance estimates stay near 0 V.
