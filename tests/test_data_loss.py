@@ -17,6 +17,7 @@ import subprocess
 import sys
 import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -26,7 +27,7 @@ import pytest
 from gantry_twin.sweep.engine import CONNECT_TIMEOUT_S, ClusterError, probe_scheduler
 
 from .helpers import read_rrd
-from .test_hostile_input import SWEEP, TIME_LIMIT_S, Case, _make, run_children
+from .test_hostile_input import SWEEP, TIME_LIMIT_S, Case, Outcome, _make, run_children
 
 #: A short run recorded with --save (its .rrd is some hundreds of KB; summary.json a few KB), no trace or plots.
 SAVE_RUN = ["run", "--set", "outputs.trace=false", "--no-plots", "--save", "r.rrd"]
@@ -209,6 +210,28 @@ def _server(kind: str):
         listener.close()
 
 
+NOT_SCHEDULERS = ("silent", "http", "http_first")
+
+
+@pytest.fixture(scope="module")
+def not_schedulers(tmp_path_factory) -> dict[str, tuple[int, Outcome]]:
+    """kind -> (port, outcome) of ``sweep --scheduler`` at each kind of :func:`_server`, each in its own child.
+
+    The three children run at the same time, each against its own server: the two silent ones wait out the connect
+    timeout together instead of one after the other. A child's wall time and CPU time are its own either way."""
+    root = tmp_path_factory.mktemp("not_schedulers")
+    with contextlib.ExitStack() as servers, ThreadPoolExecutor(len(NOT_SCHEDULERS)) as pool:
+        runs = {}
+        for kind in NOT_SCHEDULERS:
+            port = servers.enter_context(_server(kind))
+            case = Case(
+                kind, {"w.yaml": SWEEP}, ("sweep", "w.yaml", "--out", "out", "--scheduler", f"127.0.0.1:{port}")
+            )
+            _make(root / kind, case.files)
+            runs[kind] = (port, pool.submit(run_children, [case], root, "fork"))
+        return {kind: (port, future.result()[kind]) for kind, (port, future) in runs.items()}
+
+
 @pytest.mark.parametrize(
     "kind, answer",
     [
@@ -217,12 +240,9 @@ def _server(kind: str):
         ("http_first", "answers, but not as a Dask scheduler (e.g. an HTTP server)"),
     ],
 )
-def test_scheduler_that_is_not_one_exit_2_within_the_connect_timeout(tmp_path, kind, answer):
+def test_scheduler_that_is_not_one_exit_2_within_the_connect_timeout(not_schedulers, kind, answer):
     """Once: still waiting after 300 s (silent), or a MemoryError for 3 EiB (an HTTP reply read as a length)."""
-    with _server(kind) as port:
-        case = Case(kind, {"w.yaml": SWEEP}, ("sweep", "w.yaml", "--out", "out", "--scheduler", f"127.0.0.1:{port}"))
-        _make(tmp_path / kind, case.files)
-        o = run_children([case], tmp_path, "fork")[kind]
+    port, o = not_schedulers[kind]
     assert o.code == 2, o
     lines = o.stderr.strip().splitlines()
     assert len(lines) == 1 and "Traceback" not in o.stderr, o.stderr

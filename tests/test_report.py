@@ -44,7 +44,8 @@ def _independent_numbers(tmp_path, capsys) -> dict[str, dict]:
     for key, (scenario, controller, extra) in TINY_RUNS.items():
         out = tmp_path / "independent" / key
         sets = [arg for override in (*TINY, *extra) for arg in ("--set", override)]
-        code, _, err = run_main(["run", scenario, "--controller", controller, *sets, "--out", str(out)], capsys)
+        argv = ["run", scenario, "--controller", controller, *sets, "--out", str(out), "--no-plots"]  # not read here
+        code, _, err = run_main(argv, capsys)
         assert code == 0, err
         table = pq.read_table(out / "trace.parquet")
         t = table.column("t_s").to_numpy()

@@ -65,7 +65,10 @@ def finished_rows(out: Path) -> int:
 
 @pytest.fixture(scope="module")
 def reference(tmp_path_factory) -> dict[tuple, dict]:
-    """summary.json of ``gantry-twin run --set ...`` for each point of the minimal sweep, by its swept values."""
+    """summary.json of ``gantry-twin run --set ...`` for each point of the minimal sweep, by its swept values.
+
+    With --no-plots: the figures are not in summary.json (the same file to the byte with or without them) and were
+    most of each run's time."""
     tmp = tmp_path_factory.mktemp("reference")
     path = tmp / "minimal.yaml"
     path.write_text(MINIMAL)
@@ -74,7 +77,7 @@ def reference(tmp_path_factory) -> dict[tuple, dict]:
     for point in plan_sweep(spec, str(path)).points:
         sets = [*(override(k, v) for k, v in spec.set.items()), *(override(k, v) for k, v in point.values.items())]
         run_dir = tmp / f"run{point.index}"
-        argv = ["run", "no_load_circle", "--out", str(run_dir), "--no-progress"]
+        argv = ["run", "no_load_circle", "--out", str(run_dir), "--no-progress", "--no-plots"]
         with contextlib.redirect_stdout(io.StringIO()):
             assert cli.main([*argv, *(a for s in sets for a in ("--set", s))]) == 0
         out[tuple(point.values.values())] = json.loads((run_dir / "summary.json").read_text())
@@ -155,13 +158,16 @@ def scheduler(tmp_path_factory):
             client.wait_for_workers(2, timeout=120)
         yield address
     finally:
-        for proc in reversed(procs):
-            proc.terminate()
-        for proc in procs:
-            try:
-                proc.wait(timeout=30)
-            except subprocess.TimeoutExpired:
-                proc.kill()
+        # The workers first, while their scheduler still answers (about 1 s); stopped together with it, a worker's
+        # nanny often waited some 8 s for the lost scheduler before it ended.
+        for group in (procs[1:], procs[:1]):
+            for proc in group:
+                proc.terminate()
+            for proc in group:
+                try:
+                    proc.wait(timeout=30)
+                except subprocess.TimeoutExpired:
+                    proc.kill()
 
 
 @pytest.mark.slow
@@ -214,13 +220,14 @@ def _descendants(pid: int) -> list:
     return psutil.Process(pid).children(recursive=True)
 
 
-@pytest.mark.slow
-def test_killed_driver_then_resume_runs_only_the_missing_points(tmp_path, capsys):
+def _kill_the_driver(tmp: Path) -> tuple[Path, Path, list]:
+    """A sweep of TEN_POINTS on 2 local workers, its driver SIGKILLed after three points: (spec, out, the driver's
+    processes still alive 30 s after it died)."""
     import psutil
 
-    path = tmp_path / "ten.yaml"
+    path = tmp / "ten.yaml"
     path.write_text(TEN_POINTS)
-    out = tmp_path / "out"
+    out = tmp / "out"
     driver = _driver(path, out, "--workers", "2")
     children: list = []
     try:
@@ -229,11 +236,59 @@ def test_killed_driver_then_resume_runs_only_the_missing_points(tmp_path, capsys
         os.kill(driver.pid, signal.SIGKILL)
         driver.wait(timeout=30)
         _, alive = psutil.wait_procs(children, timeout=30)
-        assert not alive, f"worker processes outlived the killed driver: {alive}"
     finally:
         for proc in [driver, *children]:  # only the processes this test started
             with contextlib.suppress(Exception):
                 proc.kill()
+    return path, out, alive
+
+
+def _signal_the_driver(tmp: Path, how: str) -> tuple[Path, int, str, list]:
+    """A sweep of TEN_POINTS on 2 local workers, stopped by ``how`` after two points: (out, exit code, stderr, the
+    cluster's processes still alive 15 s after the driver ended)."""
+    import psutil
+
+    path = tmp / "ten.yaml"
+    path.write_text(TEN_POINTS)
+    out = tmp / "out"
+    driver = _driver(path, out, "--workers", "2")  # in a session of its own, like a shell's job
+    try:
+        wait_for(lambda: finished_rows(out) >= 2, "two points")
+        children = _descendants(driver.pid)
+        if how == "sigterm_to_the_driver":
+            driver.send_signal(signal.SIGTERM)
+        else:  # a terminal's Ctrl-C reaches the driver and its worker processes at once
+            os.killpg(driver.pid, signal.SIGINT)
+        _, stderr = driver.communicate(timeout=60)
+    finally:
+        if driver.poll() is None:
+            driver.kill()
+    _, alive = psutil.wait_procs(children, timeout=15)  # the cluster's processes end with the driver
+    return out, driver.returncode, stderr, alive
+
+
+@pytest.fixture(scope="module")
+def stopped_drivers(tmp_path_factory):
+    """The three sweeps whose driver is stopped mid-way (killed; SIGTERM; Ctrl-C), started at once, each a driver
+    and local cluster of its own in a directory of its own: their start-ups and waits overlap instead of adding up.
+    name -> a future of what :func:`_kill_the_driver` or :func:`_signal_the_driver` returns (its error, if any,
+    raised in the test that reads it). Each stops its own processes, failed or not, before the fixture returns."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(3) as pool:
+        return {
+            "killed": pool.submit(_kill_the_driver, tmp_path_factory.mktemp("killed")),
+            **{
+                how: pool.submit(_signal_the_driver, tmp_path_factory.mktemp(how), how)
+                for how in ("sigterm_to_the_driver", "ctrl_c_to_the_process_group")
+            },
+        }
+
+
+@pytest.mark.slow
+def test_killed_driver_then_resume_runs_only_the_missing_points(stopped_drivers, capsys):
+    path, out, alive = stopped_drivers["killed"].result()
+    assert not alive, f"worker processes outlived the killed driver: {alive}"
     before = {r["key"]: r for r in rows_of(out)}
     assert 3 <= len(before) < 10, "the driver was killed too late to leave points missing"
     code, stdout, err = run_main(["sweep", str(path), "--out", str(out), "--workers", "2", "--resume"], capsys)
@@ -248,28 +303,11 @@ def test_killed_driver_then_resume_runs_only_the_missing_points(tmp_path, capsys
 
 @pytest.mark.slow
 @pytest.mark.parametrize("how", ["sigterm_to_the_driver", "ctrl_c_to_the_process_group"])
-def test_signals_stop_the_cluster_and_leave_a_valid_table(tmp_path, how):
-    import psutil
-
-    path = tmp_path / "ten.yaml"
-    path.write_text(TEN_POINTS)
-    out = tmp_path / "out"
-    driver = _driver(path, out, "--workers", "2")  # in a session of its own, like a shell's job
-    try:
-        wait_for(lambda: finished_rows(out) >= 2, "two points")
-        children = _descendants(driver.pid)
-        if how == "sigterm_to_the_driver":
-            driver.send_signal(signal.SIGTERM)
-        else:  # a terminal's Ctrl-C reaches the driver and its worker processes at once
-            os.killpg(driver.pid, signal.SIGINT)
-        _, stderr = driver.communicate(timeout=60)
-    finally:
-        if driver.poll() is None:
-            driver.kill()
+def test_signals_stop_the_cluster_and_leave_a_valid_table(stopped_drivers, how):
+    out, returncode, stderr, alive = stopped_drivers[how].result()
     name = "SIGTERM" if how == "sigterm_to_the_driver" else "SIGINT"
-    assert driver.returncode == 128 + signal.Signals[name].value, stderr  # as for run: 143 SIGTERM, 130 Ctrl-C
+    assert returncode == 128 + signal.Signals[name].value, stderr  # as for run: 143 SIGTERM, 130 Ctrl-C
     assert stderr.strip().splitlines()[-1] == f"gantry-twin: interrupted ({name})"
-    _, alive = psutil.wait_procs(children, timeout=15)  # the cluster's processes end with the driver
     assert not alive, [" ".join(p.cmdline()) for p in alive]
     rows = rows_of(out)
     assert 2 <= len(rows) < 10 and all(r["status"] == "ok" for r in rows)

@@ -64,6 +64,12 @@ def _tune(tmp_path, grid_data, cluster, name, seed=3):  # noqa: ANN001, ANN202
     return plan, out, outcome, limit
 
 
+@pytest.fixture(scope="module")
+def tuned(tmp_path_factory, grid, cluster):
+    """``_tune`` of seed 3 ("a"): the tune the landing test checks and the same-seed test repeats (run once)."""
+    return _tune(tmp_path_factory.mktemp("tuned"), grid, cluster, "a")
+
+
 def test_the_grid_has_an_interior_constrained_optimum(grid):
     kp, rms, du = grid
     limit = float(np.quantile(du, 0.25))
@@ -72,9 +78,9 @@ def test_the_grid_has_an_interior_constrained_optimum(grid):
     assert rms[~ok].min() < rms[ok].min()  # ignoring the hard goal would pick another design
 
 
-def test_tune_lands_on_the_grids_optimum_and_never_reports_a_violating_best(tmp_path, grid, cluster):
+def test_tune_lands_on_the_grids_optimum_and_never_reports_a_violating_best(grid, tuned):
     kp, rms, du = grid
-    plan, out, outcome, limit = _tune(tmp_path, grid, cluster, "a")
+    plan, out, outcome, limit = tuned
     study = outcome.study
     best = best_trial(plan, study)
     assert best is not None and feasible(best)
@@ -107,8 +113,8 @@ def test_tune_lands_on_the_grids_optimum_and_never_reports_a_violating_best(tmp_
     assert (out / "convergence.png").is_file() and (out / "goals.png").is_file()
 
 
-def test_the_same_seed_gives_the_same_best(tmp_path, grid, cluster):
-    plan, _, first, _ = _tune(tmp_path, grid, cluster, "a")
+def test_the_same_seed_gives_the_same_best(tmp_path, grid, cluster, tuned):
+    plan, _, first, _ = tuned  # the first tune of seed 3; "b" below is a second, from scratch
     _, _, again, _ = _tune(tmp_path, grid, cluster, "b")
     a, b = best_trial(plan, first.study), best_trial(plan, again.study)
     assert a.number == b.number and a.params == b.params
