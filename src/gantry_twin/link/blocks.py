@@ -64,9 +64,6 @@ class Block:
     def end_index(self) -> int:
         return self.first_index + self.samples
 
-    def column(self, name: str) -> np.ndarray:
-        return self.values[:, SIGNAL_NAMES.index(name)]
-
     def encode(self) -> list[float]:
         """The flat array a server publishes (module docstring)."""
         n, m = self.values.shape

@@ -2,9 +2,9 @@
 (:mod:`gantry_twin.link.nodemap`) and hands what comes to the caller's thread as :class:`Received` items,
 reconnecting with backoff when the connection is lost (docs/live-link.md).
 
-Subscriptions ask for a queue of :data:`QUEUE_SIZE` values per monitored item, so that no block is dropped
-between two publishing intervals of :data:`PUBLISHING_INTERVAL_MS` (at most 50 blocks in that time at real
-time); the server revises it, and the revised size is reported.
+Subscriptions ask for a sampling interval of 0 (every change) and a queue of :data:`QUEUE_SIZE` values per
+monitored item, so that no block is dropped between two publishing intervals of :data:`PUBLISHING_INTERVAL_MS`
+(about 5 blocks in that time at real time, 20 at 4x).
 """
 
 from __future__ import annotations
@@ -57,7 +57,6 @@ class MachineClient:
     def __init__(self, endpoint: str, nodes: NodeMap, first_connect_s: float = 10.0) -> None:
         self.endpoint, self.nodes, self.first_connect_s = endpoint, nodes, float(first_connect_s)
         self.items: queue.Queue[Received] = queue.Queue()
-        self.revised_queue_size: int | None = None
         self._stop = threading.Event()
         self._connected = False
         self._thread = threading.Thread(target=self._run, name="opcua-client", daemon=True)

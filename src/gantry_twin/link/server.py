@@ -103,7 +103,6 @@ class TwinServer:
             return self.commands.get(timeout=max(0.0, timeout_s))
         except queue.Empty:
             return None
-        self.published_samples = 0
         self.space: AddressSpace | None = None
         self.bound_port = self.port  # the port listened on (the one chosen when ``port`` is 0)
         #: CPU seconds of the server's own thread (set when it stops): what serving costs besides the hand-over.
@@ -273,7 +272,6 @@ class TwinServer:
             part = values[i : i + MAX_SAMPLES_PER_BLOCK]
             block = Block(first + i, float(part[0, 0]), part[:, :-1])
             await self._write(f"{TWIN}.SampleBlock", Shared(block.encode()), ua.VariantType.Double)
-            self.published_samples = block.end_index
             await self._write(f"{TWIN}.SamplesPublished", block.end_index, ua.VariantType.Int64)
         return values[-1]
 
