@@ -15,6 +15,9 @@ Prints, from one run on one machine:
   samples received and gaps, and the lag of each block (the wall time it arrived minus the wall time its last
   sample was due, ``RunStartedAt + t / RealtimeFactor``): median, 99th percentile, max. The serve process's CPU
   over the wall time.
+* **Hostile clients**: the run's wall time at ``--realtime max`` seen by one subscriber (first block to the state
+  finished), alone and beside 200 idle sessions, 1000 monitored items and a client that stops reading; the
+  median ratio of ``--repeats`` pairs.
 * **Shadow at --realtime 4**: ``serve --realtime 4`` followed by ``monitor --opcua``: the most blocks ever waiting
   in the shadow's queue (``live.backlog_max_items``), samples followed, and how long after the machine finished
   the shadow ended.
@@ -204,6 +207,77 @@ def shadow(tmp: Path, seconds: float) -> None:
     print(f"  blocks waiting, once a second: {live['backlog_items_per_s']}")
 
 
+async def _hostile_run(endpoint: str, hostile: bool) -> tuple[float, int]:
+    """One subscriber reading every block, beside (``hostile``) 200 idle sessions, 1000 monitored items and a
+    client that stops reading its socket, all set up before the run starts; (the run's wall time from its first
+    block to its state finished, the samples read)."""
+    from asyncua import Client
+
+    from gantry_twin.link.blocks import decode
+
+    state = {"first": None, "finished": None, "samples": 0}
+
+    class Legit:
+        def datachange_notification(self, node, value, data):
+            if isinstance(value, str):
+                if value == "finished":
+                    state["finished"] = time.monotonic()
+            elif (block := decode(value)) is not None:
+                state["first"] = state["first"] or time.monotonic()
+                state["samples"] += block.samples
+
+    class Ignore:
+        def datachange_notification(self, node, value, data):
+            pass
+
+    idle = []
+    if hostile:
+        for _ in range(200):
+            client = Client(endpoint, timeout=10)
+            await client.connect()
+            idle.append(client)
+    legit = Client(endpoint, timeout=10)
+    await legit.connect()
+    ns = await legit.get_namespace_index("urn:gantry-twin:opcua")
+    block, run_state = (legit.get_node(f"ns={ns};s=GantryTwin.{n}") for n in ("SampleBlock", "RunState"))
+    if hostile:
+        many = await idle[0].create_subscription(100, Ignore())
+        position = idle[0].get_node(f"ns={ns};s=CncInterface.CncAxisList.X.PosDirect.ActPos")
+        await many.subscribe_data_change([position] * 1000, queuesize=1)
+        deaf = await idle[1].create_subscription(50, Ignore())
+        await deaf.subscribe_data_change([idle[1].get_node(block.nodeid)], queuesize=10_000, sampling_interval=0)
+        idle[1].uaclient.protocol.transport.pause_reading()
+    sub = await legit.create_subscription(PUBLISHING_INTERVAL_MS, Legit())
+    await sub.subscribe_data_change([block, run_state], queuesize=500, sampling_interval=0)  # the run starts
+    deadline = time.monotonic() + 600
+    while state["finished"] is None and time.monotonic() < deadline:
+        await asyncio.sleep(0.05)
+    await legit.disconnect()
+    return state["finished"] - state["first"], state["samples"]
+
+
+def hostile(tmp: Path, seconds: float, repeats: int) -> None:
+    print(f"Hostile clients at --realtime max ({seconds:g} s simulated): the run's wall time, quiet and hostile:")
+    ratios = []
+    for i in range(repeats):
+        walls = {}
+        for mode in ("quiet", "hostile"):
+            serve, endpoint = _serve(
+                tmp,
+                *("--set", f"duration_s={seconds}", "--realtime", "max", "--wait-subscribers", "1"),
+                *("--linger", "0.5", "--out", str(tmp / f"h{mode}{i}")),
+            )
+            try:
+                walls[mode], got = asyncio.run(_hostile_run(endpoint, mode == "hostile"))
+                serve.wait(60)
+            finally:
+                if serve.poll() is None:
+                    serve.kill()
+            print(f"  {mode:8s} {walls[mode]:6.2f} s, {got} samples read")
+        ratios.append(walls["hostile"] / walls["quiet"])
+    print(f"  median hostile / quiet: {np.median(ratios):.3f}")
+
+
 def main() -> None:
     if len(sys.argv) == 5 and sys.argv[1] == "--subscriber":
         _subscriber(sys.argv[2], float(sys.argv[3]), sys.argv[4])
@@ -212,7 +286,7 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=60.0)
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--skip-realtime", action="store_true")
-    parser.add_argument("--only", choices=("cost", "realtime", "shadow"), help="run one part")
+    parser.add_argument("--only", choices=("cost", "realtime", "shadow", "hostile"), help="run one part")
     args = parser.parse_args()
     print(f"machine: {os.cpu_count()} cores, load average {os.getloadavg()[0]:.2f}")
     with tempfile.TemporaryDirectory() as tmp:
@@ -222,6 +296,8 @@ def main() -> None:
             realtime(Path(tmp), args.seconds)
         if args.only in (None, "shadow"):
             shadow(Path(tmp), min(args.seconds, 40.0))
+        if args.only in (None, "hostile"):
+            hostile(Path(tmp), args.seconds, args.repeats)
 
 
 if __name__ == "__main__":
