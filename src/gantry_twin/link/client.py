@@ -124,8 +124,9 @@ class MachineClient:
             handler = _Handler(self)
             subscription = await client.create_subscription(PUBLISHING_INTERVAL_MS, handler)
             handler.by_node = {node.nodeid: name for name, node in nodes.items()}
-            # sampling 0: every change (asyncua asks 50 ms unless told, and a sampling server then drops blocks)
-            await subscription.subscribe_data_change(list(nodes.values()), queuesize=QUEUE_SIZE, sampling_interval=0)
+            await subscription.create_monitored_items(
+                [_every_value(node, h) for h, node in enumerate(nodes.values(), 1)]
+            )
             while not self._stop.is_set():
                 await asyncio.sleep(0.25)
                 await asyncio.wait_for(client.check_connection(), CONNECT_TIMEOUT_S)
@@ -207,6 +208,25 @@ class _Handler:
 
     def status_change_notification(self, status) -> None:
         self.owner.items.put(Received("lost", f"subscription status {status}"))
+
+
+def _every_value(node, handle: int) -> ua.MonitoredItemCreateRequest:
+    """A monitored item that reports every value the server writes: sampling interval 0 (asyncua's client asks
+    50 ms unless told, and a server that samples then drops the blocks between), a queue of QUEUE_SIZE, and the
+    trigger StatusValueTimestamp (the default, StatusValue, reports a value only when it differs from the last:
+    a machine standing still, or a constant command, would lose its samples)."""
+    parameters = ua.MonitoringParameters(
+        ClientHandle=handle,
+        SamplingInterval=0.0,
+        QueueSize=QUEUE_SIZE,
+        DiscardOldest=True,
+        Filter=ua.DataChangeFilter(Trigger=ua.DataChangeTrigger.StatusValueTimestamp),
+    )
+    return ua.MonitoredItemCreateRequest(
+        ItemToMonitor=ua.ReadValueId(NodeId=node.nodeid, AttributeId=ua.AttributeIds.Value),
+        MonitoringMode=ua.MonitoringMode.Reporting,
+        RequestedParameters=parameters,
+    )
 
 
 async def _node_id(client: Client, text: str) -> ua.NodeId:
