@@ -71,7 +71,7 @@ class AddressSpace:
 
 class _Builder:
     def __init__(self, server: Server, idx: int) -> None:
-        self.server, self.idx, self.nodes = server, idx, {}
+        self.idx, self.nodes = idx, {}
 
     async def obj(self, parent: Node, path: str) -> Node:
         node = await parent.add_object(node_id(path, self.idx), ua.QualifiedName(path.rpartition(".")[2], self.idx))

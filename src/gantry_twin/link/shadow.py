@@ -111,11 +111,10 @@ class Shadow:
         self.backlog_max = 0  # the most items received and not yet handled at once
         self.backlog: list[int] = []  # items waiting, read once a second
 
-    def run(self, duration_s: float | None, first_connect_s: float) -> MachineClient:
+    def run(self, duration_s: float | None, first_connect_s: float) -> None:
         """Follow the machine until ``duration_s`` of wall time, its run state ``finished`` or ``failed``, or an
         interrupt (the caller's; what came is kept). ShadowError when the stream cannot go on."""
         client = MachineClient(self.endpoint, self.nodes, first_connect_s).start()
-        self.client = client
         end = math.inf if duration_s is None else time.monotonic() + duration_s
         finishing_at = math.inf
         next_feed = time.monotonic() + FEED_PERIOD_S
@@ -142,7 +141,6 @@ class Shadow:
             client.stop()
             self._feed(final=True)
             self._write_part(final=True)
-        return client
 
     # -- what comes --
     def _take(self, item: Received) -> bool:
