@@ -46,7 +46,7 @@ def test_node_opcua_browses_reads_counts_every_sample_and_gets_the_alarm(tmp_pat
         *("--realtime", "2", "--wait-subscribers", "1", "--linger", "2", "--out", str(tmp_path / "run")),
     )
     try:
-        seen = _node_client(endpoint, 10.0)
+        seen = _node_client(endpoint, 60.0)  # a bound: the client ends at the state finished (7 s at --realtime 2)
         serve.wait(120)
     finally:
         _stop(serve)

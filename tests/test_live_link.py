@@ -22,6 +22,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from gantry_twin.cli import main
+from gantry_twin.link import server
 from gantry_twin.link.blocks import SIGNALS, Block, BlockError, decode
 from gantry_twin.outputs.summary import RunSummary
 
@@ -418,6 +419,8 @@ def test_hostile_clients_do_not_cost_a_subscriber_a_sample(tmp_path):
     rss = [_rss_mb(serve.pid)]
     received: list[tuple[int, int]] = []
     done = {"finished": False}
+    accepted: list[int] = []  # monitored items created, per subscription
+    refused: set[str] = set()
 
     class Legit:
         def datachange_notification(self, node, value, data):
@@ -455,14 +458,19 @@ def test_hostile_clients_do_not_cost_a_subscriber_a_sample(tmp_path):
         sub = await legit.create_subscription(100, Legit())
         nodes = [legit.get_node(f"ns={ns};s=GantryTwin.{n}") for n in ("SampleBlock", "RunState")]
         await sub.subscribe_data_change(nodes, queuesize=500)  # the run starts now (--wait-subscribers 1)
-        many = idle[0]
-        scalars = [many.get_node(f"ns={ns};s=CncInterface.CncAxisList.X.PosDirect.ActPos")] * 1000
-        s2 = await many.create_subscription(100, Ignore())
-        await s2.subscribe_data_change(scalars, queuesize=1)  # 1000 monitored items
         deaf = idle[2]  # subscribes to every block, then stops reading its socket
         s3 = await deaf.create_subscription(50, Ignore())
         await s3.subscribe_data_change(nodes[:1], queuesize=10_000)
         deaf.uaclient.protocol.transport.pause_reading()
+        many = idle[0]
+        scalars = [many.get_node(f"ns={ns};s=CncInterface.CncAxisList.X.PosDirect.ActPos")] * 1000
+        s2 = await many.create_subscription(100, Ignore())
+        created = [await s2.subscribe_data_change(scalars, queuesize=1)]  # 1000 monitored items
+        for client in idle[3:8]:  # and more, over other subscriptions, until the server's total is reached
+            sub_more = await client.create_subscription(100, Ignore())
+            created.append(await sub_more.subscribe_data_change(scalars[:100], queuesize=1))
+        accepted.extend(sum(isinstance(h, int) for h in handles) for handles in created)
+        refused.update(str(h) for handles in created for h in handles if not isinstance(h, int))
         deadline = time.monotonic() + WAIT_S
         while not done["finished"] and time.monotonic() < deadline:
             rss.append(_rss_mb(serve.pid))
@@ -483,6 +491,14 @@ def test_hostile_clients_do_not_cost_a_subscriber_a_sample(tmp_path):
     assert first[0] == 0 and np.all(first[1:] == first[:-1] + n[:-1]) and n.sum() == 50_000  # every sample
     assert max(rss) - rss[0] < 200.0, f"memory grew {max(rss) - rss[0]:.0f} MB"
     assert browsed > 1000  # the standard address space and the twin's
+    # Monitored items are capped per subscription and in all (the legitimate subscriber's 2 and the deaf one's 1
+    # came first): the cap is what keeps 1000 items from taking the run's core.
+    per, total = server.MAX_MONITORED_ITEMS_PER_SUBSCRIPTION, server.MAX_MONITORED_ITEMS
+    expected = [per]
+    for _ in range(5):
+        expected.append(max(0, min(per, total - 3 - sum(expected))))
+    assert accepted == expected, (accepted, expected)
+    assert refused == {str(ua.StatusCode(ua.StatusCodes.BadTooManyMonitoredItems))}
     print(f"hostile: memory {rss[0]:.0f} -> {max(rss):.0f} MB, {browsed} nodes browsed", file=sys.stderr)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run", "users.yaml"]  # nothing written outside the run
 

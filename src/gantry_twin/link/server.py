@@ -51,6 +51,11 @@ QUEUE_CHUNKS = 500
 MAX_MESSAGE_BYTES = 8 * 1024 * 1024
 #: The most subscriptions at once, over all sessions.
 MAX_SUBSCRIPTIONS = 200
+#: The most monitored items in one subscription (the twin's own object and the CNC axes have about 60 variables),
+#: and over all subscriptions: each monitored item of a changing variable costs the server's thread about 30 us per
+#: update, so an unbounded count would take the core the run needs (docs/live-link.md, "Hostile clients").
+MAX_MONITORED_ITEMS_PER_SUBSCRIPTION = 100
+MAX_MONITORED_ITEMS = 400
 #: The longest a session may stay idle before the server closes it (a client asks; it gets at most this), ms.
 SESSION_TIMEOUT_MS = 30_000
 #: Alarm severity (OPC UA: 1-1000) of a health alarm.
@@ -58,11 +63,13 @@ ALARM_SEVERITY = 700
 IDX = {name: i for i, name in enumerate(SIGNAL_NAMES)}
 
 
-class Shared(list):
-    """A published value the server never changes: asyncua deep-copies each value it hands to its monitored
-    items, element by element for a list (0.4 ms for a block of 100 samples, measured); this one is shared."""
+class SharedValue(ua.DataValue):
+    """A written value the server never changes, shared by every monitored item of its variable: asyncua
+    deep-copies the value it hands to each monitored item (26 us for a scalar, 0.4 ms for a block of 100 samples,
+    element by element, measured), which made 1000 monitored items on one position cost the server's thread
+    half a core at real time. It encodes as a DataValue (the encoder goes by the field's declared type)."""
 
-    def __deepcopy__(self, memo: dict) -> Shared:
+    def __deepcopy__(self, memo: dict) -> SharedValue:
         return self
 
 
@@ -207,7 +214,7 @@ class TwinServer:
 
     def _limit(self, server: Server) -> None:
         """Bounds against a hostile client: messages of at most MAX_MESSAGE_BYTES (asyncua's default is 100 MB),
-        at most MAX_SUBSCRIPTIONS subscriptions in all."""
+        at most MAX_SUBSCRIPTIONS subscriptions in all, monitored items as :func:`_cap_monitored_items` says."""
         from asyncua.common.connection import TransportLimits
 
         chunk = 65535
@@ -218,6 +225,7 @@ class TwinServer:
             max_message_size=MAX_MESSAGE_BYTES,
         )
         server.iserver.max_subscriptions = MAX_SUBSCRIPTIONS
+        _cap_monitored_items(server.iserver.subscription_service)
 
     async def _add_methods(self, server: Server) -> None:
         assert self.space is not None
@@ -271,14 +279,14 @@ class TwinServer:
         for i in range(0, values.shape[0], MAX_SAMPLES_PER_BLOCK):
             part = values[i : i + MAX_SAMPLES_PER_BLOCK]
             block = Block(first + i, float(part[0, 0]), part[:, :-1])
-            await self._write(f"{TWIN}.SampleBlock", Shared(block.encode()), ua.VariantType.Double)
+            await self._write(f"{TWIN}.SampleBlock", block.encode(), ua.VariantType.Double)
             await self._write(f"{TWIN}.SamplesPublished", block.end_index, ua.VariantType.Int64)
         return values[-1]
 
     async def _write(self, path: str, value: object, vtype: ua.VariantType) -> None:
         assert self.space is not None
         now = datetime.datetime.now(datetime.UTC)
-        dv = ua.DataValue(ua.Variant(value, vtype), SourceTimestamp=now, ServerTimestamp=now)
+        dv = SharedValue(ua.Variant(value, vtype), SourceTimestamp=now, ServerTimestamp=now)
         await self._server.write_attribute_value(self.space[path].nodeid, dv)
 
     async def _scalars(self, row: np.ndarray) -> None:
@@ -316,6 +324,30 @@ class TwinServer:
         event.Severity = ALARM_SEVERITY
         event.SourceName = TWIN
         await self._alarms.trigger(message=message)
+
+
+def _cap_monitored_items(service) -> None:
+    """Items past MAX_MONITORED_ITEMS_PER_SUBSCRIPTION in their subscription, or MAX_MONITORED_ITEMS in all, are
+    refused with BadTooManyMonitoredItems (each in its own result, as OPC UA's CreateMonitoredItems answers); the
+    rest are created. asyncua has no such limit of its own."""
+    create = service.create_monitored_items
+
+    def count(subscription) -> int:
+        return len(getattr(getattr(subscription, "monitored_item_srv", None), "_monitored_items", {}))
+
+    async def capped(params: ua.CreateMonitoredItemsParameters) -> list[ua.MonitoredItemCreateResult]:
+        subscription = service.subscriptions.get(params.SubscriptionId)
+        if subscription is None:
+            return await create(params)  # asyncua's own answer: BadSubscriptionIdInvalid
+        total = sum(count(s) for s in list(service.subscriptions.values()))
+        room = max(0, min(MAX_MONITORED_ITEMS_PER_SUBSCRIPTION - count(subscription), MAX_MONITORED_ITEMS - total))
+        items = list(params.ItemsToCreate)
+        params.ItemsToCreate = items[:room]
+        results = await create(params) if items[:room] else []
+        refused = ua.StatusCode(ua.StatusCodes.BadTooManyMonitoredItems)
+        return [*results, *(ua.MonitoredItemCreateResult(StatusCode=refused) for _ in items[room:])]
+
+    service.create_monitored_items = capped
 
 
 class LinkObserver:

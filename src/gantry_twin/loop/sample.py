@@ -228,7 +228,8 @@ def chunk_kernel(compiled: CompiledStep, nrt: bool = False) -> Callable[..., tup
         bindings = {"controller_step": step, "controller_log": log}
         # No reference counting in the chunk unless the step needs it: most of the code numba would generate for the
         # chunk, and of its atomic operations per sample, counts the arrays of the nested tuples.
-        found = specialise(run_chunk, name, bindings, compiled=True, nrt=nrt)
+        # Without the interpreter lock while it runs: a live link's server thread serves beside the loop.
+        found = specialise(run_chunk, name, bindings, compiled=True, nrt=nrt, nogil=True)
         _chunk_kernels[key] = found
     return found
 

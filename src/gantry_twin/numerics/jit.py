@@ -82,7 +82,9 @@ def cache_dir() -> str:
 _CACHE_DIR = cache_dir()
 
 
-def kernel(function: F | None = None, *, inline: bool = False, internal: bool = False, nrt: bool = True) -> Any:
+def kernel(
+    function: F | None = None, *, inline: bool = False, internal: bool = False, nrt: bool = True, nogil: bool = False
+) -> Any:
     """Compile ``function`` in nopython mode, cached on disk under :func:`cache_dir`.
 
     Each kernel compiles once per argument types and is cached on its own,
@@ -98,14 +100,19 @@ def kernel(function: F | None = None, *, inline: bool = False, internal: bool = 
     No kernel gets numba's C-callable wrapper (only first-class function
     values need it). ``nrt=False``: no reference counting (see the module
     docstring); numba refuses to compile such a kernel if it allocates.
+    ``nogil=True``: the kernel releases Python's interpreter lock while it
+    runs, so that other threads of the process (the live link's server) run
+    beside it on another core instead of waiting for it to return.
     """
     if function is None:
-        return lambda f: kernel(f, inline=inline, internal=internal, nrt=nrt)
+        return lambda f: kernel(f, inline=inline, internal=internal, nrt=nrt, nogil=nogil)
     saved = numba.config.CACHE_DIR
     numba.config.CACHE_DIR = _CACHE_DIR  # read once, when the dispatcher's cache is created
     try:
         # _nrt explicit: numba otherwise inherits it from the first caller that compiles the kernel.
         options: dict[str, bool] = {"_nrt": nrt, "no_cpython_wrapper": True} if internal else {"_nrt": nrt}
+        if nogil:
+            options["nogil"] = True
         return numba.njit(cache=True, inline="always" if inline else "never", no_cfunc_wrapper=True, **options)(
             function
         )
@@ -163,7 +170,12 @@ def _globals_for(module_globals: dict[str, Any]) -> dict[str, Any]:
 
 
 def specialise(
-    template: Callable[..., Any], name: str, bindings: dict[str, Any], compiled: bool, nrt: bool = True
+    template: Callable[..., Any],
+    name: str,
+    bindings: dict[str, Any],
+    compiled: bool,
+    nrt: bool = True,
+    nogil: bool = False,
 ) -> Callable[..., Any]:
     """A copy of kernel ``template`` whose globals ``bindings`` (name -> kernel or value) are replaced.
 
@@ -171,7 +183,7 @@ def specialise(
     must identify the bindings, e.g. with a digest of their sources: numba
     keys its cache on the template's code and argument types only);
     otherwise the reference version, with every other kernel uncompiled.
-    nrt: as for :func:`kernel`.
+    nrt, nogil: as for :func:`kernel`.
     """
     py = getattr(template, "py_func", template)
     env = dict(py.__globals__ if compiled else _globals_for(py.__globals__))
@@ -179,7 +191,7 @@ def specialise(
     function = types.FunctionType(py.__code__, env, py.__name__, py.__defaults__, py.__closure__)
     function.__qualname__ = f"{py.__qualname__}_{name}"
     function.__doc__, function.__module__ = py.__doc__, py.__module__
-    return kernel(function, nrt=nrt) if compiled else function
+    return kernel(function, nrt=nrt, nogil=nogil) if compiled else function
 
 
 def source_digest(*functions: Callable[..., Any]) -> str:
