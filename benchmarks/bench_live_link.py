@@ -216,8 +216,9 @@ HOSTILE_SUBSCRIBERS = 6
 
 async def _hostile_run(endpoint: str, hostile: bool) -> tuple[float, int]:
     """One subscriber reading every block, beside (``hostile``) 200 idle sessions, 1000 monitored items asked for
-    in ten subscriptions (the server takes MAX_MONITORED_ITEMS of them) and a client that stops reading its socket, all set up before the run starts; (the run's wall time from its first
-    block to its state finished, the samples read)."""
+    in ten subscriptions (the server takes MAX_MONITORED_ITEMS of them) and a client that stops reading its
+    socket, all set up before the run starts; (the run's wall time from its first block to its state finished,
+    the samples read)."""
     from asyncua import Client
 
     from gantry_twin.link.blocks import decode
