@@ -124,6 +124,46 @@ def test_a_served_run_followed_by_the_shadow_monitor_gives_monitor_logs_estimate
     assert live.log == endpoint
 
 
+def test_the_trust_flags_of_each_closed_monitor_period_are_handed_to_the_server():
+    """GantryTwin/Trusted follows the health monitor: after each chunk, the last closed period's flags (excited and
+    its bias within bounds, per estimate); nothing while no period has closed."""
+    import queue
+
+    from gantry_twin.health.log_monitor import chunk_trace
+    from gantry_twin.link.server import LinkObserver
+    from gantry_twin.sysid.logs import LogChunk
+
+    class Server:
+        def __init__(self):
+            self.items, self.commands = [], queue.Queue()
+
+        def put(self, item):
+            self.items.append(item)
+
+    class Monitor:  # closes periods as a test says: rows of trusted flags
+        alarms: list = []
+        periods = np.zeros((0, 8))
+
+        def trusted_since(self, row):
+            return np.arange(len(self.periods))[row:], self.periods[row:]
+
+    server, monitor = Server(), Monitor()
+    link = LinkObserver(server)
+    link.watch(monitor)
+    n = 10
+    chunk = LogChunk(0, np.arange(3 * n) * 2e-4, np.zeros((3 * n, 2)), np.zeros((3 * n, 2)), None)
+    trace = chunk_trace(chunk, np.zeros((3 * n, 8)), 2e-4)
+    flags = np.array([[1, 0, 1, 0, 1, 0, 1, 0], [1, 1, 1, 1, 0, 0, 0, 0], [0, 0, 0, 0, 0, 0, 0, 1]], dtype=float)
+    published = []
+    for k, closed in enumerate((0, 2, 3)):  # no period, then two at once (the last one counts), then one more
+        monitor.periods = flags[:closed]
+        link.on_chunk(trace, k * n, (k + 1) * n)
+        published.append([item[1] for item in server.items if item[0] == "trusted"])
+    assert published[0] == []
+    assert published[1] == [[True, True, True, True, False, False, False, False]]
+    assert published[2][-1] == [False] * 7 + [True] and len(published[2]) == 2
+
+
 def test_blocks_round_trip_and_refuse_what_is_not_one():
     rng = np.random.default_rng(3)
     values = rng.normal(size=(7, len(SIGNALS)))

@@ -262,6 +262,8 @@ class TwinServer:
                     await self._write(f"{TWIN}.RealtimeFactor", item[2], ua.VariantType.Double)
                 elif kind == "alarm":
                     await self._alarm(item[1])
+                elif kind == "trusted":
+                    await self._write(f"{TWIN}.Trusted", item[1], ua.VariantType.Boolean)
                 elif kind == "mark":
                     item[1].set()
             last = await self._flush(pending, last)
@@ -372,6 +374,7 @@ class LinkObserver:
         self.cpu_s = 0.0  # CPU seconds of the run's thread spent handing chunks over (not counting a full queue's wait)
         self.stopped: str | None = None  # "Stop" or "Reset" when a client's method call ended the pass
         self._alarms_sent = 0
+        self._periods_sent = 0  # the health monitor's periods whose trust flags are published
         self.end_index = first_index
 
     def watch(self, monitor: object) -> None:
@@ -415,6 +418,10 @@ class LinkObserver:
             for alarm in alarms[self._alarms_sent :]:
                 self.server.put(("alarm", self.describe(alarm)))
             self._alarms_sent = len(alarms)
+            _, trusted = self.monitor.trusted_since(self._periods_sent)
+            if trusted.shape[0]:  # the last period closed: each estimate excited and its bias within bounds
+                self.server.put(("trusted", [bool(flag) for flag in trusted[-1]]))
+                self._periods_sent += trusted.shape[0]
 
     def on_end(self, trace: Trace) -> None:
         pass
