@@ -6,6 +6,8 @@ from __future__ import annotations
 import argparse
 import re
 import shutil
+import subprocess
+import sys
 import zipfile
 from pathlib import Path
 
@@ -235,6 +237,33 @@ def test_fmu_export_refuses_an_out_that_is_a_directory(tmp_path):
     with pytest.raises(BadInput, match="is a directory, not a regular file"):
         run_export("--out", str(tmp_path))
     assert list(tmp_path.iterdir()) == []
+
+
+#: A process where gantry-twin cannot be imported loads the FMU: the FMU's own line says what it needs.
+WITHOUT_GANTRY_TWIN = """
+import sys
+from fmpy import extract, read_model_description
+from fmpy.fmi2 import FMU2Slave
+fmu, where = sys.argv[1:]
+md = read_model_description(fmu)
+sys.modules["gantry_twin"] = None  # as if not installed: every import of it fails
+slave = FMU2Slave(guid=md.guid, unzipDirectory=extract(fmu, where), modelIdentifier="GantryPlant", instanceName="p")
+try:
+    slave.instantiate(loggingOn=True)
+except Exception as exc:
+    print("refused:", exc)
+"""
+
+
+def test_without_gantry_twin_the_fmu_refuses_to_instantiate_saying_what_it_needs(rig_fmu, tmp_path):
+    done = subprocess.run(
+        [sys.executable, "-c", WITHOUT_GANTRY_TWIN, str(rig_fmu), str(tmp_path / "unpacked")],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert "gantry-twin's plant FMU needs a Python with gantry-twin installed" in done.stdout
+    assert "refused: Failed to instantiate model" in done.stdout
 
 
 def test_a_parameter_out_of_range_fails_initialisation_naming_it(rig_fmu, unpacked, capsys):
