@@ -166,6 +166,20 @@ def test_a_step_that_is_not_whole_samples_is_refused_naming_it(rig_fmu, unpacked
     assert f"[ERROR] doStep at t = 0.0 s: {why}" in printed
 
 
+@pytest.mark.parametrize(("name", "what"), [("u_x_v", "non-finite command"), ("d_y_v", "disturbance")])
+def test_a_non_finite_input_is_refused_naming_it(rig_fmu, unpacked, name, what, capsys):
+    master = Master(rig_fmu, unpacked, {})
+    try:
+        master.set({name: float("nan")})
+        with pytest.raises(FMICallException, match=r"status 2 \(discard\)"):
+            master.slave.doStep(0.0, TS)
+        master.set({name: 0.0})
+        master.slave.doStep(0.0, TS)  # the instance goes on
+    finally:
+        master.close()
+    assert f"[ERROR] doStep at t = 0.0 s: {what}" in capsys.readouterr().out
+
+
 def test_whole_samples():
     assert [whole_samples(s, TS) for s in (2e-4, 1e-3, 0.01, 2e-4 * 7)] == [1, 5, 50, 7]
     assert [whole_samples(s, TS) for s in (1e-4, 3e-4, 0.0, -2e-4, float("nan"), float("inf"))] == [None] * 6
