@@ -28,6 +28,8 @@ from gantry_twin.plant.model import Plant
 from gantry_twin.run import package_version, run_scenario
 from gantry_twin.scenario import build, load_scenario, shipped
 
+from .helpers import pushed_from_rest_m
+
 FMI2_FATAL = 4
 DURATION_S = 2.0
 TS = 2e-4
@@ -197,6 +199,27 @@ def test_a_heavier_payload_set_on_the_fmu_moves_less(rig_fmu, unpacked):
         finally:
             master.close()
     assert 0.0 < moved[1] < moved[0]
+
+
+@pytest.mark.parametrize(("payload_kg", "coulomb_n"), [(0.0, None), (5.0, None), (0.0, 20.0)])
+def test_the_paper_plant_fmu_moves_as_the_reference_machine_computes(tmp_path, payload_kg, coulomb_n):
+    """The paper's plant pushed from rest by 3 V on X, at 1 ms steps, its payload and Coulomb level set as FMU
+    parameters: the closed form of m x'' = kf u - B x' - Fc (tests/helpers.py) to 1 um over 0.1 s."""
+    fmu = export_plant(tmp_path / "paper.fmu", "paper").path
+    parameters = {"payload.mass_kg": payload_kg}
+    if coulomb_n is not None:
+        parameters["friction.x.fc_n"] = coulomb_n
+    master = Master(fmu, Path(extract(str(fmu), str(tmp_path / "unpacked"))), parameters)
+    x = []
+    try:
+        master.set({"u_x_v": 3.0})
+        for k in range(100):
+            master.slave.doStep(k * 1e-3, 1e-3)
+            x.append(master.get(["x_true_m"])[0])
+    finally:
+        master.close()
+    t = np.arange(1, 101) * 1e-3
+    np.testing.assert_allclose(x, pushed_from_rest_m(t, 0, 3.0, payload_kg, coulomb_n), rtol=0, atol=1e-6)
 
 
 def run_export(*argv: str) -> int:
