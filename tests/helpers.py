@@ -57,16 +57,20 @@ def spec_theta(payload_kg: float = 0.0) -> np.ndarray:
     return np.concatenate([si / GEAR_N_PER_V, np.zeros(2)])
 
 
-def pushed_from_rest_m(t_s: np.ndarray, axis: int, volts: float, payload_kg: float = 0.0) -> np.ndarray:
+def pushed_from_rest_m(
+    t_s: np.ndarray, axis: int, volts: float, payload_kg: float = 0.0, friction_n: float | None = None
+) -> np.ndarray:
     """Displacement (m) of a carriage starting at rest under a constant command, before it meets anything.
 
     The reference machine: m x'' = kf u - B x' - Fc sign(x'), with |kf u| > Fc, so the
     carriage moves off at once in the direction of u and x' keeps that sign:
-    x' = v_inf (1 - exp(-t / tau)), v_inf = (kf |u| - Fc) / B, tau = m / B.
+    x' = v_inf (1 - exp(-t / tau)), v_inf = (kf |u| - Fc) / B, tau = m / B. friction_n: Fc in place of the
+    reference machine's.
     """
     mass = MASS_NO_LOAD_KG[axis] + payload_kg
     damping = DAMPING_N_S_PER_M[axis]
-    v_inf = (GEAR_N_PER_V * abs(volts) - FRICTION_N[axis]) / damping
+    coulomb = FRICTION_N[axis] if friction_n is None else friction_n
+    v_inf = (GEAR_N_PER_V * abs(volts) - coulomb) / damping
     tau = mass / damping
     t = np.asarray(t_s, dtype=float)
     return np.sign(volts) * v_inf * (t - tau * (1.0 - np.exp(-t / tau)))

@@ -201,6 +201,20 @@ def run_chunk(start, stop, plant, encoder, recording, sample, changes, params, s
     return STATUS_OK, stop
 
 
+@kernel(nrt=False)
+def advance_plant(count, plant, encoder, recording, sample, changes):
+    """``count`` samples of the plant alone, for a co-simulation step (:mod:`gantry_twin.fmi`): each holds the
+    command ``sample.command`` and the disturbance ``recording.disturbance_v[0]`` and steps (:func:`record_and_step`,
+    into row 0 of a one-row recording), then the encoder reads the sample after (:func:`measure_sample`): the
+    order :func:`run_chunk` runs them in around a controller. Returns (status, samples done)."""
+    for k in range(count):
+        if not record_and_step(plant, recording, 0, sample, changes):
+            return STATUS_BAD_COMMAND, k
+        if not measure_sample(plant, encoder, sample, changes, 0):
+            return STATUS_BAD_MEASUREMENT, k
+    return STATUS_OK, count
+
+
 _ChunkKey = tuple[Callable[..., object], Callable[..., object] | None, bool]
 _chunk_kernels: dict[_ChunkKey, Callable[..., tuple[int, int]]] = {}
 

@@ -285,24 +285,7 @@ class _Loop:
         t0 = float(trace.t_s[0])
         controller.reset(RunContext(plant.timestep_s, u_max.copy(), Measurement(t0, position, velocity)))
 
-        data = plant.data
-        self.plant = PlantIO(
-            plant.model._address,
-            data._address,
-            data.qpos,
-            data.qvel,
-            data.ctrl,
-            *(
-                np.ascontiguousarray(i, dtype=np.int64)
-                for i in (plant.qpos_index, plant.dof_index, plant.motor_index, plant.disturbance_index)
-            ),
-            u_max,
-            plant.substeps,
-            np.ascontiguousarray(plant.input_table()),
-            int(plant.amplifier.delay_samples),
-            float(plant.amplifier.current_gain(plant.timestep_s)),
-            plant.amplifier.state(),
-        )
+        self.plant = plant_io(plant, u_max)
         self.encoder, self.changes, self.compiled = sensor, changes, compiled
         if compiled is not None:
             self.params, self.state = controller.kernel_arguments()
@@ -359,6 +342,40 @@ class _Loop:
         return stop, None
 
 
+def plant_io(plant: Plant, u_max_v: np.ndarray | None = None) -> PlantIO:
+    """What the loop kernels touch of ``plant`` (:class:`PlantIO`); u_max_v: the DAC limits (2,) V, the control
+    motors' ranges by default."""
+    data = plant.data
+    u_max = np.ascontiguousarray(plant.ctrl_range_v[:, 1] if u_max_v is None else u_max_v, dtype=float)
+    return PlantIO(
+        plant.model._address,
+        data._address,
+        data.qpos,
+        data.qvel,
+        data.ctrl,
+        *(
+            np.ascontiguousarray(i, dtype=np.int64)
+            for i in (plant.qpos_index, plant.dof_index, plant.motor_index, plant.disturbance_index)
+        ),
+        u_max,
+        plant.substeps,
+        np.ascontiguousarray(plant.input_table()),
+        int(plant.amplifier.delay_samples),
+        float(plant.amplifier.current_gain(plant.timestep_s)),
+        plant.amplifier.state(),
+    )
+
+
+def reference_record_and_step(plant: Plant) -> Callable[..., bool]:
+    """:func:`gantry_twin.loop.sample.record_and_step` run by the interpreter on ``plant``, ``mujoco.mj_step`` as
+    its physics step (the reference backend's)."""
+
+    def python_mj_step(model_address: int, data_address: int) -> None:
+        mujoco.mj_step(plant.model, plant.data)  # called plant.substeps times per sample, as the compiled loop
+
+    return specialise(record_and_step, "python", {"mj_step": python_mj_step}, compiled=False)
+
+
 def _python_chunk(plant: Plant, controller: Controller, loop: _Loop) -> Callable[..., tuple[int, int]]:
     """The chunk function run by the interpreter: ``update()`` as the step, ``state_for_logging`` as the log."""
 
@@ -374,14 +391,10 @@ def _python_chunk(plant: Plant, controller: Controller, loop: _Loop) -> Callable
     def record_log(recording: Recording, j: int, row: np.ndarray) -> None:
         loop.trace.record_state(j, controller.state_for_logging())
 
-    def python_mj_step(model_address: int, data_address: int) -> None:
-        mujoco.mj_step(plant.model, plant.data)  # called plant.substeps times per sample, as the compiled loop
-
-    python_step = specialise(record_and_step, "python", {"mj_step": python_mj_step}, compiled=False)
     bindings = {
         "controller_step": step,
         "controller_log": lambda params, state, out: None,
         "record_log": record_log,
-        "record_and_step": python_step,
+        "record_and_step": reference_record_and_step(plant),
     }
     return specialise(run_chunk, "python", bindings, compiled=False)

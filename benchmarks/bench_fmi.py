@@ -1,0 +1,129 @@
+"""Cost of FMI (docs/fmi.md, "What it costs").
+
+    PYTHONPATH=src python benchmarks/bench_fmi.py [--only plant] [--seconds 4] [--repeats 5]
+
+``plant``: the exported plant FMU (``gantry-twin fmu export``, the rig plant) stepped by fmpy's FMU2Slave at 0.2 ms
+and at 1 ms communication steps, against the twin's own compiled loop on the same plant, side by side in one run.
+Each is the no-load circle with the built-in ``pd`` (the master computes pd's law in Python at every communication
+point and holds it over the step); the twin's loop runs ``simulate`` with ``pd``. Timed interleaved, ``--repeats``
+times each, ``--seconds`` simulated per run, best of each, per 0.2 ms sample: the wall time inside ``fmi2DoStep``
+alone over the twin's loop's wall time, and the master's whole CPU (``time.process_time``: every thread; the Python
+pd and fmi2Get/SetReal included) over the twin's loop's CPU.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+from fmpy import extract, read_model_description
+from fmpy.fmi2 import FMU2Slave
+
+from gantry_twin import Plant, TimingLaw, circle, simulate
+from gantry_twin.controllers import PD
+from gantry_twin.fmi.plant import OUTPUTS
+from gantry_twin.fmi.plant_export import export_plant
+from gantry_twin.paths.contours import ReferenceStream
+
+#: The no-load circle's rate (scenarios/no_load_circle.yaml).
+CIRCLE_RATE_RAD_S = 2.0
+TS = 2e-4
+
+
+def _twin_loop(seconds: float) -> tuple[float, float, int]:
+    """(wall s, CPU s, samples) of the twin's compiled loop with pd on the rig plant."""
+    plant, path, timing = Plant.shipped("rig"), circle(), TimingLaw(CIRCLE_RATE_RAD_S, "on_path")
+    w0, c0 = time.perf_counter(), time.process_time()
+    trace = simulate(plant, path, timing, PD(), seconds)
+    return time.perf_counter() - w0, time.process_time() - c0, trace.filled
+
+
+def _fmu_loop(fmu: Path, unpacked: str, seconds: float, step_s: float) -> tuple[float, float, int]:
+    """(wall s inside fmi2DoStep, the master's CPU s, samples) of pd closed around the plant FMU by fmpy."""
+    md = read_model_description(str(fmu))
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    n = int(round(seconds / step_s))
+    per = int(round(step_s / TS))
+    ref = ReferenceStream(circle(), TimingLaw(CIRCLE_RATE_RAD_S, "on_path")).next(np.arange(n) * step_s)
+    pd = PD()
+    kp, kd, kv, ka = (np.asarray(g, dtype=float) for g in (pd.kp_v_m, pd.kd_v_s_m, pd.kv_v_s_m, pd.ka_v_s2_m))
+    slave = FMU2Slave(guid=md.guid, unzipDirectory=unpacked, modelIdentifier="GantryPlant", instanceName="plant")
+    slave.instantiate()
+    c0 = time.process_time()
+    in_step = 0.0
+    try:
+        slave.setupExperiment(startTime=0.0)
+        slave.enterInitializationMode()
+        start = ("start.x_m", "start.y_m", "start.dx_m_s", "start.dy_m_s")
+        slave.setReal([vr[s] for s in start], [*ref.q_d[0], *ref.dq_d[0]])
+        slave.exitInitializationMode()
+        measured, commands = [vr[s] for s in OUTPUTS[:4]], [vr["u_x_v"], vr["u_y_v"]]
+        for k in range(n):
+            x, y, dx, dy = slave.getReal(measured)
+            e, de = np.array([x, y]) - ref.q_d[k], np.array([dx, dy]) - ref.dq_d[k]
+            u = np.clip(-kp * e - kd * de + kv * ref.dq_d[k] + ka * ref.ddq_d[k], -10.0, 10.0)
+            slave.setReal(commands, list(u))
+            w = time.perf_counter()
+            slave.doStep(k * step_s, step_s)
+            in_step += time.perf_counter() - w
+        cpu = time.process_time() - c0
+        slave.terminate()
+    finally:
+        slave.freeInstance()
+    return in_step, cpu, n * per
+
+
+def plant_cost(seconds: float, repeats: int) -> None:
+    """The second line: the plant FMU's doStep at 0.2 ms and 1 ms steps over the twin's own loop, per sample."""
+    with tempfile.TemporaryDirectory() as tmp:
+        fmu = export_plant(Path(tmp) / "rig.fmu").path
+        unpacked = extract(str(fmu), str(Path(tmp) / "unpacked"))
+        runs = {
+            "twin": lambda s: _twin_loop(s),
+            "fmu 0.2 ms": lambda s: _fmu_loop(fmu, unpacked, s, TS),
+            "fmu 1 ms": lambda s: _fmu_loop(fmu, unpacked, s, 5 * TS),
+        }
+        for run in runs.values():  # compile or load the kernels, warm up
+            run(0.1)
+        best = {name: (np.inf, np.inf) for name in runs}
+        samples = {}
+        for _ in range(repeats):
+            for name, run in runs.items():
+                wall, cpu, samples[name] = run(seconds)
+                best[name] = (min(best[name][0], wall), min(best[name][1], cpu))
+        per = {name: (w / samples[name] * 1e6, c / samples[name] * 1e6) for name, (w, c) in best.items()}
+        twin_wall, twin_cpu = per["twin"]
+        print(f"twin's loop (compiled, pd, rig plant): {twin_cpu:.2f} us CPU ({twin_wall:.2f} us wall) per sample")
+        for name in ("fmu 0.2 ms", "fmu 1 ms"):
+            step_us, cpu_us = per[name]
+            print(
+                f"plant FMU, {name[4:]} steps: fmi2DoStep {step_us:.1f} us wall per sample ({step_us / twin_wall:.1f}x "
+                f"the twin's loop, wall); the master's whole loop {cpu_us:.1f} us CPU per sample "
+                f"({cpu_us / twin_cpu:.1f}x the twin's loop, CPU)"
+            )
+        print(f"best of {repeats} runs of {seconds:g} s simulated each, interleaved")
+        shutil.rmtree(unpacked, ignore_errors=True)
+
+
+PARTS = {"plant": plant_cost}
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--only", choices=sorted(PARTS), help="run only this part")
+    parser.add_argument("--seconds", type=float, default=4.0, help="simulated seconds per timed run (default 4)")
+    parser.add_argument("--repeats", type=int, default=5, help="timed runs of each loop (default 5)")
+    args = parser.parse_args(argv)
+    for name, part in PARTS.items():
+        if args.only in (None, name):
+            part(args.seconds, args.repeats)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
