@@ -7,6 +7,7 @@ Needs Node.js and ``npm ci`` in tests/interop (``.ci/run`` does it); without the
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -118,3 +119,58 @@ def test_monitor_opcua_follows_a_node_opcua_machine_as_monitor_log_reads_its_tra
     assert [a.parameter for a in live.health.alarms] == [a.parameter for a in log.health.alarms] == ["B2"]
     for a, b in zip(live.health.alarms, log.health.alarms, strict=True):
         assert abs(a.time_s - b.time_s) <= block_s
+
+
+def _netns_available() -> bool:
+    """An unprivileged network namespace of our own (``unshare -rn``) where a second address can go on its loopback."""
+    if shutil.which("unshare") is None or shutil.which("ip") is None:
+        return False
+    probe = subprocess.run(
+        ["unshare", "-rn", "sh", "-c", f"ip link set lo up && ip addr add {OFF_LOOPBACK}/32 dev lo"],
+        capture_output=True,
+        timeout=10,
+    )
+    return probe.returncode == 0
+
+
+#: An address that is not loopback, on the loopback device of a network namespace of the test's own: the server
+#: treats it as off loopback (security required), and nothing it sends can leave the namespace.
+OFF_LOOPBACK = "10.99.0.1"
+
+
+@pytest.mark.skipif(not _netns_available(), reason="needs `unshare -rn` and `ip` (user network namespaces)")
+def test_node_opcua_is_refused_without_credentials_when_serve_is_bound_off_loopback(tmp_path):
+    """serve bound to a non-loopback address (inside a network namespace of its own) with --users: it offers only
+    Basic256Sha256 SignAndEncrypt, so node-opcua without credentials and without a secure channel is refused; and
+    without --users serve refuses to start there at all."""
+    from gantry_twin.link.security import user_entry
+
+    users = tmp_path / "users.yaml"
+    users.write_text(json.dumps({"users": {"ann": user_entry("right", "operator")}}))
+    cli = " ".join([sys.executable, "-m", "gantry_twin"])
+    serve = f"{cli} serve no_load_circle --host {OFF_LOOPBACK} --port 48401 --out {tmp_path / 'run'}"
+    client = f"{NODE} {INTEROP / 'twin_client.mjs'} opc.tcp://{OFF_LOOPBACK}:48401 2"
+    script = f"""
+        set -u
+        ip link set lo up && ip addr add {OFF_LOOPBACK}/32 dev lo
+        timeout 60 {serve} > {tmp_path / "bare.out"} 2> {tmp_path / "bare.err"}; echo "bare exit $?"
+        timeout 120 {serve} --users {users} > {tmp_path / "serve.out"} 2>&1 &
+        pid=$!
+        for i in $(seq 1 600); do grep -q serving {tmp_path / "serve.out"} && break; sleep 0.1; done
+        (cd {INTEROP} && timeout 60 {client}) | grep '^{{' | tail -1 > {tmp_path / "anonymous.json"}
+        (cd {INTEROP} && timeout 60 {client} ann right) | grep '^{{' | tail -1 > {tmp_path / "plain.json"}
+        kill $pid; wait $pid
+    """
+    env = {**os.environ, "XDG_CONFIG_HOME": str(tmp_path / "config")}  # the server's certificate goes here
+    done = subprocess.run(
+        ["unshare", "-rn", "sh", "-c", script], capture_output=True, text=True, timeout=300, cwd=tmp_path, env=env
+    )
+    assert "bare exit 2" in done.stdout, (done.stdout, done.stderr)
+    bare = (tmp_path / "bare.err").read_text().strip().splitlines()
+    assert len(bare) == 1 and "--users" in bare[0], bare
+    assert "serving" in (tmp_path / "serve.out").read_text()
+    anonymous = json.loads((tmp_path / "anonymous.json").read_text())
+    plain = json.loads((tmp_path / "plain.json").read_text())
+    for refused in (anonymous, plain):  # neither gets a session, let alone a value or a block
+        assert refused["error"] is not None and refused["actPos"] is None and refused["blocks"] == [], refused
+        assert "SecurityPolicy#None" in refused["error"], refused  # the server offers no endpoint without security
