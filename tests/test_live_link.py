@@ -25,6 +25,9 @@ from gantry_twin.cli import main
 from gantry_twin.link import server
 from gantry_twin.link.blocks import SIGNALS, Block, BlockError, decode
 from gantry_twin.outputs.summary import RunSummary
+from gantry_twin.telemetry.observer import theta_entity
+
+from .helpers import FLOAT32_REL, read_rrd, scalars
 
 #: A fast friction drift: the scenario's B2 +30 % moved to 7-10 s of a 14 s run, the baseline to 4-7 s (one
 #: alarm, B2's, at 9.4 s: the same as the 90 s scenario says at 50 s, in a sixth of the time).
@@ -83,7 +86,7 @@ def test_a_served_run_followed_by_the_shadow_monitor_gives_monitor_logs_estimate
     try:
         follow = subprocess.run(
             [*CLI, "monitor", "friction_drift_circle", *FAST_DRIFT, "--opcua", endpoint, "--duration", "100"]
-            + ["--out", str(shadow), "--residual-every", "1"],
+            + ["--out", str(shadow), "--residual-every", "1", "--save", str(tmp_path / "shadow.rrd")],
             cwd=tmp_path,
             capture_output=True,
             text=True,
@@ -122,6 +125,14 @@ def test_a_served_run_followed_by_the_shadow_monitor_gives_monitor_logs_estimate
     assert before[:, 1:3].max() < 100.0  # rms, um
     assert np.all(after[:, 2] > 10 * after[:, 1]) and after[:, 2].min() > 1000.0
     assert live.log == endpoint
+    # The dashboard (--save here, --viewer alike) got the shadow's estimates as they came, and its alarm.
+    data = read_rrd(tmp_path / "shadow.rrd")
+    theta = np.concatenate([pq.read_table(p).column("theta_hat_B2").to_numpy() for p in parts])
+    logged = data[theta_entity("B2") + "/estimate"]
+    at = np.rint(np.asarray(logged["time_ns"]) * 1e-9 / 2e-4).astype(int)
+    assert at.size > 100 and np.all(np.diff(at) > 0)
+    np.testing.assert_allclose(scalars(data, theta_entity("B2") + "/estimate")[:, 0], theta[at], rtol=FLOAT32_REL)
+    assert any("B2" in str(text) for text in data["health/alarms"]["TextLog:text"])
 
 
 def test_the_trust_flags_of_each_closed_monitor_period_are_handed_to_the_server():
@@ -162,6 +173,14 @@ def test_the_trust_flags_of_each_closed_monitor_period_are_handed_to_the_server(
     assert published[0] == []
     assert published[1] == [[True, True, True, True, False, False, False, False]]
     assert published[2][-1] == [False] * 7 + [True] and len(published[2]) == 2
+
+
+def test_shadow_refuses_realtime_the_machine_sets_the_pace(tmp_path, capsys):
+    args = ["monitor", "--opcua", "opc.tcp://127.0.0.1:9", "--realtime", "1", "--out", str(tmp_path / "o")]
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["gantry-twin: error: --realtime: not with --opcua (the machine sets the pace)"]
+    assert not (tmp_path / "o").exists()
 
 
 def test_blocks_round_trip_and_refuse_what_is_not_one():

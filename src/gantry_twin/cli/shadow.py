@@ -47,17 +47,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def command(args: argparse.Namespace, format_health) -> int:
     from gantry_twin.cli.monitor import monitor_settings
+    from gantry_twin.cli.telemetry import telemetry_observers
     from gantry_twin.link.nodemap import NodeMapError, default_node_map, read_node_map
     from gantry_twin.link.shadow import Shadow, ShadowError
+    from gantry_twin.loop.trace import RunInfo
     from gantry_twin.outputs.files import atomic_write_text
     from gantry_twin.outputs.rundirs import new_run_dir, point_latest
     from gantry_twin.outputs.signals import Interrupted
     from gantry_twin.outputs.summary import log_summary, summary_json
-    from gantry_twin.scenario import ScenarioError, scenario_plant
+    from gantry_twin.scenario import ScenarioError, build, scenario_plant
 
     endpoint = args.opcua
     if not endpoint.startswith("opc.tcp://"):
         raise BadInput(f"--opcua {endpoint}: an endpoint like opc.tcp://127.0.0.1:4840")
+    if getattr(args, "realtime", None) is not None:
+        raise BadInput("--realtime: not with --opcua (the machine sets the pace)")
     if getattr(args, "baseline", None) is not None:
         raise BadInput("--baseline: only with --log (a scenario names its baseline in monitor.baseline_summary)")
     try:
@@ -79,9 +83,21 @@ def command(args: argparse.Namespace, format_health) -> int:
     def print_alarm(alarm) -> None:
         print(f"{PROG}: alarm: {alarm.describe()}", flush=True)
 
-    with writable_out(out):
+    telemetry = telemetry_observers(args)  # checks every option (--viewer, --save, ...) before anything opens
+    run_info = None
+    if telemetry.rerun_observer is not None:  # the dashboard draws the scenario's path, the machine's on it
+        try:
+            built = build(scenario, str(path) if path else "<defaults>")
+        except ScenarioError as exc:
+            raise BadInput(str(exc).splitlines()[0]) from None
+        samples = round(scenario.duration_s / built.plant.timestep_s)
+        name = f"DIARC following {endpoint}"
+        run_info = RunInfo(built.plant, built.path, built.timing, None, scenario.duration_s, name, samples)
+        telemetry.rerun_observer.watch(monitor)
+    with writable_out(out), telemetry:
         shadow = Shadow(
-            endpoint, nodes, controller, monitor, plant, plant.timestep_s, out, print_alarm, None, args.residual_every
+            *(endpoint, nodes, controller, monitor, plant, plant.timestep_s, out, print_alarm, None),
+            *(args.residual_every, list(telemetry), run_info),
         )
         print(f"following {endpoint} ({nodes.mode}); Ctrl-C stops", file=sys.stderr, flush=True)
         ended = None

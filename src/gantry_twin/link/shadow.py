@@ -16,10 +16,11 @@ readable trace of what came.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TextIO
@@ -32,6 +33,7 @@ from gantry_twin.health.tally import MonitorTally
 from gantry_twin.link.blocks import SIGNAL_NAMES, Block
 from gantry_twin.link.client import MachineClient, Received
 from gantry_twin.link.nodemap import NodeMap
+from gantry_twin.loop.trace import Observer, RunInfo, Trace
 from gantry_twin.outputs.files import write_parquet
 from gantry_twin.plant.model import AXES, Plant
 from gantry_twin.sysid.logs import Log, LogChunk, LogInfo
@@ -90,6 +92,8 @@ class Shadow:
         print_alarm: Callable[[object], None],
         stream: TextIO | None = None,
         residual_every_s: float = 5.0,
+        observers: Sequence[Observer] = (),
+        run_info: RunInfo | None = None,
     ) -> None:
         self.endpoint, self.nodes, self.controller, self.monitor = endpoint, nodes, controller, monitor
         self.plant, self.machine_period_s, self.out, self.print_alarm = plant, machine_period_s, out, print_alarm
@@ -110,6 +114,8 @@ class Shadow:
         self.connections = 0
         self.backlog_max = 0  # the most items received and not yet handled at once
         self.backlog: list[int] = []  # items waiting, read once a second
+        self.observers, self.run_info = list(observers), run_info  # a dashboard: fed each chunk as a run's would be
+        self._view: Trace | None = None  # the last chunk as the observers saw it
 
     def run(self, duration_s: float | None, first_connect_s: float) -> None:
         """Follow the machine until ``duration_s`` of wall time, its run state ``finished`` or ``failed``, or an
@@ -141,6 +147,9 @@ class Shadow:
             client.stop()
             self._feed(final=True)
             self._write_part(final=True)
+            if self._view is not None:
+                for observer in self.observers:
+                    observer.on_end(self._view)
 
     # -- what comes --
     def _take(self, item: Received) -> bool:
@@ -247,10 +256,25 @@ class Shadow:
         for alarm in self.monitor.alarms[self._alarms_seen :]:
             self.print_alarm(alarm)
         self._alarms_seen = len(self.monitor.alarms)
+        self._show(trace)
         theta = trace.controller_state["theta_hat"]
         self._part_rows.append(np.column_stack([rows, theta]))
         self._write_part()
         self._residual(rows)
+
+    def _show(self, trace: Trace) -> None:
+        """Hand the chunk to the observers (a dashboard) as a run's chunk: the machine's measured position stands
+        for the position (the twin cannot see the machine's true one) and its axial error is against the
+        machine's desired position where it publishes one."""
+        if not self.observers:
+            return
+        view = dataclasses.replace(trace, q_m=trace.q_meas_m, e_m=trace.q_d_m - trace.q_meas_m)
+        if self._view is None:
+            for observer in self.observers:
+                observer.on_start(self.run_info, view)
+        for observer in self.observers:
+            observer.on_chunk(view, view.first, view.filled)
+        self._view = view
 
     def _write_part(self, final: bool = False) -> None:
         held = sum(r.shape[0] for r in self._part_rows)
