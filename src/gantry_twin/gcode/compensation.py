@@ -387,9 +387,7 @@ class _Compensator:
             angle = theta + math.pi - math.asin(ratio) if turn > 0 else theta + math.pi + math.asin(ratio)
         return _polar(centre, distance, angle)
 
-    def _arc_to_arc(
-        self, move: Move, prev: _Out, arc_radius: float, inside: bool, turn: int, centre: Point
-    ) -> Point:
+    def _arc_to_arc(self, move: Move, prev: _Out, arc_radius: float, inside: bool, turn: int, centre: Point) -> Point:
         assert prev.centre is not None
         old_radius = math.dist(prev.centre, prev.end)
         new_radius = arc_radius - self.r if inside else arc_radius + self.r
