@@ -237,18 +237,31 @@ def test_a_full_circle_entered_square_to_it(ccw, side, radius_mm):
     assert got[2].end_m == pytest.approx((entry_from[0] * MM, 0.0), abs=TOL)
 
 
-def test_two_arcs_meeting_at_a_concave_corner_meet_where_their_offsets_cross():
-    """Two humps (G2 about (10, -10) and (30, -10)); G41 rides on top, where their junction is concave."""
-    moves = [line((-10, 0), (0, 0), 1), arc((0, 0), (20, 0), (10, -10), False, 2),
-             arc((20, 0), (40, 0), (30, -10), False, 3), line((40, 0), (50, 0), 4)]  # fmt: skip
-    got = compensate(moves, "left", R, "m.ngc")
+@pytest.mark.parametrize("m", [1, -1])
+def test_two_arcs_meeting_at_a_concave_corner_meet_where_their_offsets_cross(m):
+    """Two humps (G2 about (10, -10) and (30, -10)); G41 rides on top, where their junction is concave. And
+    mirrored in y (m = -1): G3 about (10, 10) and (30, 10), G42 below."""
+    moves = [
+        line((-10, 0), (0, 0), 1),
+        arc((0, 0), (20, 0), (10, -10 * m), m < 0, 2),
+        arc((20, 0), (40, 0), (30, -10 * m), m < 0, 3),
+        line((40, 0), (50, 0), 4),
+        line((50, 0), (60, 0), 5),
+    ]
+    got = compensate(moves, "left" if m > 0 else "right", R, "m.ngc")
     big = math.sqrt(200) * MM + R
-    meet = (20 * MM, -10 * MM + math.sqrt(big**2 - (10 * MM) ** 2))  # the circles' crossing, by symmetry
-    arcs = [m for m in got if m.kind == "arc" and m.line in (2, 3) and m.radius_m > 2 * R]
-    assert len(arcs) == 2
+    meet = (20 * MM, m * (-10 * MM + math.sqrt(big**2 - (10 * MM) ** 2)))  # the circles' crossing, by symmetry
+    arcs = [move for move in got if move.kind == "arc"]
+    assert [move.kind for move in got] == ["line", "arc", "arc", "line", "line"]
     assert arcs[0].end_m == pytest.approx(meet, abs=TOL)
     assert arcs[1].start_m == pytest.approx(meet, abs=TOL)
     assert arcs[0].radius_m == pytest.approx(big, abs=TOL) and arcs[1].radius_m == pytest.approx(big, abs=TOL)
+    # the lines before and after, 1.5 mm off y = 0, meet the grown circles (concave, the tool outside them)
+    ahead = np.array([1.0, 0.0])
+    first = line_circle((0, m * R), ahead, (10 * MM, -10 * MM * m), big, pick=lambda q: q[0])
+    last = line_circle((0, m * R), ahead, (30 * MM, -10 * MM * m), big, pick=lambda q: -q[0])
+    assert got[0].end_m == pytest.approx(tuple(first), abs=TOL) and arcs[0].start_m == got[0].end_m
+    assert arcs[1].end_m == pytest.approx(tuple(last), abs=TOL) and got[3].start_m == arcs[1].end_m
 
 
 def test_a_convex_corner_before_a_rapid_is_a_straight_rapid():
