@@ -12,10 +12,12 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
 
 from gantry_twin.gcode import GcodeError
 from gantry_twin.gcode.compensation import compensate, compensate_blocks
-from gantry_twin.gcode.geometry import Move
+from gantry_twin.gcode.geometry import Move, MoveTable
 
 MM = 1e-3
 R = 1.5 * MM  # a 3 mm tool
@@ -375,3 +377,60 @@ def test_the_entry_must_be_longer_than_the_tool_radius():
 def test_an_arc_just_after_g40_is_refused():
     moves = [line((0, 0), (10, 0), 1), line((10, 0), (20, 0), 2), arc((20, 0), (30, 0), (25, 0), True, 3)]
     assert error_of(moves, side="right").startswith("bad.ngc:3: G40: the move just after G40 must be a line")
+
+
+# -- any convex polygon: the tool centre stays at the radius from the part, outside and in ----------------------
+
+
+def polygon_distance(polygon: list[Move], points: np.ndarray) -> np.ndarray:
+    """Each point's exact distance to the closed polygon (the nearest of its sides), m."""
+    table = MoveTable(polygon)
+    n = len(points)
+    return np.min([table.distance(np.full(n, k), points) for k in range(len(polygon))], axis=0)
+
+
+def sampled(moves: list[Move]) -> np.ndarray:
+    table = MoveTable(moves)
+    out = []
+    for k, move in enumerate(moves):
+        u = np.linspace(0.0, move.length_m, 17)
+        zero = np.zeros_like(u)
+        out.append(table.kinematics(np.full(u.size, k), u, zero, zero, zero)[0])
+    return np.concatenate(out)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    n=st.integers(3, 8),
+    turn=st.floats(0.0, 2 * math.pi),
+    jitter=st.lists(st.floats(-0.25, 0.25), min_size=8, max_size=8),
+    radii=st.lists(st.floats(25.0, 35.0), min_size=8, max_size=8),
+    outside=st.booleans(),
+    ccw=st.booleans(),
+)
+def test_any_convex_polygon_is_cut_at_the_tool_radius(n, turn, jitter, radii, outside, ccw):
+    angles = [turn + 2 * math.pi * (k + jitter[k]) / n for k in range(n)]
+    corners = [(radii[k] * math.cos(a), radii[k] * math.sin(a)) for k, a in enumerate(angles)]
+    hull = np.array(corners)
+    sides = np.roll(hull, -1, axis=0) - hull
+    cross = sides[:, 0] * np.roll(sides, -1, axis=0)[:, 1] - sides[:, 1] * np.roll(sides, -1, axis=0)[:, 0]
+    assume(min(cross) > 1.0)  # convex, every corner turning by a visible angle
+    if not ccw:
+        corners = corners[::-1]
+    middle = tuple((np.add(corners[0], corners[1]) / 2).tolist())
+    inward = (0.0, 0.0)
+    start = tuple((np.add(middle, np.subtract(middle, inward) * 0.5)).tolist()) if outside else inward
+    points = [start, middle, *corners[1:], corners[0], middle, start]
+    side = "left" if (ccw != outside) else "right"  # left of a ccw walk is inside
+    got = compensate(path(points), side, R, "p.ngc")
+    polygon = [line(a, b) for a, b in zip(corners, [*corners[1:], corners[0]], strict=True)]
+    body = got[1:-1]  # without the entry and exit
+    distance = polygon_distance(polygon, sampled(body))
+    if outside:  # offset sides and corner arcs: everywhere exactly r from the part
+        assert np.abs(distance - R).max() < 1e-9
+        assert sum(m.kind == "arc" for m in body) == len(corners)
+    else:  # a pocket: never nearer than r (no gouge), r along the sides, lines only
+        assert distance.min() > R - 1e-9
+        assert all(m.kind == "line" for m in got)
+        ends = np.array([m.end_m for m in body[:-1]])
+        assert np.abs(polygon_distance(polygon, ends) - R).max() < 1e-9
