@@ -379,6 +379,23 @@ def test_an_arc_just_after_g40_is_refused():
     assert error_of(moves, side="right").startswith("bad.ngc:3: G40: the move just after G40 must be a line")
 
 
+def test_a_turn_within_the_tolerance_joins_as_it_is():
+    """Under 0.05 rad LinuxCNC neither rounds nor intersects: the next offset starts where the last ended."""
+    bend = 0.03
+    far = (10 + 10 * math.cos(bend), 10 * math.sin(bend))
+    for side in ("left", "right"):
+        got = compensate([line((0, -10), (0, 0), 1), line((0, 0), (10, 0), 2), line((10, 0), far, 3),
+                          line(far, (40, 0), 4)], side, R, "t.ngc")  # fmt: skip
+        corner = ["arc"] if side == "left" else []  # at the entry: convex on the left, concave on the right
+        assert [m.kind for m in got] == ["line", *corner, "line", "line", "line"]  # nothing at the 0.03 rad bend
+        third = next(m for m in got if m.line == 3)
+        second = [m for m in got if m.line == 2][-1]
+        assert third.start_m == second.end_m == pytest.approx((10 * MM, R if side == "left" else -R), abs=TOL)
+        s = 1 if side == "left" else -1
+        normal = np.array([-math.sin(bend), math.cos(bend)])
+        assert third.end_m == pytest.approx(tuple(np.array(far) * MM + s * R * normal), abs=TOL)
+
+
 # -- any convex polygon: the tool centre stays at the radius from the part, outside and in ----------------------
 
 
@@ -414,11 +431,13 @@ def test_any_convex_polygon_is_cut_at_the_tool_radius(n, turn, jitter, radii, ou
     hull = np.array(corners)
     sides = np.roll(hull, -1, axis=0) - hull
     cross = sides[:, 0] * np.roll(sides, -1, axis=0)[:, 1] - sides[:, 1] * np.roll(sides, -1, axis=0)[:, 0]
-    assume(min(cross) > 1.0)  # convex, every corner turning by a visible angle
+    dot = sides[:, 0] * np.roll(sides, -1, axis=0)[:, 0] + sides[:, 1] * np.roll(sides, -1, axis=0)[:, 1]
+    assume(np.arctan2(cross, dot).min() > 0.06)  # convex, every corner turning by more than LinuxCNC's tolerance
     if not ccw:
         corners = corners[::-1]
     middle = tuple((np.add(corners[0], corners[1]) / 2).tolist())
-    inward = (0.0, 0.0)
+    inward = tuple(hull.mean(axis=0).tolist())  # inside a convex polygon
+    assume(math.dist(middle, inward) > 4.0)  # room for the entry move
     start = tuple((np.add(middle, np.subtract(middle, inward) * 0.5)).tolist()) if outside else inward
     points = [start, middle, *corners[1:], corners[0], middle, start]
     side = "left" if (ccw != outside) else "right"  # left of a ccw walk is inside
