@@ -22,8 +22,11 @@ seen moving along it. Each move's end waits until the next move is known.
   **concave** corner (towards the tool) ends the previous move and starts
   the next at the intersection of their offsets (line-line, line-arc,
   arc-line, arc-arc). Within the tolerance the next move starts where the
-  previous one ended. A U-turn after an arc that the tool is outside of is
-  taken as concave (LinuxCNC's "h" and "m" shapes).
+  previous one ended (off its own offset by up to r times the turn; an arc
+  starting there keeps that start's radius, so its end is off the next
+  move's start by up to about r turn^2 / 2, nothing at a tangent junction).
+  A U-turn after an arc that the tool is outside of is taken as concave
+  (LinuxCNC's "h" and "m" shapes).
 - **Exit** (the first move after G40): a line from where the tool is (the
   last move's offset end) to the programmed, uncompensated end.
 - A radius of 0 changes nothing; a negative radius is its size on the
