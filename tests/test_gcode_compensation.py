@@ -319,6 +319,8 @@ def test_a_zero_radius_returns_the_programmed_path():
 def test_a_negative_radius_cuts_on_the_other_side():
     moves = path(square_program("cw", True))
     assert compensate(moves, "left", -R, "n.ngc") == compensate(moves, "right", R, "n.ngc")
+    short = [line((0, 0), (1, 0), 5), line((1, 0), (20, 0), 6)]
+    assert error_of(short, radius=-R, ends_with_exit=False).startswith("bad.ngc:5: G41:")  # the code as programmed
 
 
 # -- what the tool cannot do ------------------------------------------------------------------------------------

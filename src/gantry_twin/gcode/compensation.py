@@ -147,6 +147,7 @@ def compensate_blocks(
         raise ValueError(f"side is 'left' or 'right', got {side!r}")
     if not math.isfinite(radius_m):
         raise ValueError(f"radius_m must be finite, got {radius_m!r}")
+    code = "G41" if side == "left" else "G42"  # as programmed, for the messages
     if radius_m < 0.0:
         side, radius_m = ("right" if side == "left" else "left"), -radius_m
     if radius_m == 0.0 or not moves:
@@ -154,7 +155,7 @@ def compensate_blocks(
     body = list(moves[:-1]) if ends_with_exit else list(moves)
     if not body:
         return [(moves[-1],)]
-    comp = _Compensator(side, radius_m, file)
+    comp = _Compensator(side, radius_m, file, code)
     comp.entry(body[0])
     for move in body[1:]:
         comp.next_move(move)
@@ -200,9 +201,9 @@ def _angle(frm: Point, to: Point) -> float:
 class _Compensator:
     """LinuxCNC's comp state: the programmed point, the tool's point and the one move whose end may move."""
 
-    def __init__(self, side: str, radius_m: float, file: str) -> None:
+    def __init__(self, side: str, radius_m: float, file: str, code: str) -> None:
         self.left = side == "left"
-        self.code = "G41" if self.left else "G42"
+        self.code = code
         self.r = radius_m
         self.file = file
         self.blocks: list[list[_Out]] = []
