@@ -121,6 +121,90 @@ def test_monitor_opcua_follows_a_node_opcua_machine_as_monitor_log_reads_its_tra
         assert abs(a.time_s - b.time_s) <= block_s
 
 
+def test_monitor_opcua_reads_a_node_opcua_machines_scalar_values_a_sample_per_source_time(tmp_path):
+    """node-opcua as a machine that publishes scalars (no blocks), every sample with its source time, the 0.2 ms
+    steps in the DataValue's picoseconds: the shadow puts each sample together and reads every one node-opcua
+    reports, exactly, at its own time."""
+    import pyarrow.parquet as pq
+
+    from gantry_twin.cli import main
+    from gantry_twin.outputs.summary import RunSummary
+
+    # node-opcua compares source timestamps to the millisecond, so a value that repeats within one (an axis at
+    # rest: x turning back at the circle's side) is not reported (docs/live-link.md); the test says which.
+    run, n, start = tmp_path / "run", 3000, 2000
+    assert main(["run", "no_load_circle", "--set", "duration_s=1", "--out", str(run), "--no-plots"]) == 0
+    assert main(["export", str(run), "--csv", "--out", str(tmp_path / "trace.csv")]) == 0
+    node = "nsu=urn:gantry-twin:opcua;s=GantryTwin.{}"
+    signals = {"x_m": "x_meas_m", "y_m": "y_meas_m", "u_x_v": "u_x_v", "u_y_v": "u_y_v"}
+    units = {"x_m": "m", "y_m": "m", "u_x_v": "V", "u_y_v": "V"}
+    nodes = {
+        "sample_period_s": 2e-4,
+        "run_state": node.format("RunState"),
+        "signals": {k: {"node": node.format(v), "unit": units[k]} for k, v in signals.items()},
+    }
+    (tmp_path / "nodes.yaml").write_text(json.dumps(nodes))
+    machine = subprocess.Popen(
+        [NODE, str(INTEROP / "machine_server.mjs"), str(tmp_path / "trace.csv"), "500", "scalars", str(n), str(start)],
+        cwd=INTEROP,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+    )
+    try:
+        endpoint = None
+        for _ in range(50):  # node-opcua prints its own lines first
+            line = machine.stdout.readline()
+            if line.startswith("listening "):
+                endpoint = line.split()[1]
+                break
+        assert endpoint, "the node-opcua machine did not start"
+        shadow = tmp_path / "shadow"
+        follow = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "gantry_twin",
+                "monitor",
+                "--opcua",
+                endpoint,
+                "--nodes",
+                str(tmp_path / "nodes.yaml"),
+            ]
+            + ["--out", str(shadow), "--duration", "60"],
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
+        machine.wait(60)
+    finally:
+        _stop(machine)
+    assert follow.returncode in (0, 5), follow.stderr  # 5: too short for the monitor's baseline, said so
+    live = RunSummary.read(shadow / "summary.json").live
+    sent = pq.read_table(run / "trace.parquet")
+    rows = slice(start, start + n)
+    # What node-opcua reports, computed here: a value is reported unless it equals the last one reported with a
+    # source time in the same millisecond. A sample lacking any signal is not a sample: a gap.
+    millisecond = np.floor(np.rint(sent.column("t_s").to_numpy()[rows] * 1e4) / 10)
+    reported = np.ones(n, dtype=bool)
+    for name in signals.values():
+        values, last = sent.column(name).to_numpy()[rows], None
+        for k in range(n):
+            if last is not None and values[k] == last[0] and millisecond[k] == last[1]:
+                reported[k] = False
+            else:
+                last = (values[k], millisecond[k])
+    expected = np.flatnonzero(reported)
+    parts = sorted((shadow / "trace").glob("part-*.parquet"))
+    t = np.concatenate([pq.read_table(p).column("t_s").to_numpy() for p in parts])
+    x = np.concatenate([pq.read_table(p).column("x_m").to_numpy() for p in parts])
+    got = np.rint((t - t[0]) / 2e-4).astype(int) + expected[0]
+    # The last sample is complete once the next one's values start coming, or the run state finished comes.
+    assert live.mode == "scalars" and live.samples in (expected.size - 1, expected.size) and expected.size < n, live
+    np.testing.assert_array_equal(got, expected[: got.size])  # every sample node-opcua reported, at its own time
+    np.testing.assert_array_equal(x, sent.column("x_meas_m").to_numpy()[rows][got])  # with its own values
+
+
 def _netns_available() -> bool:
     """An unprivileged network namespace of our own (``unshare -rn``) where a second address can go on its loopback."""
     if shutil.which("unshare") is None or shutil.which("ip") is None:

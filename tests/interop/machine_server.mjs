@@ -2,11 +2,15 @@
 // `gantry-twin export`) as gantry-twin serve's sample blocks, with its run state and sample period, and as scalar
 // positions and commands (a decimated HMI view, one value per block), so that `monitor --opcua` follows an OPC UA
 // server that is not asyncua. Prints "listening URL" once it listens; starts when a client subscribes; exits a
-// few seconds after the run state `finished`. Usage: node machine_server.mjs TRACE.csv SAMPLES_PER_BLOCK
+// few seconds after the run state `finished`. Usage: node machine_server.mjs TRACE.csv SAMPLES_PER_BLOCK [scalars N FROM]
+// With `scalars N FROM`: no blocks; samples FROM to FROM + N as scalar values, every one, each with its sample's
+// source time (t = 0 at 2026-12-04T00:00:00Z, the 0.2 ms steps below a millisecond in the DataValue's picoseconds).
+// node-opcua's trigger StatusValueTimestamp compares source timestamps to the millisecond: a value that repeats
+// within a millisecond (a machine at rest) is not reported, so FROM is where the machine moves.
 import fs from "node:fs";
-import { DataType, OPCUAServer, StatusCodes, Variant, VariantArrayType } from "node-opcua";
+import { DataType, DataValue, OPCUAServer, StatusCodes, Variant, VariantArrayType } from "node-opcua";
 
-const [csvPath, perBlockText] = process.argv.slice(2);
+const [csvPath, perBlockText, mode, countText, fromText] = process.argv.slice(2);
 const perBlock = Number(perBlockText);
 const SIGNALS = [
   "t_s", "x_meas_m", "y_meas_m", "x_m", "y_m", "x_d_m", "y_d_m", "u_x_v", "u_y_v", "eps_c_m",
@@ -51,6 +55,22 @@ const deadline = Date.now() + 60000;
 while (server.currentSubscriptionCount === 0 && Date.now() < deadline) await sleep(50);
 await sleep(500); // the subscriber's monitored items are created after its subscription
 state.setValueFromSource(new Variant({ dataType: DataType.String, value: "running" }));
+if (mode === "scalars") {
+  await sleep(1000); // each of the four monitored items is created (and sent its first value) before sample 0
+  const t0 = Date.UTC(2026, 11, 4);
+  const indices = scalars.map(([name]) => header.indexOf(name));
+  for (let k = Number(fromText); k < Number(fromText) + Number(countText); k++) {
+    const tenthsOfMs = Math.round(rows[k][columns[0]] * 1e4); // t in units of 0.1 ms, exact for 0.2 ms samples
+    const sourceTimestamp = new Date(t0 + Math.floor(tenthsOfMs / 10));
+    const sourcePicoseconds = (tenthsOfMs % 10) * 1e8; // node-opcua: picoseconds within the millisecond
+    scalars.forEach(([, node], j) => {
+      const value = new Variant({ dataType: DataType.Double, value: rows[k][indices[j]] });
+      node._internal_set_dataValue(new DataValue({ value, sourceTimestamp, sourcePicoseconds }));
+    });
+    if (k % 50 === 49) await sleep(30); // within what a 100 ms publishing interval's queues hold
+  }
+  rows.length = 0; // no blocks
+}
 for (let first = 0; first < rows.length; first += perBlock) {
   const part = rows.slice(first, first + perBlock);
   const values = new Float64Array(4 + part.length * SIGNALS.length);
