@@ -1,0 +1,432 @@
+"""The modal state of a two-axis machine and one block's words turned into moves (LinuxCNC's dialect).
+
+Positions are machine coordinates in metres (the twin's: origin at the
+centre of the travel). A program point p in program units becomes the
+machine point ``p * scale + work offset + G92 offset``: the work offsets
+(G54-G59.3, parameters 5221-5389, 20 apart) and the G92 offset (5211-5212,
+in force while 5210 is 1) are in the machine's units, mm, as LinuxCNC
+keeps them. G10 L2 sets a system's offset, G10 L20 the offset that makes
+the current point the given one; G92 the offset that makes it so for all
+systems; G92.1 clears it, G92.2 suspends it, G92.3 restores it; G53 moves
+in machine coordinates for its line. ``@`` ``^`` are polar coordinates
+(radius, angle in degrees) about the work origin (G90) or the current
+point (G91). G64 Q merges consecutive collinear-within-Q G1 lines (the
+naive CAM detector); G81-G89 drill at each X Y: the rapid there is a move,
+the Z part dropped (``drop_unsupported``) and counted.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from collections.abc import Callable
+
+from gantry_twin.gcode.arcs import MM_PER_INCH, arc_move
+from gantry_twin.gcode.geometry import Dwell, Move
+
+#: Words a two-axis gantry cannot do, by kind, dropped only on request.
+AXES = "ZABCUVW"
+DROPPABLE_M = {3: "spindle", 4: "spindle", 5: "spindle", 7: "coolant", 8: "coolant", 9: "coolant"}
+#: Modal codes that change nothing on this machine.
+NOOP_G = {"G49", "G80", "G90.1", "G91.1", "G94", "G98", "G99", "G17"}
+MOTION = {"G0": 0, "G1": 1, "G2": 2, "G3": 3}
+CYCLES = {f"G{n}" for n in range(81, 90)}
+SYSTEMS = {"G54": 1, "G55": 2, "G56": 3, "G57": 4, "G58": 5, "G59": 6, "G59.1": 7, "G59.2": 8, "G59.3": 9}
+COMPENSATION = {"G40", "G41", "G42", "G41.1", "G42.1"}
+MODAL_GROUPS = {
+    "motion": {"G0", "G1", "G2", "G3", "G80"} | CYCLES,
+    "plane": {"G17", "G18", "G19"},
+    "units": {"G20", "G21"},
+    "distance": {"G90", "G91"},
+    "path": {"G61", "G61.1", "G64"},
+    "coordinate system": set(SYSTEMS),
+    "cutter compensation": COMPENSATION,
+    "non-modal": {"G4", "G10", "G28", "G30", "G53", "G92", "G92.1", "G92.2", "G92.3"},
+}
+#: Every G code read (the dialect table in docs/gcode.md is checked against it).
+READ_G = set(MOTION) | CYCLES | NOOP_G | set(SYSTEMS) | COMPENSATION | {
+    "G4", "G10", "G20", "G21", "G53", "G61", "G61.1", "G64", "G90", "G91", "G92", "G92.1", "G92.2", "G92.3",
+}  # fmt: skip
+READ_M = {"M0", "M1", "M2", "M30", "M6", "M70", "M71", "M72", "M73"} | {f"M{n}" for n in DROPPABLE_M}
+REFUSED_G = {
+    "G18": "only the XY plane (G17) exists on a two-axis gantry",
+    "G19": "only the XY plane (G17) exists on a two-axis gantry",
+    "G33": "spindle-synchronised motion: the gantry has no spindle",
+    "G33.1": "spindle-synchronised motion: the gantry has no spindle",
+    "G76": "spindle-synchronised motion (threading): the gantry has no spindle",
+    "G7": "lathe diameter mode: the gantry is a mill's XY",
+    "G8": "lathe radius mode: the gantry is a mill's XY",
+}
+#: Parameters: G92 in force, its offsets; the current system; the first system's offsets (20 apart).
+P_G92_ON, P_G92_X, P_SYSTEM, P_SYSTEM_X = 5210, 5211, 5220, 5221
+
+
+class Machine:
+    """Modal state and the moves so far; ``params`` is the interpreter's numbered parameters (mm offsets)."""
+
+    def __init__(self, params: dict[int, float], drop: bool, error: Callable[..., Exception]) -> None:
+        self.params, self.drop, self.fail = params, drop, error
+        self.items: list[Move | Dwell] = []
+        self.programmed: list[Move] = []
+        self.dropped: Counter[str] = Counter()
+        self.merged = 0
+        self.position = (0.0, 0.0)
+        self.start: tuple[float, float] | None = None
+        self.motion: int | str | None = None
+        self.scale_m = 1e-3  # G21
+        self.incremental = False
+        self.exact_stop = False  # LinuxCNC starts in G64
+        self.tolerance_m = math.inf
+        self.naive_m = 0.0  # G64 Q: 0 = no merging
+        self.feed_m_s: float | None = None
+        self.tool = 0  # T (prepared)
+        self.selected = 0  # M6
+        self.compensation: tuple[str, float | None, int, int] | None = None  # side, radius, tool, G41 line
+        self.compensated: list[Move | Dwell] = []
+        self.chain: list[tuple[float, float]] = []  # the points of the last item's merged G1 lines
+        self.column: dict[str, int] = {}
+        self.number = 0
+
+    # -- helpers -------------------------------------------------------------------------------------------
+    def error(self, word: str, what: str) -> Exception:
+        return self.fail(self.column.get(word, 0), word, what)
+
+    def unsupported(self, word: str, kind: str) -> None:
+        if not self.drop:
+            raise self.error(word, f"{kind}: a two-axis gantry cannot do this (--drop-unsupported drops it)")
+        self.dropped[kind] += 1
+
+    def offset_m(self) -> tuple[float, float]:
+        """The work offset plus the G92 offset in force, m."""
+        base = P_SYSTEM_X + 20 * (int(self.params.get(P_SYSTEM, 1)) - 1)
+        x, y = self.params.get(base, 0.0), self.params.get(base + 1, 0.0)
+        if self.params.get(P_G92_ON, 0.0):
+            x, y = x + self.params.get(P_G92_X, 0.0), y + self.params.get(P_G92_X + 1, 0.0)
+        return x * 1e-3, y * 1e-3
+
+    def program_point(self) -> tuple[float, float]:
+        """The current point in program coordinates and units (parameters 5420-5421, #<_x> #<_y>)."""
+        ox, oy = self.offset_m()
+        return (self.position[0] - ox) / self.scale_m, (self.position[1] - oy) / self.scale_m
+
+    def snapshot(self) -> tuple:
+        """The modal state M70 saves and M72 restores."""
+        return (self.motion, self.scale_m, self.incremental, self.exact_stop, self.tolerance_m, self.naive_m,
+                self.feed_m_s, self.params.get(P_SYSTEM, 1))  # fmt: skip
+
+    def restore(self, state: tuple) -> None:
+        (self.motion, self.scale_m, self.incremental, self.exact_stop, self.tolerance_m, self.naive_m,
+         self.feed_m_s, self.params[P_SYSTEM]) = state  # fmt: skip
+
+    # -- one block -----------------------------------------------------------------------------------------
+    def execute(self, words: dict[str, float], number: int, column: dict[str, int]) -> bool:
+        """Execute one block's words (codes 'G1', 'M30' and letters); True when it ends the program."""
+        self.column, self.number = column, number
+        for code in [c for c in words if c[0] == "M"]:
+            if code in ("M2", "M30", "M0", "M1", "M6") or code in ("M70", "M71", "M72", "M73"):
+                continue
+            kind = DROPPABLE_M.get(int(float(code[1:])))
+            if kind is None:
+                raise self.error(code, "unsupported M code")
+            self.unsupported(code, kind)
+            del words[code]
+        for letter, kind in (("S", "spindle speed"), ("H", "tool length offset")):
+            if letter in words:
+                self.unsupported(letter, kind)
+                del words[letter]
+        if "G43" in words:
+            self.unsupported("G43", "tool length offset")
+            del words["G43"]
+        cycle = next((c for c in words if c in CYCLES), None) or (self.motion if self.motion in CYCLES else None)
+        axes_words = any(letter in words for letter in "XY@^")
+        if cycle is not None and (axes_words or any(c in words for c in CYCLES)):
+            for letter in "ZRQ":
+                words.pop(letter, None)
+            if cycle in ("G82", "G89") or "P" in words:
+                words.pop("P", None)
+        for letter in AXES:
+            if letter in words:
+                self.unsupported(letter, f"{letter} axis")
+                del words[letter]
+        self.check_words(words)
+        if "T" in words:
+            if words["T"] < 0 or words["T"] != int(words["T"]):
+                raise self.error("T", "a tool number is a whole number >= 0")
+            self.tool = int(words["T"])
+        if "M6" in words:
+            self.selected = self.tool
+        if "F" in words:
+            if words["F"] <= 0.0:
+                raise self.error("F", "the feed must be > 0")
+        if "G20" in words:
+            self.scale_m = MM_PER_INCH * 1e-3
+        if "G21" in words:
+            self.scale_m = 1e-3
+        if "F" in words:
+            self.feed_m_s = words["F"] * self.scale_m / 60.0
+        if "G4" in words:
+            if "P" not in words:
+                raise self.error("G4", "a dwell needs P (seconds)")
+            if words["P"] < 0.0:
+                raise self.error("P", "a dwell cannot be negative")
+            if words["P"] > 0.0:
+                self.emit(Dwell(words["P"], number))
+        self.path_mode(words)
+        system = next((c for c in words if c in SYSTEMS), None)
+        if system is not None:
+            self.params[P_SYSTEM] = float(SYSTEMS[system])
+        self.compensation_words(words)
+        if "G90" in words:
+            self.incremental = False
+        if "G91" in words:
+            self.incremental = True
+        if "G10" in words:
+            self.g10(words)
+            return "M2" in words or "M30" in words
+        if any(c in words for c in ("G92", "G92.1", "G92.2", "G92.3")):
+            self.g92(words)
+            return "M2" in words or "M30" in words
+        motion = next((code for code in words if code in MOTION or code in CYCLES or code == "G80"), None)
+        if motion is not None:
+            self.motion = None if motion == "G80" else MOTION.get(motion, motion)
+        uses_p = "G4" in words or "G64" in words
+        axes = any(letter in words for letter in "XY@^")
+        arc_p = self.motion in (2, 3) and (axes or "I" in words or "J" in words)
+        if "P" in words and not uses_p and not arc_p:
+            raise self.error("P", "P only follows G4, G64, G10 or an arc (turns)")
+        if not axes and any(letter in words for letter in "IJR"):
+            if self.motion in (2, 3) and "R" not in words:
+                axes = True  # a full circle: I J without X Y
+            else:
+                raise self.error(next(c for c in "IJR" if c in words), "needs an arc with X or Y")
+        if axes:
+            self.move(words, number)
+        elif "G53" in words:
+            raise self.error("G53", "needs X or Y on its line")
+        return "M2" in words or "M30" in words
+
+    def check_words(self, words: dict[str, float]) -> None:
+        if "K" in words:
+            raise self.error("K", "not used in the XY plane (G17): arcs take I and J")
+        allowed = set("XYIJRFNPTDLQ@^") | READ_G | READ_M
+        for word in words:
+            if word not in allowed:
+                if word in REFUSED_G:
+                    raise self.error(word, REFUSED_G[word])
+                if word.startswith("G"):
+                    raise self.error(word, "unsupported G code")
+                raise self.error(word, "unsupported word")
+        if "L" in words and "G10" not in words and not (self.motion in CYCLES or any(c in words for c in CYCLES)):
+            raise self.error("L", "L only follows G10 or a drilling cycle (repeats)")
+        if "Q" in words and "G64" not in words:
+            raise self.error("Q", "Q only follows G64 (or a drilling cycle's peck)")
+        if "D" in words and not any(c in words for c in ("G41", "G42", "G41.1", "G42.1")):
+            raise self.error("D", "D only follows G41 / G42 (a tool) or G41.1 / G42.1 (a diameter)")
+        if ("@" in words or "^" in words) and ("X" in words or "Y" in words):
+            raise self.error("@" if "@" in words else "^", "polar (@ ^) and X Y on one line")
+
+    def path_mode(self, words: dict[str, float]) -> None:
+        if "G61" in words or "G61.1" in words:
+            self.exact_stop, self.tolerance_m, self.naive_m = True, math.inf, 0.0
+        if "G64" in words:
+            tolerance = words.get("P", 0.0)
+            if tolerance < 0.0:
+                raise self.error("P", "the G64 tolerance must be >= 0 (P0: no tolerance, as G64 alone)")
+            naive = words.get("Q", tolerance)
+            if naive < 0.0:
+                raise self.error("Q", "the G64 Q tolerance must be >= 0 (Q0: no merging)")
+            self.exact_stop = False
+            self.tolerance_m = tolerance * self.scale_m if tolerance > 0.0 else math.inf
+            self.naive_m = naive * self.scale_m
+
+    def compensation_words(self, words: dict[str, float]) -> None:
+        code = next((c for c in words if c in COMPENSATION), None)
+        if code is None:
+            return
+        if code == "G40":
+            if self.compensation is not None:
+                self.compensation = (*self.compensation[:3], -self.compensation[3])  # ends after the next move
+            return
+        if self.compensation is not None:
+            raise self.error(code, "cutter compensation is already on (G40 first)")
+        side = "left" if code.startswith("G41") else "right"
+        if code.endswith(".1"):
+            if "D" not in words or words["D"] < 0:
+                raise self.error(code, "needs D, the tool's diameter (>= 0)")
+            self.compensation = (side, 0.5 * words["D"] * self.scale_m, 0, self.number)
+            return
+        tool = int(words["D"]) if "D" in words else self.selected
+        if "D" in words and (words["D"] < 0 or words["D"] != int(words["D"])):
+            raise self.error("D", "a tool number is a whole number >= 0")
+        if tool == 0:
+            raise self.error(code, "no tool: select one (T.. M6) or name it with D")
+        self.compensation = (side, None, tool, self.number)
+
+    def g10(self, words: dict[str, float]) -> None:
+        level = words.get("L")
+        if level not in (2.0, 20.0):
+            raise self.error("G10", "only G10 L2 and G10 L20 (work offsets) are read")
+        if "R" in words:
+            raise self.error("R", "a rotated coordinate system is not read")
+        p = words.get("P", 0.0)
+        if p != int(p) or not 0 <= p <= 9:
+            raise self.error("P", "G10 needs P0-P9 (0: the system in force, 1-9: G54-G59.3)")
+        system = int(p) or int(self.params.get(P_SYSTEM, 1))
+        base = P_SYSTEM_X + 20 * (system - 1)
+        for axis, letter in enumerate("XY"):
+            if letter in words:
+                value_mm = words[letter] * self.scale_m * 1e3
+                if level == 20.0:  # the offset that makes the current point the given one
+                    g92 = self.params.get(P_G92_X + axis, 0.0) if self.params.get(P_G92_ON, 0.0) else 0.0
+                    value_mm = self.position[axis] * 1e3 - g92 - value_mm
+                self.params[base + axis] = value_mm
+
+    def g92(self, words: dict[str, float]) -> None:
+        if "G92.1" in words or "G92.2" in words:
+            if "G92.1" in words:
+                self.params[P_G92_X] = self.params[P_G92_X + 1] = 0.0
+            self.params[P_G92_ON] = 0.0
+            return
+        if "G92.3" in words:
+            self.params[P_G92_ON] = 1.0
+            return
+        if not any(letter in words for letter in "XY"):
+            raise self.error("G92", "needs X or Y (the current point's new coordinates)")
+        on = self.params.get(P_G92_ON, 0.0)
+        base = P_SYSTEM_X + 20 * (int(self.params.get(P_SYSTEM, 1)) - 1)
+        for axis, letter in enumerate("XY"):
+            old = self.params.get(P_G92_X + axis, 0.0) if on else 0.0
+            if letter in words:
+                work_mm = self.params.get(base + axis, 0.0)
+                self.params[P_G92_X + axis] = self.position[axis] * 1e3 - work_mm - words[letter] * self.scale_m * 1e3
+            else:
+                self.params[P_G92_X + axis] = old
+        self.params[P_G92_ON] = 1.0
+
+    # -- moves ---------------------------------------------------------------------------------------------
+    def target(self, words: dict[str, float]) -> tuple[float, float]:
+        s = self.scale_m
+        x, y = self.position
+        if "G53" in words:
+            if self.incremental:
+                raise self.error("G53", "machine coordinates need G90 (absolute)")
+            return (words["X"] * s if "X" in words else x), (words["Y"] * s if "Y" in words else y)
+        if "@" in words or "^" in words:
+            radius, angle = words.get("@", 0.0) * s, math.radians(words.get("^", 0.0))
+            if self.incremental:
+                return x + radius * math.cos(angle), y + radius * math.sin(angle)
+            ox, oy = self.offset_m()
+            return ox + radius * math.cos(angle), oy + radius * math.sin(angle)
+        if self.incremental:
+            return x + words.get("X", 0.0) * s, y + words.get("Y", 0.0) * s
+        ox, oy = self.offset_m()
+        return (words["X"] * s + ox if "X" in words else x), (words["Y"] * s + oy if "Y" in words else y)
+
+    def move(self, words: dict[str, float], number: int) -> None:
+        if self.motion is None:
+            raise self.error("X" if "X" in words else "Y", "an axis word without G0, G1, G2, G3 or a cycle in force")
+        if self.motion in CYCLES:
+            self.drill(words, number)
+            return
+        if "G53" in words and self.motion not in (0, 1):
+            raise self.error("G53", "machine coordinates only with G0 or G1")
+        end = self.target(words)
+        rapid = self.motion == 0
+        if not rapid and self.feed_m_s is None:
+            raise self.error(f"G{self.motion}", "no feed: F must be given before the first feed move")
+        if not self.items and not self.compensated and rapid and self.start is None and self.compensation is None:
+            self.start = self.position = end  # the run starts at rest after its first G0
+            return
+        if self.start is None:
+            self.start = self.position
+        common = dict(
+            feed_m_s=math.inf if rapid else self.feed_m_s, rapid=rapid, line=number,
+            exact_stop=self.exact_stop, tolerance_m=self.tolerance_m,
+        )  # fmt: skip
+        if self.motion in (0, 1):
+            if "I" in words or "J" in words or "R" in words:
+                raise self.error("I" if "I" in words else "J" if "J" in words else "R", "only arcs take it")
+            if end != self.position:
+                self.emit(Move("line", self.position, end, **common))
+            self.position = end
+            return
+        move = arc_move(words, self.position, end, self.scale_m, self.motion == 3, common, self.error)
+        self.emit(move)
+        self.position = move.end_m
+
+    def drill(self, words: dict[str, float], number: int) -> None:
+        """A drilling cycle: per hole (L repeats in G91) a rapid to X Y, the Z part dropped and counted."""
+        repeats = words.get("L", 1.0)
+        if repeats < 1 or repeats != int(repeats):
+            raise self.error("L", "a cycle's repeats are a whole number >= 1")
+        cycle = str(self.motion)
+        for _ in range(int(repeats) if self.incremental else 1):
+            end = self.target(words)
+            self.unsupported(cycle, "drilling cycle (its Z motion)")
+            if self.start is None and not self.items:
+                self.start = self.position = end
+                continue
+            if self.start is None:
+                self.start = self.position
+            if end != self.position:
+                self.emit(Move("line", self.position, end, math.inf, True, number, self.exact_stop, self.tolerance_m))
+            self.position = end
+
+    def emit(self, item: Move | Dwell) -> None:
+        """Append a move or a dwell: into the compensated run while G41 / G42 is on, else merged by G64 Q."""
+        if isinstance(item, Move):
+            self.programmed.append(item)
+        if self.compensation is not None:
+            self.compensated.append(item)
+            if self.compensation[3] < 0 and isinstance(item, Move):  # the move after G40 closes the run
+                self.finish_compensation()
+            return
+        if self.merges(item):
+            return
+        self.items.append(item)
+        self.chain = [item.start_m, item.end_m] if isinstance(item, Move) and item.kind == "line" else []
+
+    def merges(self, item: Move | Dwell) -> bool:
+        """The naive CAM detector: the G1 line joins the previous one when every point of the chain stays within
+        Q of the line from the chain's start to the new end and the new end goes on forward."""
+        if not (isinstance(item, Move) and item.kind == "line" and not item.rapid and self.naive_m > 0.0):
+            return False
+        if not self.chain or not self.items or not isinstance(self.items[-1], Move):
+            return False
+        last = self.items[-1]
+        if last.rapid or last.feed_m_s != item.feed_m_s or last.exact_stop or item.exact_stop:
+            return False
+        (x0, y0), (x1, y1) = self.chain[0], item.end_m
+        length = math.hypot(x1 - x0, y1 - y0)
+        if length <= 0.0:
+            return False
+        ux, uy = (x1 - x0) / length, (y1 - y0) / length
+        along = [(px - x0) * ux + (py - y0) * uy for px, py in self.chain[1:]]
+        if any(abs(-(px - x0) * uy + (py - y0) * ux) > self.naive_m for px, py in self.chain[1:]):
+            return False
+        if any(b < a for a, b in zip([0.0, *along], [*along, length], strict=True)):
+            return False
+        self.items[-1] = Move("line", self.chain[0], item.end_m, item.feed_m_s, False, last.line, False,
+                              item.tolerance_m)  # fmt: skip
+        self.chain.append(item.end_m)
+        self.merged += 1
+        return True
+
+    def finish_compensation(self) -> None:
+        """Hand the compensated run to :meth:`compensated_run` and place its tool-centre moves."""
+        assert self.compensation is not None
+        side, radius_m, tool, line = self.compensation
+        run, self.compensated, self.compensation = self.compensated, [], None
+        moves = [item for item in run if isinstance(item, Move)]
+        if moves:
+            centre = self.compensated_run(moves, side, radius_m, tool, abs(line))
+            for move in centre:
+                self.items.append(move)
+                self.chain = []
+        self.items.extend(item for item in run if isinstance(item, Dwell))
+
+    def compensated_run(self, moves: list[Move], side: str, radius_m: float | None, tool: int, line: int) -> list[Move]:
+        """The tool-centre path of a G41 / G42 run (``radius_m`` None: the radius of ``tool`` in the tool
+        table). Cutter radius compensation is connected here; until it is, the run is refused at its G41."""
+        self.column = {}
+        raise self.fail(0, "G41" if side == "left" else "G42", "cutter radius compensation: not available", line)
