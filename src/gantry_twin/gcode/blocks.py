@@ -47,8 +47,8 @@ def structure(lines: list[Line]) -> Structure:
             continue
         label, keyword = word.label, word.keyword
 
-        def fail(what: str, word_=f"{label} {keyword}") -> StructureError:
-            return StructureError(line.number, word.column, word_, what)
+        def fail(what: str, number=line.number, column=word.column, shown=f"{label} {keyword}") -> StructureError:
+            return StructureError(number, column, shown, what)
 
         top = stack[-1] if stack else None
         if keyword == "while" and top is not None and top[:2] == (label, "do"):
@@ -109,7 +109,8 @@ def structure(lines: list[Line]) -> Structure:
         label, keyword, index = stack[-1]
         word = lines[index].oword
         closer = _OPENS[keyword] if keyword in _OPENS else "endif"
-        raise StructureError(lines[index].number, word.column, f"{label} {keyword}", f"not closed (no {label} {closer})")
+        what = f"not closed (no {label} {closer})"
+        raise StructureError(lines[index].number, word.column, f"{label} {keyword}", what)
     return out
 
 

@@ -181,7 +181,8 @@ class Reader:
         assert match is not None
         name = match.group()
         column = self.column(i)
-        known = next((f for f in FUNCTIONS if name.startswith(f) and self.text[i + len(f) : i + len(f) + 1] == "["), None)
+        text = self.text
+        known = next((f for f in FUNCTIONS if name.startswith(f) and text[i + len(f) : i + len(f) + 1] == "["), None)
         if known is None:
             raise self.error(i, name[:12], f"unknown function (known: {' '.join(FUNCTIONS)})")
         start = i + len(known)

@@ -188,6 +188,8 @@ class Interpreter:
 
     def block(self, line: Line) -> bool:
         """One line of words and settings; True when it ends the program."""
+        if line.constant is not None:  # constant axis and feed words: read once
+            return self.machine.execute(dict(line.constant[0]), line.number, line.constant[1])
         words: dict[str, float] = {}
         columns: dict[str, int] = {}
         groups: set[str] = set()
@@ -320,8 +322,8 @@ class Interpreter:
         args = [a if isinstance(a, float) else a(self) for a in word.args]
         unit, where = self.find(word.label, word.column)
         if len(self.frames) > MAX_CALL_DEPTH:
-            raise self.error(word.column, f"{word.label} call",
-                             f"calls nested deeper than {MAX_CALL_DEPTH} levels (LinuxCNC's limit; endless recursion?)")  # fmt: skip
+            what = f"calls nested deeper than {MAX_CALL_DEPTH} levels (LinuxCNC's limit; endless recursion?)"
+            raise self.error(word.column, f"{word.label} call", what)
         saved = [self.params.get(n, 0.0) for n in range(1, SUB_PARAMS + 1)]
         for n in range(1, SUB_PARAMS + 1):
             self.params[n] = args[n - 1] if n <= len(args) else 0.0

@@ -56,6 +56,8 @@ class Line:
     assignments: list[Assignment] = field(default_factory=list)
     oword: OWord | None = None
     messages: list[tuple[str, str]] = field(default_factory=list)
+    #: (words, columns) of a line of constant X Y F @ ^ words only, each once (the interpreter's fast path)
+    constant: tuple[dict[str, float], dict[str, int]] | None = None
 
     @property
     def empty(self) -> bool:
@@ -127,6 +129,12 @@ def lex(text: str, number: int) -> Line:
         value, end = reader.value(i + 1)
         line.words.append(Word(char, value, reader.column(i)))
         i = end
+    letters = [w.letter for w in line.words]
+    if (
+        letters and not line.assignments and not line.messages and len(set(letters)) == len(letters)
+        and all(isinstance(w.value, float) and w.letter in "XYF@^" for w in line.words)
+    ):  # fmt: skip
+        line.constant = ({w.letter: w.value for w in line.words}, {w.letter: w.column for w in line.words})
     return line
 
 

@@ -31,6 +31,8 @@ DROPPABLE_M = {3: "spindle", 4: "spindle", 5: "spindle", 7: "coolant", 8: "coola
 NOOP_G = {"G49", "G80", "G90.1", "G91.1", "G94", "G98", "G99", "G17"}
 MOTION = {"G0": 0, "G1": 1, "G2": 2, "G3": 3}
 CYCLES = {f"G{n}" for n in range(81, 90)}
+#: The letters of a block that only moves (the fast path of :meth:`Machine.execute`).
+SIMPLE = frozenset("XYF@^")
 SYSTEMS = {"G54": 1, "G55": 2, "G56": 3, "G57": 4, "G58": 5, "G59": 6, "G59.1": 7, "G59.2": 8, "G59.3": 9}
 COMPENSATION = {"G40", "G41", "G42", "G41.1", "G42.1"}
 MODAL_GROUPS = {
@@ -122,6 +124,16 @@ class Machine:
     def execute(self, words: dict[str, float], number: int, column: dict[str, int]) -> bool:
         """Execute one block's words (codes 'G1', 'M30' and letters); True when it ends the program."""
         self.column, self.number = column, number
+        if words.keys() <= SIMPLE and self.motion not in CYCLES:  # the common block: axes and feed only
+            if "F" in words:
+                if words["F"] <= 0.0:
+                    raise self.error("F", "the feed must be > 0")
+                self.feed_m_s = words["F"] * self.scale_m / 60.0
+            if "X" in words or "Y" in words or "@" in words or "^" in words:
+                if "P" in words and self.motion not in (2, 3):
+                    raise self.error("P", "P only follows G4, G64, G10 or an arc (turns)")
+                self.move(words, number)
+            return False
         for code in [c for c in words if c[0] == "M"]:
             if code in ("M2", "M30", "M0", "M1", "M6") or code in ("M70", "M71", "M72", "M73"):
                 continue
