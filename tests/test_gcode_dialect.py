@@ -115,7 +115,9 @@ o<pocket> endsub
 
 
 def test_a_subroutine_called_in_a_loop_places_the_same_pocket_at_n_offsets():
-    text = POCKET + "#<k>=0\no1 while [#<k> LT 4]\n  o<pocket> call [#<k>*20-30] [-5]\n  #<k>=[#<k>+1]\no1 endwhile\nM2\n"
+    text = (
+        POCKET + "#<k>=0\no1 while [#<k> LT 4]\n  o<pocket> call [#<k>*20-30] [-5]\n  #<k>=[#<k>+1]\no1 endwhile\nM2\n"
+    )
     got = path_mm(text)
     square = [((0, 0), (4, 0)), ((4, 0), (4, 3)), ((4, 3), (0, 3)), ((0, 3), (0, 0))]
     expected = []
@@ -288,9 +290,11 @@ def test_initial_work_offsets_and_polar_coordinates():
 
 
 # -- planning words ----------------------------------------------------------------------------------------
-WIGGLE = "G0 X0 Y0\nG64 P0.01 Q0.002\nG1 F600\n" + "".join(
-    f"X{k} Y{0.001 if k % 2 else -0.001}\n" for k in range(1, 40)
-) + "X40 Y0\nX40 Y10\n"
+WIGGLE = (
+    "G0 X0 Y0\nG64 P0.01 Q0.002\nG1 F600\n"
+    + "".join(f"X{k} Y{0.001 if k % 2 else -0.001}\n" for k in range(1, 40))
+    + "X40 Y0\nX40 Y10\n"
+)
 
 
 def test_g64_q_merges_a_wiggling_polyline_into_one_move():

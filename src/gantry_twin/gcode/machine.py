@@ -238,6 +238,8 @@ class Machine:
             raise self.error("@" if "@" in words else "^", "polar (@ ^) and X Y on one line")
 
     def path_mode(self, words: dict[str, float]) -> None:
+        if "G61" in words or "G61.1" in words or "G64" in words:
+            self.chain = []  # a new path mode starts a new chain (LinuxCNC flushes its segments)
         if "G61" in words or "G61.1" in words:
             self.exact_stop, self.tolerance_m, self.naive_m = True, math.inf, 0.0
         if "G64" in words:

@@ -92,7 +92,8 @@ def text_lines(data: bytes, name: str, max_line_chars: int = MAX_LINE_CHARS) -> 
                 raise GcodeError(
                     name, number, "line", f"byte 0x{byte:02x} at column {column}: not G-code text (binary?)"
                 )
-        stripped = raw.rstrip(b"\r").decode("ascii").strip()
+        text = raw.rstrip(b"\r").decode("ascii")
+        stripped = text.strip()
         if stripped.startswith("%"):
             if out or percent_open:
                 break  # the closing %: the program ends
@@ -102,5 +103,5 @@ def text_lines(data: bytes, name: str, max_line_chars: int = MAX_LINE_CHARS) -> 
             continue
         if len(stripped) > max_line_chars:
             raise GcodeError(name, number, "line", f"longer than {max_line_chars} characters")
-        out.append((number, stripped))
+        out.append((number, text))  # columns count from the line's first character
     return out

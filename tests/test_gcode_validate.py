@@ -1,0 +1,97 @@
+"""`gantry-twin validate PROGRAM.ngc`: read and plan without simulating; `--drop-unsupported`; bounded programs."""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+
+from gantry_twin.cli import app as cli
+from gantry_twin.gcode import plan_program, read_program
+from gantry_twin.gcode.report import fraction_at_feed
+
+
+def test_validate_reads_and_plans_a_program_and_prints_its_summary(tmp_path, capsys):
+    program = tmp_path / "wiggle.ngc"
+    lines = "".join(f"X{k} Y{0.001 if k % 2 else -0.001}\n" for k in range(1, 20))
+    program.write_text(f"G0 X-10 Y0\nG1 X0 F600\nG64 P0.01 Q0.002\n{lines}X20 Y0\nG0 X-10 Y5\n(msg, done)\nM2\n")
+    assert cli.main(["validate", str(program)]) == 0
+    out = capsys.readouterr().out.splitlines()
+    read = read_program(program)
+    plan = plan_program(read)
+    assert out[0] == f"{program}: ok ({read.blocks} blocks executed)"
+    assert out[1] == "  moves: 3 (2 feed, 1 rapid)"  # 20 wiggling lines merged into one
+    assert out[2] == f"  length: 30.000 mm at feed, {math.hypot(30, 5):.3f} mm rapid"
+    assert out[3] == f"  planned time: {plan.duration_s:.3f} s"
+    assert out[4] == f"  at programmed feed: {100 * fraction_at_feed(plan):.1f} % of the feed moves' time"
+    assert out[5:7] == ["  dropped: nothing", "  merged (G64 Q): 19 G1 line(s)"]
+    assert out[7] == "  extent X: -10.000 .. 20.000 mm of +-255 mm travel (7.8 % of the half travel)"
+    assert out[8] == "  extent Y: 0.000 .. 5.000 mm of +-255 mm travel (2.0 % of the half travel)"
+    assert out[9] == f"  {program}:25: msg: done"  # 3 lines, 19 wiggles, X20, G0, then the message
+
+
+def test_the_fraction_at_feed_is_the_cruise_share_of_a_long_line():
+    """A 200 mm line at 6 m/min (0.1 m/s) on the default limits: the ramps take a known share of the time."""
+    from gantry_twin.gcode import parse_program
+
+    plan = plan_program(parse_program("G1 X200 F6000\n", name="l.ngc"))
+    t = plan.duration_s
+    # one move: the time below 99 % of the feed is the two ramps' share; planned cruise is the rest
+    fraction = fraction_at_feed(plan)
+    assert 0.5 < fraction < 1.0
+    speed = plan.sample([0.5 * t]).v_m_s[0]
+    assert math.hypot(*speed) == __import__("pytest").approx(0.1, rel=1e-9)
+
+
+def test_drop_unsupported_is_a_flag_of_run_and_validate(tmp_path, capsys):
+    program = tmp_path / "z.ngc"
+    program.write_text("G0 X0 Y0 Z5\nG1 X10 F600 Z-1\nM3 S1000\n")
+    assert cli.main(["validate", str(program)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"gantry-twin: error: {program}:1:10: Z: Z axis: a two-axis gantry cannot do this "
+                   "(--drop-unsupported drops it)"]  # fmt: skip
+    assert cli.main(["validate", str(program), "--drop-unsupported"]) == 0
+    out = capsys.readouterr().out
+    assert "  dropped: Z axis 2, spindle 1, spindle speed 1" in out
+    parser = cli.build_parser()
+    args = parser.parse_args(["run", str(program), "--drop-unsupported", "--subroutine-path", str(tmp_path)])
+    assert args.drop_unsupported and args.subroutine_path == [str(tmp_path)]
+
+
+def test_validate_finds_subroutines_on_the_given_path(tmp_path, capsys):
+    (tmp_path / "lib").mkdir()
+    (tmp_path / "lib" / "hop.ngc").write_text("o<hop> sub\nG91 G1 X#1 F600\nG90\no<hop> endsub\n")
+    program = tmp_path / "main.ngc"
+    program.write_text("o<hop> call [3]\no<hop> call [4]\n")
+    assert cli.main(["validate", str(program)]) == 2
+    assert "o<hop> call: no such subroutine" in capsys.readouterr().err
+    assert cli.main(["validate", str(program), "--subroutine-path", str(tmp_path / "lib")]) == 0
+    assert "  length: 7.000 mm at feed" in capsys.readouterr().out
+
+
+def _validate_in_a_process(program) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "gantry_twin", "validate", str(program)], capture_output=True, text=True, timeout=600
+    )
+
+
+def test_an_endless_loop_and_an_endless_recursion_stop_with_the_line_and_exit_2(tmp_path):
+    """The default bounds (10^6 blocks, nine nested calls): one line naming the line of the limit, no traceback.
+    (Their time and memory are measured in benchmarks/bench_gcode.py, not here.)"""
+    loop = tmp_path / "loop.ngc"
+    loop.write_text("G1 F600\no1 while [1]\n  X1\n  X0\no1 endwhile\n")
+    done = _validate_in_a_process(loop)
+    assert done.returncode == 2 and done.stdout == ""
+    # block 1, then 4 a turn: block 1000001 is the 250000th endwhile, line 5
+    assert done.stderr.strip().splitlines() == [
+        f"gantry-twin: error: {loop}:5: program: more than 1000000 blocks executed (an endless loop?); "
+        "contour.max_blocks sets the bound"
+    ]
+    recursion = tmp_path / "recursion.ngc"
+    recursion.write_text("o<deeper> sub\n  o<deeper> call\no<deeper> endsub\no<deeper> call\n")
+    done = _validate_in_a_process(recursion)
+    assert done.returncode == 2 and "Traceback" not in done.stderr
+    assert done.stderr.strip().splitlines() == [
+        f"gantry-twin: error: {recursion}:2:3: o<deeper> call: calls nested deeper than 9 levels "
+        "(LinuxCNC's limit; endless recursion?)"
+    ]
