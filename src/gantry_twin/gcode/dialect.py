@@ -27,8 +27,12 @@ DIALECT: tuple[Entry, ...] = (
     Entry("G4", "read", "dwell P seconds", "G4 P0.5\n" + _F),
     Entry("G7", "refused", "lathe diameter mode", "G7\n"),
     Entry("G8", "refused", "lathe radius mode", "G8\n"),
-    Entry("G10", "read", "L2 P X Y: a system's offset; L20 P X Y: the offset making the current point X Y",
-          "G10 L2 P2 X1 Y1\nG10 L20 P0 X5\n" + _F),  # fmt: skip
+    Entry(
+        "G10",
+        "read",
+        "L2 P X Y: a system's offset; L20 P X Y: the offset making the current point X Y",
+        "G10 L2 P2 X1 Y1\nG10 L20 P0 X5\n" + _F,
+    ),  # fmt: skip
     Entry("G17", "read", "the XY plane (the only one)", "G17\n" + _F),
     Entry("G18", "refused", "only the XY plane (G17)", "G18\n"),
     Entry("G19", "refused", "only the XY plane (G17)", "G19\n"),
@@ -50,13 +54,21 @@ DIALECT: tuple[Entry, ...] = (
     ),
     Entry("G61", "read", "exact path: stop at every corner", "G61\n" + _F),
     Entry("G61.1", "read", "exact stop: as G61", "G61.1\n" + _F),
-    Entry("G64", "read", "blend; P tolerance (P0: none, as G64 alone); Q merges G1 lines within Q (default P)",
-          "G64 P0.01 Q0.001\n" + _F),  # fmt: skip
+    Entry(
+        "G64",
+        "read",
+        "blend; P tolerance (P0: none, as G64 alone); Q merges G1 lines within Q (default P)",
+        "G64 P0.01 Q0.001\n" + _F,
+    ),  # fmt: skip
     Entry("G76", "refused", "spindle-synchronised motion (threading)", "G76 P1\n"),
     Entry("G80", "read", "cancel a drilling cycle", "G80\n" + _F),
     *(
-        Entry(f"G{n}", "dropped", "drilling cycle (its Z motion); the rapid to each X Y is a move, L repeats in G91",
-              f"G0 X0 Y0\nG{n} X5 Y5 Z-1 R1{' P0.5' if n in (82, 89) else ''}\n")  # fmt: skip
+        Entry(
+            f"G{n}",
+            "dropped",
+            "drilling cycle (its Z motion); the rapid to each X Y is a move, L repeats in G91",
+            f"G0 X0 Y0\nG{n} X5 Y5 Z-1 R1{' P0.5' if n in (82, 89) else ''}\n",
+        )  # fmt: skip
         for n in range(81, 90)
     ),
     Entry("G90", "read", "absolute distances", "G90\n" + _F),
@@ -76,43 +88,82 @@ DIALECT: tuple[Entry, ...] = (
     Entry("M3 M4 M5", "dropped", "spindle", "M3\n" + _F),
     Entry("M6", "read", "select the tool T (for cutter compensation's D)", "T1 M6\n" + _F),
     Entry("M7 M8 M9", "dropped", "coolant", "M8\n" + _F),
-    Entry("M70 M71 M72 M73", "read", "save, forget, restore, restore-on-return the modal state",
-          "M70\nG20\nM72\n" + _F),  # fmt: skip
+    Entry(
+        "M70 M71 M72 M73", "read", "save, forget, restore, restore-on-return the modal state", "M70\nG20\nM72\n" + _F
+    ),  # fmt: skip
     Entry("other M codes", "refused", "unsupported M code", "M100\n"),
     Entry("X Y", "read", "axis words", _F),
     Entry("Z A B C U V W", "dropped", "axis", "G1 X1 Z1 F100\n"),
-    Entry("@ ^", "read", "polar: radius, angle in degrees (about the work origin; the current point in G91)",
-          "G1 @1 ^45 F100\n"),  # fmt: skip
+    Entry(
+        "@ ^",
+        "read",
+        "polar: radius, angle in degrees (about the work origin; the current point in G91)",
+        "G1 @1 ^45 F100\n",
+    ),  # fmt: skip
     Entry("I J R", "read", "arc centre or radius", "G2 X2 I1 F100\n"),
     Entry("K", "refused", "not used in the XY plane", "G2 X1 I1 K1 F100\n"),
     Entry("F", "read", "feed, units per minute", _F),
     Entry("S", "dropped", "spindle speed", "S1000\n" + _F),
     Entry("T", "read", "tool number (M6 selects it)", "T2\n" + _F),
     Entry("H", "dropped", "tool length offset", "H1\n" + _F),
-    Entry("D (G41 / G42: a tool; G41.1 / G42.1: a diameter)", "refused", "cutter radius compensation: not available",
-          "G41.1 D0 G1 X1 F100\nG40 X2\n"),  # fmt: skip
+    Entry(
+        "D (G41 / G42: a tool; G41.1 / G42.1: a diameter)",
+        "refused",
+        "cutter radius compensation: not available",
+        "G41.1 D0 G1 X1 F100\nG40 X2\n",
+    ),  # fmt: skip
     Entry("L P Q", "read", "G10's level and system, dwell time, arc turns, G64's tolerances, cycle repeats", _F),
     Entry("N", "read", "line number", "N10 " + _F),
-    Entry("#1-#5399", "read", "numbered parameters (unset: 0); 5221-5389 the work offsets, 5211-5212 G92's",
-          "#1=2\nG1 X#1 F100\n"),  # fmt: skip
-    Entry("#5400-#5602", "read", "read-only: 5400 the tool, 5420-5421 the current X Y", "G1 X[#5420+1] F100\n"),
-    Entry("#<name>", "read", "named local parameter (one set per call level; unset: an error)",
-          "#<a>=1\nG1 X#<a> F100\n"),  # fmt: skip
-    Entry("#<_name>", "read", "named global parameter; read-only _x _y _metric _imperial _absolute _incremental "
-          "_coord_system _feed _current_tool _selected_tool _line _call_level _motion_mode",
-          "#<_a>=1\nG1 X[#<_a>+#<_x>] F100\n"),  # fmt: skip
-    Entry("#n=value", "read", "a setting takes effect after its line", "#1=1 G1 X#1 F100\n"),
-    Entry("[ ]", "read", "expression: ** ; * / MOD ; + - ; EQ NE GT GE LT LE ; AND OR XOR (tightest first)",
-          "G1 X[1+2*3 MOD 4] F100\n"),  # fmt: skip
-    Entry("functions", "read", "ABS ACOS ASIN ATAN[y]/[x] COS EXP FIX FUP LN ROUND SIN SQRT TAN EXISTS (degrees)",
-          "G1 X[ATAN[1]/[1]/45] F100\n"),  # fmt: skip
-    Entry("O sub endsub call return", "read", "subroutines: arguments in #1-#30, a value in #<_value>; "
-          "NAME.ngc on the subroutine path", "o1 sub\nG1 X#1 F100\no1 endsub\no1 call [2]\n"),  # fmt: skip
+    Entry(
+        "#n, n 1 to 5399",
+        "read",
+        "numbered parameters (unset: 0); 5221-5389 the work offsets, 5211-5212 G92's",
+        "#1000=2\nG1 X#1000 F100\n",
+    ),  # fmt: skip
+    Entry("#n, n 5400 to 5602", "read", "read-only: 5400 the tool, 5420-5421 the current X Y", "G1 X[#5420+1] F100\n"),
+    Entry(
+        "#<name>", "read", "named local parameter (one set per call level; unset: an error)", "#<a>=1\nG1 X#<a> F100\n"
+    ),  # fmt: skip
+    Entry(
+        "#<_name>",
+        "read",
+        "named global parameter; read-only _x _y _metric _imperial _absolute _incremental "
+        "_coord_system _feed _current_tool _selected_tool _line _call_level _motion_mode",
+        "#<_a>=1\nG1 X[#<_a>+#<_x>] F100\n",
+    ),  # fmt: skip
+    Entry("#n=value", "read", "a setting takes effect after its line", "#1000=1 G1 X#1000 F100\n"),
+    Entry(
+        "[ ]",
+        "read",
+        "expression: ** ; * / MOD ; + - ; EQ NE GT GE LT LE ; AND OR XOR (tightest first)",
+        "G1 X[1+2*3 MOD 4] F100\n",
+    ),  # fmt: skip
+    Entry(
+        "functions",
+        "read",
+        "ABS ACOS ASIN ATAN[y]/[x] COS EXP FIX FUP LN ROUND SIN SQRT TAN EXISTS (degrees)",
+        "G1 X[ATAN[1]/[1]/45] F100\n",
+    ),  # fmt: skip
+    Entry(
+        "O sub endsub call return",
+        "read",
+        "subroutines: arguments in parameters 1-30, a value in #<_value>; NAME.ngc on the subroutine path",
+        "o<s> sub\nG1 X#<_a> F100\no<s> endsub\n#<_a>=2\no<s> call [2]\n",
+    ),  # fmt: skip
     Entry("O if elseif else endif", "read", "branches", "o1 if [1]\n" + _F + "o1 endif\n"),
-    Entry("O while endwhile, do while", "read", "loops", "#1=0\no1 while [#1 LT 1]\n#1=1\n" + _F + "o1 endwhile\n"),
+    Entry(
+        "O while endwhile, do while",
+        "read",
+        "loops",
+        "#1000=0\no1 while [#1000 LT 1]\n#1000=1\n" + _F + "o1 endwhile\n",
+    ),
     Entry("O repeat endrepeat", "read", "a loop N times", "o1 repeat [2]\nG91 " + _F + "o1 endrepeat\n"),
-    Entry("O break continue", "read", "leave or restart the loop of their label",
-          "o1 repeat [2]\n" + _F + "o1 break\no1 endrepeat\n"),  # fmt: skip
+    Entry(
+        "O break continue",
+        "read",
+        "leave or restart the loop of their label",
+        "o1 repeat [2]\n" + _F + "o1 break\no1 endrepeat\n",
+    ),  # fmt: skip
     Entry("/", "read", "block delete: the line is skipped (on by default; contour.block_delete)", "/G1 X9\n" + _F),
     Entry("( ) ;", "read", "comments; (print, ...) (debug, ...) (msg, ...) are shown", "(print, hi) ; c\n" + _F),
     Entry("%", "read", "program delimiters", "%\n" + _F + "%\n"),

@@ -1,7 +1,7 @@
 """Expressions and parameter references of LinuxCNC's dialect, read into small closures.
 
 A value on a line is a number (``-1.5``), a parameter (``#3``, ``#<name>``,
-``#<_global>``, ``#[1+2]``, ``##1``), an expression in brackets or a unary
+``#<_global>``, ``#[1+2]``: the parameter whose number is the value), an expression in brackets or a unary
 function (``SIN[30]``, ``ATAN[1]/[2]``, ``EXISTS[#<x>]``). Inside brackets the
 binary operators bind, tightest first: ``**``; ``* / MOD``; ``+ -``;
 ``EQ NE GT GE LT LE``; ``AND OR XOR``; left to right within a level (LinuxCNC's

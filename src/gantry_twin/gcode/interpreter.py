@@ -6,7 +6,7 @@ program coordinates), named local ``#<name>`` (one set per call level) and
 global ``#<_name>`` (an unset named parameter is an error to read), and the
 read-only globals in :data:`NAMED_STATE`. The values on a line are all
 evaluated first and its parameter settings take effect after the line is
-read, as LinuxCNC does: ``#1=2 X#1`` moves to the old ``#1``.
+read, as LinuxCNC does: ``#1000=2 X#1000`` moves to the old ``#1000``.
 
 O-words: ``sub`` / ``endsub`` / ``call`` (arguments in ``#1``-``#30``, saved
 and restored around the call), ``return`` and ``endsub`` with a value in
@@ -112,7 +112,7 @@ class Interpreter:
     def numbered(self, index: float, column: int) -> float:
         n = round(index)
         if abs(index - n) > 1e-6 or not 1 <= n <= READABLE:
-            raise self.error(column, f"#{index:g}", f"no such parameter (numbered parameters are #1-#{READABLE})")
+            raise self.error(column, f"#{index:g}", f"no such parameter (numbered parameters are 1 to {READABLE})")
         if 5420 <= n <= 5428:
             return self.machine.program_point()[n - 5420] if n <= 5421 else 0.0
         if n == 5400:
@@ -236,7 +236,7 @@ class Interpreter:
         index = target if isinstance(target, float) else target(self)
         n = round(index)
         if abs(index - n) > 1e-6 or not 1 <= n <= WRITABLE:
-            raise self.error(column, f"#{index:g}", f"cannot be set (writable parameters are #1-#{WRITABLE})")
+            raise self.error(column, f"#{index:g}", f"cannot be set (writable parameters are 1 to {WRITABLE})")
         return n
 
     def substitute(self, match: re.Match) -> str:
