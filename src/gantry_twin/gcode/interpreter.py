@@ -30,7 +30,7 @@ from gantry_twin.gcode.blocks import Structure, StructureError, structure
 from gantry_twin.gcode.expressions import ReadError
 from gantry_twin.gcode.lexer import Line, lex
 from gantry_twin.gcode.machine import MODAL_GROUPS, P_SYSTEM, P_SYSTEM_X, SYSTEMS, Machine
-from gantry_twin.gcode.program import GcodeError, Program, read_bytes, text_lines
+from gantry_twin.gcode.program import TRAVEL_HALF_M, GcodeError, Program, check_move, read_bytes, text_lines
 
 #: Nested calls below the main program (LinuxCNC's INTERP_SUB_ROUTINE_LEVELS, 10, counts the main program).
 MAX_CALL_DEPTH = 9
@@ -91,6 +91,7 @@ class Interpreter:
         max_blocks: int = MAX_BLOCKS,
         subroutine_path: tuple[Path, ...] = (),
         work_offsets_mm: dict[int, tuple[float, float]] | None = None,
+        travel_half_m: tuple[float, float] = TRAVEL_HALF_M,
     ) -> None:
         self.main, self.unit = unit, unit
         self.block_delete, self.max_blocks, self.path = block_delete, max_blocks, subroutine_path
@@ -100,7 +101,9 @@ class Interpreter:
         self.globals: dict[str, float] = {}
         self.frames = [Frame(unit)]
         self.number = 0
-        self.machine = Machine(self.params, drop_unsupported, self.error)
+        self.machine = Machine(
+            self.params, drop_unsupported, self.error, lambda move: check_move(move, travel_half_m, unit.name)
+        )
         self.messages: list[str] = []
         self.loaded: dict[str, Unit] = {}
         self.blocks = 0

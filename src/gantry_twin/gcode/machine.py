@@ -33,6 +33,8 @@ MOTION = {"G0": 0, "G1": 1, "G2": 2, "G3": 3}
 CYCLES = {f"G{n}" for n in range(81, 90)}
 #: The letters of a block that only moves (the fast path of :meth:`Machine.execute`).
 SIMPLE = frozenset("XYF@^")
+#: Distinct lines kept for reuse (a program that loops over the same moves holds each once).
+INTERNED = 4096
 SYSTEMS = {"G54": 1, "G55": 2, "G56": 3, "G57": 4, "G58": 5, "G59": 6, "G59.1": 7, "G59.2": 8, "G59.3": 9}
 COMPENSATION = {"G40", "G41", "G42", "G41.1", "G42.1"}
 MODAL_GROUPS = {
@@ -66,8 +68,11 @@ P_G92_ON, P_G92_X, P_SYSTEM, P_SYSTEM_X = 5210, 5211, 5220, 5221
 class Machine:
     """Modal state and the moves so far; ``params`` is the interpreter's numbered parameters (mm offsets)."""
 
-    def __init__(self, params: dict[int, float], drop: bool, error: Callable[..., Exception]) -> None:
-        self.params, self.drop, self.fail = params, drop, error
+    def __init__(
+        self, params: dict[int, float], drop: bool, error: Callable[..., Exception], check: Callable[[Move], None]
+    ) -> None:
+        self.params, self.drop, self.fail, self.check = params, drop, error, check
+        self.interned: dict[tuple, Move] = {}  # a loop's repeated lines are one object each
         self.items: list[Move | Dwell] = []
         self.programmed: list[Move] = []
         self.dropped: Counter[str] = Counter()
@@ -361,12 +366,22 @@ class Machine:
             if "I" in words or "J" in words or "R" in words:
                 raise self.error("I" if "I" in words else "J" if "J" in words else "R", "only arcs take it")
             if end != self.position:
-                self.emit(Move("line", self.position, end, **common))
+                self.emit(self.line(end, common))
             self.position = end
             return
         move = arc_move(words, self.position, end, self.scale_m, self.motion == 3, common, self.error)
         self.emit(move)
         self.position = move.end_m
+
+    def line(self, end: tuple[float, float], common: dict) -> Move:
+        """The line from the current point to ``end``; the same object for the same line (a loop's repeats)."""
+        key = (self.position, end, *common.values())
+        move = self.interned.get(key)
+        if move is None:
+            move = Move("line", self.position, end, **common)
+            if len(self.interned) < INTERNED:
+                self.interned[key] = move
+        return move
 
     def drill(self, words: dict[str, float], number: int) -> None:
         """A drilling cycle: per hole (L repeats in G91) a rapid to X Y, the Z part dropped and counted."""
@@ -389,6 +404,7 @@ class Machine:
     def emit(self, item: Move | Dwell) -> None:
         """Append a move or a dwell: into the compensated run while G41 / G42 is on, else merged by G64 Q."""
         if isinstance(item, Move):
+            self.check(item)  # a runaway leaves the travel here, not after a million moves
             self.programmed.append(item)
         if self.compensation is not None:
             self.compensated.append(item)

@@ -12,12 +12,14 @@ import os
 import stat
 from dataclasses import dataclass, field
 
-from gantry_twin.gcode.geometry import Dwell, Move
+from gantry_twin.gcode.geometry import Dwell, Move, bounding_box
 
 #: Largest program file read, bytes.
 MAX_FILE_BYTES = 32 * 1024 * 1024
 #: Longest line, characters (LinuxCNC's LINELEN is 255).
 MAX_LINE_CHARS = 256
+#: Half the travel of each axis about the centre, m (the joints' range in models/gantry.xml).
+TRAVEL_HALF_M = (0.255, 0.255)
 
 
 class GcodeError(ValueError):
@@ -105,3 +107,17 @@ def text_lines(data: bytes, name: str, max_line_chars: int = MAX_LINE_CHARS) -> 
             raise GcodeError(name, number, "line", f"longer than {max_line_chars} characters")
         out.append((number, text))  # columns count from the line's first character
     return out
+
+
+def check_move(item: Move, half: tuple[float, float], name: str) -> None:
+    """A move that leaves the travel (``half``: +- m per axis) is a :class:`GcodeError` at its line."""
+    if item.centre_m is None and all(abs(p[a]) <= half[a] for p in (item.start_m, item.end_m) for a in (0, 1)):
+        return  # a line inside: its ends are (the common case, without numpy)
+    lo, hi = bounding_box([item])
+    for axis, letter in enumerate("XY"):
+        if lo[axis] < -half[axis] - 1e-12 or hi[axis] > half[axis] + 1e-12:
+            extreme = lo[axis] if lo[axis] < -half[axis] else hi[axis]
+            raise GcodeError(
+                name, item.line, letter,
+                f"the move reaches {extreme * 1e3:.6g} mm, outside the travel of +-{half[axis] * 1e3:g} mm",
+            )  # fmt: skip

@@ -19,12 +19,17 @@ import os
 from pathlib import Path
 
 from gantry_twin.gcode.arcs import ARC_RADIUS_TOLERANCE_IN, ARC_RADIUS_TOLERANCE_MM, ARC_RELATIVE_TOLERANCE, MM_PER_INCH
-from gantry_twin.gcode.geometry import Move, bounding_box
+from gantry_twin.gcode.geometry import Move
 from gantry_twin.gcode.interpreter import MAX_BLOCKS, Interpreter, load_unit
-from gantry_twin.gcode.program import MAX_FILE_BYTES, MAX_LINE_CHARS, GcodeError, Program, read_bytes
-
-#: Half the travel of each axis about the centre, m (the joints' range in models/gantry.xml).
-TRAVEL_HALF_M = (0.255, 0.255)
+from gantry_twin.gcode.program import (
+    MAX_FILE_BYTES,
+    MAX_LINE_CHARS,
+    TRAVEL_HALF_M,
+    GcodeError,
+    Program,
+    check_move,
+    read_bytes,
+)
 
 __all__ = [
     "ARC_RADIUS_TOLERANCE_IN",
@@ -82,6 +87,7 @@ def parse_program(
     interpreter = Interpreter(
         unit, drop_unsupported=drop_unsupported, block_delete=block_delete, max_blocks=max_blocks,
         subroutine_path=tuple(Path(p) for p in subroutine_path), work_offsets_mm=work_offsets_mm,
+        travel_half_m=travel_half_m,
     )  # fmt: skip
     program = interpreter.run()
     _check_travel(program, travel_half_m)
@@ -96,14 +102,3 @@ def _check_travel(program: Program, travel_half_m: tuple[float, float]) -> None:
     x, y = program.start_m
     if abs(x) > half[0] or abs(y) > half[1]:
         raise GcodeError(program.name, 0, "start", "the start point is outside the travel")
-
-
-def check_move(item: Move, half: tuple[float, float], name: str) -> None:
-    lo, hi = bounding_box([item])
-    for axis, letter in enumerate("XY"):
-        if lo[axis] < -half[axis] - 1e-12 or hi[axis] > half[axis] + 1e-12:
-            extreme = lo[axis] if lo[axis] < -half[axis] else hi[axis]
-            raise GcodeError(
-                name, item.line, letter,
-                f"the move reaches {extreme * 1e3:.6g} mm, outside the travel of +-{half[axis] * 1e3:g} mm",
-            )  # fmt: skip
