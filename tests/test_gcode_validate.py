@@ -1,10 +1,12 @@
-"""`gantry-twin validate PROGRAM.ngc`: read and plan without simulating; `--drop-unsupported`; bounded programs."""
+"""`gantry-twin validate PROGRAM.ngc`: read and plan without simulating; `--drop-unsupported`; `--subroutine-path`.
+
+The bounds (an endless loop, an endless recursion: exit 2 within 5 s and 300 MB) are hostile-input cases
+(tests/test_hostile_input.py, `gcode_endless_loop`, `gcode_endless_recursion`).
+"""
 
 from __future__ import annotations
 
 import math
-import subprocess
-import sys
 
 import pytest
 
@@ -72,31 +74,3 @@ def test_validate_finds_subroutines_on_the_given_path(tmp_path, capsys):
     assert "o<hop> call: no such subroutine" in capsys.readouterr().err
     assert cli.main(["validate", str(program), "--subroutine-path", str(tmp_path / "lib")]) == 0
     assert "  length: 7.000 mm at feed" in capsys.readouterr().out
-
-
-def _validate_in_a_process(program) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-m", "gantry_twin", "validate", str(program)], capture_output=True, text=True, timeout=600
-    )
-
-
-def test_an_endless_loop_and_an_endless_recursion_stop_with_the_line_and_exit_2(tmp_path):
-    """The default bounds (10^6 blocks, nine nested calls): one line naming the line of the limit, no traceback.
-    (Their time and memory are measured in benchmarks/bench_gcode.py, not here.)"""
-    loop = tmp_path / "loop.ngc"
-    loop.write_text("G1 F600\no1 while [1]\n  X1\n  X0\no1 endwhile\n")
-    done = _validate_in_a_process(loop)
-    assert done.returncode == 2 and done.stdout == ""
-    # block 1, then 4 a turn: block 1000001 is the 250000th endwhile, line 5
-    assert done.stderr.strip().splitlines() == [
-        f"gantry-twin: error: {loop}:5: program: more than 1000000 blocks executed (an endless loop?); "
-        "contour.max_blocks sets the bound"
-    ]
-    recursion = tmp_path / "recursion.ngc"
-    recursion.write_text("o<deeper> sub\n  o<deeper> call\no<deeper> endsub\no<deeper> call\n")
-    done = _validate_in_a_process(recursion)
-    assert done.returncode == 2 and "Traceback" not in done.stderr
-    assert done.stderr.strip().splitlines() == [
-        f"gantry-twin: error: {recursion}:2:3: o<deeper> call: calls nested deeper than 9 levels "
-        "(LinuxCNC's limit; endless recursion?)"
-    ]

@@ -52,7 +52,7 @@ def overrides(args: argparse.Namespace, program: Path | None) -> list[str]:
 
 def validate_program(path: Path, args: argparse.Namespace) -> None:
     """Read and plan a program without simulating it; print its summary (BadInput: one line, exit 2)."""
-    scenario = load_scenario(shipped(DEFAULT_SCENARIO), [*overrides(args, path.resolve()), *args.overrides])
+    scenario = load_scenario(shipped(DEFAULT_SCENARIO), [*overrides(args, path), *args.overrides])  # named as given
     contour = scenario.contour
     try:
         program = contour.read()
