@@ -74,3 +74,18 @@ def test_validate_finds_subroutines_on_the_given_path(tmp_path, capsys):
     assert "o<hop> call: no such subroutine" in capsys.readouterr().err
     assert cli.main(["validate", str(program), "--subroutine-path", str(tmp_path / "lib")]) == 0
     assert "  length: 7.000 mm at feed" in capsys.readouterr().out
+
+
+def test_a_run_shows_and_keeps_the_programs_messages(tmp_path, capsys):
+    import json
+
+    program = tmp_path / "talk.ngc"
+    program.write_text("#<w>=20\n(print, width #<w>)\nG1 X#<w> F3000 Z1\n(msg, done)\n")
+    out = tmp_path / "r"
+    assert cli.main(["run", str(program), "--no-plots", "--out", str(out), "--drop-unsupported"]) == 0
+    printed = capsys.readouterr().out
+    messages = [f"{program}:2: print: width 20.000000", f"{program}:4: msg: done"]
+    assert all(f"  {m}" in printed.splitlines() for m in messages), printed
+    assert "  dropped: Z axis 1; merged (G64 Q): 0 G1 line(s)" in printed
+    part = json.loads((out / "summary.json").read_text())["part_error"]
+    assert part["messages"] == messages and part["dropped"] == {"Z axis": 1} and part["merged"] == 0
