@@ -113,6 +113,9 @@ class Interpreter:
         return GcodeError(self.unit.name, self.number if line is None else line, word, what, column or None)
 
     def numbered(self, index: float, column: int) -> float:
+        value = self.params.get(index)  # a set parameter (1.0 finds 1)
+        if value is not None and index < 5400:
+            return value
         n = round(index)
         if abs(index - n) > 1e-6 or not 1 <= n <= READABLE:
             raise self.error(column, f"#{index:g}", f"no such parameter (numbered parameters are 1 to {READABLE})")

@@ -111,8 +111,10 @@ def text_lines(data: bytes, name: str, max_line_chars: int = MAX_LINE_CHARS) -> 
 
 def check_move(item: Move, half: tuple[float, float], name: str) -> None:
     """A move that leaves the travel (``half``: +- m per axis) is a :class:`GcodeError` at its line."""
-    if item.centre_m is None and all(abs(p[a]) <= half[a] for p in (item.start_m, item.end_m) for a in (0, 1)):
-        return  # a line inside: its ends are (the common case, without numpy)
+    if item.centre_m is None:
+        (x0, y0), (x1, y1) = item.start_m, item.end_m
+        if abs(x0) <= half[0] and abs(x1) <= half[0] and abs(y0) <= half[1] and abs(y1) <= half[1]:
+            return  # a line inside: its ends are (the common case, without numpy)
     lo, hi = bounding_box([item])
     for axis, letter in enumerate("XY"):
         if lo[axis] < -half[axis] - 1e-12 or hi[axis] > half[axis] + 1e-12:
