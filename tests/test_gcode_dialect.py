@@ -386,3 +386,16 @@ def test_malformed_constructs_are_one_line_with_the_column(text, where, message)
     shown = str(info.value)
     assert ONE_LINE.match(shown), shown
     assert shown.startswith(f"bad.ngc:{where}: ") and message in shown, shown
+
+
+def test_forms_linuxcnc_s_own_test_programs_use():
+    # G80 beside a motion code on one line (the motion code wins); G53 / G92 with only a dropped axis;
+    # F0 before a feed; a cycle's R not taken from an arc's line; a return labelled by the if it is in.
+    text = "G90 G17 G40 G80 G00 G20\nX1\nG0 G53 Z-10\nG92 A5\nF0\nG21 G1 X0 F100\n"
+    assert path_mm(text, drop_unsupported=True) == [((25.4, 0), (0, 0))]
+    arc = "G0 X0 Y0\nG81 X1 Y0 Z-1 R1\nG2 X2 Y0 R0.5 F100\n"
+    assert len(parse_program(arc, name="t.ngc", drop_unsupported=True).moves) == 2
+    sub = "o<s> sub\no9 if [1]\no9 return [3]\no9 endif\no<s> endsub\no<s> call\nG1 X#<_value> F100\n"
+    assert path_mm(sub) == [((0, 0), (3, 0))]
+    with pytest.raises(GcodeError, match=r"t.ngc:1:1: G1: no feed: F is 0"):
+        parse_program("G1 X1 F0\n", name="t.ngc")

@@ -101,8 +101,8 @@ def structure(lines: list[Line]) -> Structure:
             out.start[index] = loop[2]
             continue
         if keyword == "return":
-            if not any(e[:2] == (label, "sub") for e in stack):
-                raise fail(f"return outside the subroutine {label}")
+            if not any(e[1] == "sub" for e in stack):  # LinuxCNC returns from the sub it is in, whatever the label
+                raise fail("return outside a subroutine")
             continue
         # call: resolved when it runs
     if stack:

@@ -104,6 +104,7 @@ DIALECT: tuple[Entry, ...] = (
     Entry("K", "refused", "not used in the XY plane", "G2 X1 I1 K1 F100\n"),
     Entry("F", "read", "feed, units per minute", _F),
     Entry("S", "dropped", "spindle speed", "S1000\n" + _F),
+    Entry("$", "dropped", "spindle number", "$0\n" + _F),
     Entry("T", "read", "tool number (M6 selects it)", "T2\n" + _F),
     Entry("H", "dropped", "tool length offset", "H1\n" + _F),
     Entry(

@@ -212,7 +212,7 @@ class Interpreter:
                                      f"unknown {word.letter} code")  # fmt: skip
                 for group, members in MODAL_GROUPS.items():
                     if key in members:
-                        if group in groups and group != "non-modal":
+                        if group in groups and group != "non-modal" and not ("G80" in words or key == "G80"):
                             raise self.error(word.column, key, f"a second {group} code on the line")
                         groups.add(group)
                 if key in words:

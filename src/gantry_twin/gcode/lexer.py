@@ -115,7 +115,7 @@ def lex(text: str, number: int) -> Line:
         if char == "#":
             i = _assignment(reader, i, line)
             continue
-        if not (char.isalpha() or char in "@^"):
+        if not (char.isalpha() or char in "@^$"):
             raise reader.error(i, "line", f"expected a word (a letter and a number) at {body[i:][:12]!r}")
         if char == "O":
             raise reader.error(i, "O", "an O-word must begin its line")

@@ -92,6 +92,7 @@ class Machine:
         self.compensated: list[Move | Dwell] = []
         self.chain: list[tuple[float, float]] = []  # the points of the last item's merged G1 lines
         self.column: dict[str, int] = {}
+        self.axis_dropped = False
         self.number = 0
 
     # -- helpers -------------------------------------------------------------------------------------------
@@ -131,8 +132,8 @@ class Machine:
         self.column, self.number = column, number
         if words.keys() <= SIMPLE and self.motion not in CYCLES:  # the common block: axes and feed only
             if "F" in words:
-                if words["F"] <= 0.0:
-                    raise self.error("F", "the feed must be > 0")
+                if words["F"] < 0.0:
+                    raise self.error("F", "the feed must be >= 0")
                 self.feed_m_s = words["F"] * self.scale_m / 60.0
             if "X" in words or "Y" in words or "@" in words or "^" in words:
                 if "P" in words and self.motion not in (2, 3):
@@ -147,24 +148,28 @@ class Machine:
                 raise self.error(code, "unsupported M code")
             self.unsupported(code, kind)
             del words[code]
-        for letter, kind in (("S", "spindle speed"), ("H", "tool length offset")):
+        for letter, kind in (("S", "spindle speed"), ("H", "tool length offset"), ("$", "spindle number")):
             if letter in words:
                 self.unsupported(letter, kind)
                 del words[letter]
         if "G43" in words:
             self.unsupported("G43", "tool length offset")
             del words["G43"]
-        cycle = next((c for c in words if c in CYCLES), None) or (self.motion if self.motion in CYCLES else None)
+        explicit = any(c in MOTION or c == "G80" for c in words)  # a new motion mode: no cycle on this line
+        modal = self.motion if self.motion in CYCLES and not explicit else None
+        cycle = next((c for c in words if c in CYCLES), None) or modal
         axes_words = any(letter in words for letter in "XY@^")
         if cycle is not None and (axes_words or any(c in words for c in CYCLES)):
             for letter in "ZRQ":
                 words.pop(letter, None)
             if cycle in ("G82", "G89") or "P" in words:
                 words.pop("P", None)
+        self.axis_dropped = False
         for letter in AXES:
             if letter in words:
                 self.unsupported(letter, f"{letter} axis")
                 del words[letter]
+                self.axis_dropped = True  # G53 or G92 with only Z: nothing left to do in XY
         self.check_words(words)
         if "T" in words:
             if words["T"] < 0 or words["T"] != int(words["T"]):
@@ -173,8 +178,8 @@ class Machine:
         if "M6" in words:
             self.selected = self.tool
         if "F" in words:
-            if words["F"] <= 0.0:
-                raise self.error("F", "the feed must be > 0")
+            if words["F"] < 0.0:
+                raise self.error("F", "the feed must be >= 0")
         if "G20" in words:
             self.scale_m = MM_PER_INCH * 1e-3
         if "G21" in words:
@@ -203,7 +208,7 @@ class Machine:
         if any(c in words for c in ("G92", "G92.1", "G92.2", "G92.3")):
             self.g92(words)
             return "M2" in words or "M30" in words
-        motion = next((code for code in words if code in MOTION or code in CYCLES or code == "G80"), None)
+        motion = next((c for c in words if c in MOTION or c in CYCLES), None) or ("G80" if "G80" in words else None)
         if motion is not None:
             self.motion = None if motion == "G80" else MOTION.get(motion, motion)
         uses_p = "G4" in words or "G64" in words
@@ -218,7 +223,7 @@ class Machine:
                 raise self.error(next(c for c in "IJR" if c in words), "needs an arc with X or Y")
         if axes:
             self.move(words, number)
-        elif "G53" in words:
+        elif "G53" in words and not self.axis_dropped:
             raise self.error("G53", "needs X or Y on its line")
         return "M2" in words or "M30" in words
 
@@ -310,6 +315,8 @@ class Machine:
             self.params[P_G92_ON] = 1.0
             return
         if not any(letter in words for letter in "XY"):
+            if self.axis_dropped:
+                return
             raise self.error("G92", "needs X or Y (the current point's new coordinates)")
         on = self.params.get(P_G92_ON, 0.0)
         base = P_SYSTEM_X + 20 * (int(self.params.get(P_SYSTEM, 1)) - 1)
@@ -351,8 +358,9 @@ class Machine:
             raise self.error("G53", "machine coordinates only with G0 or G1")
         end = self.target(words)
         rapid = self.motion == 0
-        if not rapid and self.feed_m_s is None:
-            raise self.error(f"G{self.motion}", "no feed: F must be given before the first feed move")
+        if not rapid and not self.feed_m_s:
+            what = "F must be given before the first feed move" if self.feed_m_s is None else "F is 0"
+            raise self.error(f"G{self.motion}", f"no feed: {what}")
         if not self.items and not self.compensated and rapid and self.start is None and self.compensation is None:
             self.start = self.position = end  # the run starts at rest after its first G0
             return
