@@ -399,3 +399,17 @@ def test_forms_linuxcnc_s_own_test_programs_use():
     assert path_mm(sub) == [((0, 0), (3, 0))]
     with pytest.raises(GcodeError, match=r"t.ngc:1:1: G1: no feed: F is 0"):
         parse_program("G1 X1 F0\n", name="t.ngc")
+
+
+def test_a_rotated_system_turns_lines_arcs_and_increments_about_its_origin():
+    # G10 L2 R90: program X is machine Y; machine = offset + rotated (program + G92), as LinuxCNC's canon
+    text = "G10 L2 P1 X10 Y0 R90\nG1 X1 Y0 F100\nG91 X1\nG90 G3 X4 Y0 I1 J0\nG1 X[#5420+1]\n"
+    program = parse_program(text, name="r.ngc")
+    ends = [_mm(m.end_m) for m in program.moves]
+    assert ends == [(10, 1), (10, 2), (10, 4), (10, 5)]
+    arc = program.moves[2]
+    assert _mm(arc.centre_m) == (10, 3) and arc.sweep_rad == pytest.approx(math.pi)  # a half turn, ccw kept
+    # G10 L20 in a rotated system: the current point becomes the given program point
+    assert path_mm("G10 L2 P1 R90\nG10 L20 P1 X0 Y0\nG1 X1 F100\n") == [((0, 0), (0, 1))]
+    # G92 in a rotated system: offsets the program point before the rotation
+    assert path_mm("G10 L2 P1 R90\nG1 X1 F100\nG92 X0\nG1 X2\n") == [((0, 0), (0, 1)), ((0, 1), (0, 3))]

@@ -30,8 +30,8 @@ DIALECT: tuple[Entry, ...] = (
     Entry(
         "G10",
         "read",
-        "L2 P X Y: a system's offset; L20 P X Y: the offset making the current point X Y",
-        "G10 L2 P2 X1 Y1\nG10 L20 P0 X5\n" + _F,
+        "L2 P X Y R: a system's offset and rotation (degrees); L20 P X Y: the offset making the current point X Y",
+        "G10 L2 P2 X1 Y1 R30\nG10 L20 P0 X5\n" + _F,
     ),  # fmt: skip
     Entry("G17", "read", "the XY plane (the only one)", "G17\n" + _F),
     Entry("G18", "refused", "only the XY plane (G17)", "G18\n"),

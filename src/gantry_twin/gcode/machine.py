@@ -2,11 +2,13 @@
 
 Positions are machine coordinates in metres (the twin's: origin at the
 centre of the travel). A program point p in program units becomes the
-machine point ``p * scale + work offset + G92 offset``: the work offsets
+machine point ``work offset + (p * scale + G92 offset)``: the work offsets
 (G54-G59.3, parameters 5221-5389, 20 apart) and the G92 offset (5211-5212,
 in force while 5210 is 1) are in the machine's units, mm, as LinuxCNC
-keeps them. G10 L2 sets a system's offset, G10 L20 the offset that makes
-the current point the given one; G92 the offset that makes it so for all
+keeps them. G10 L2 sets a system's offset (and with R its rotation about
+its origin, degrees, parameter 5230 + 20 k: machine = offset + rotated
+(program + G92), the order of LinuxCNC's canon), G10 L20 the offset that
+makes the current point the given one; G92 the offset that makes it so for all
 systems; G92.1 clears it, G92.2 suspends it, G92.3 restores it; G53 moves
 in machine coordinates for its line. ``@`` ``^`` are polar coordinates
 (radius, angle in degrees) about the work origin (G90) or the current
@@ -104,18 +106,33 @@ class Machine:
             raise self.error(word, f"{kind}: a two-axis gantry cannot do this (--drop-unsupported drops it)")
         self.dropped[kind] += 1
 
-    def offset_m(self) -> tuple[float, float]:
-        """The work offset plus the G92 offset in force, m."""
+    def frame(self) -> tuple[float, float, float, float, float, float]:
+        """The system in force: its offset (x, y) m, the G92 offset in force (x, y) m, cos and sin of its
+        rotation (G10 R, degrees, parameter 5230 + 20 k)."""
         base = P_SYSTEM_X + 20 * (int(self.params.get(P_SYSTEM, 1)) - 1)
-        x, y = self.params.get(base, 0.0), self.params.get(base + 1, 0.0)
+        wx, wy = self.params.get(base, 0.0) * 1e-3, self.params.get(base + 1, 0.0) * 1e-3
+        gx = gy = 0.0
         if self.params.get(P_G92_ON, 0.0):
-            x, y = x + self.params.get(P_G92_X, 0.0), y + self.params.get(P_G92_X + 1, 0.0)
-        return x * 1e-3, y * 1e-3
+            gx, gy = self.params.get(P_G92_X, 0.0) * 1e-3, self.params.get(P_G92_X + 1, 0.0) * 1e-3
+        angle = math.radians(self.params.get(base + 9, 0.0))
+        return wx, wy, gx, gy, math.cos(angle), math.sin(angle)
+
+    def to_machine(self, px: float, py: float) -> tuple[float, float]:
+        """Program point (m) -> machine: the G92 offset added, rotated, the system's offset added (LinuxCNC's
+        order)."""
+        wx, wy, gx, gy, c, s = self.frame()
+        x, y = px + gx, py + gy
+        return wx + c * x - s * y, wy + s * x + c * y
+
+    def to_program(self, mx: float, my: float) -> tuple[float, float]:
+        wx, wy, gx, gy, c, s = self.frame()
+        x, y = mx - wx, my - wy
+        return c * x + s * y - gx, -s * x + c * y - gy
 
     def program_point(self) -> tuple[float, float]:
         """The current point in program coordinates and units (parameters 5420-5421, #<_x> #<_y>)."""
-        ox, oy = self.offset_m()
-        return (self.position[0] - ox) / self.scale_m, (self.position[1] - oy) / self.scale_m
+        x, y = self.to_program(*self.position)
+        return x / self.scale_m, y / self.scale_m
 
     def snapshot(self) -> tuple:
         """The modal state M70 saves and M72 restores."""
@@ -290,20 +307,29 @@ class Machine:
         level = words.get("L")
         if level not in (2.0, 20.0):
             raise self.error("G10", "only G10 L2 and G10 L20 (work offsets) are read")
-        if "R" in words:
-            raise self.error("R", "a rotated coordinate system is not read")
         p = words.get("P", 0.0)
         if p != int(p) or not 0 <= p <= 9:
             raise self.error("P", "G10 needs P0-P9 (0: the system in force, 1-9: G54-G59.3)")
         system = int(p) or int(self.params.get(P_SYSTEM, 1))
         base = P_SYSTEM_X + 20 * (system - 1)
-        for axis, letter in enumerate("XY"):
-            if letter in words:
-                value_mm = words[letter] * self.scale_m * 1e3
-                if level == 20.0:  # the offset that makes the current point the given one
-                    g92 = self.params.get(P_G92_X + axis, 0.0) if self.params.get(P_G92_ON, 0.0) else 0.0
-                    value_mm = self.position[axis] * 1e3 - g92 - value_mm
-                self.params[base + axis] = value_mm
+        if "R" in words:
+            self.params[base + 9] = words["R"]
+        if level == 2.0:
+            for axis, letter in enumerate("XY"):
+                if letter in words:
+                    self.params[base + axis] = words[letter] * self.scale_m * 1e3
+            return
+        # L20: the offset that makes the current point the given one (the other axis keeps its coordinate)
+        current = self.params.get(P_SYSTEM)
+        self.params[P_SYSTEM] = float(system)
+        px, py = self.to_program(*self.position)
+        px = words["X"] * self.scale_m if "X" in words else px
+        py = words["Y"] * self.scale_m if "Y" in words else py
+        wx, wy, gx, gy, c, s = self.frame()
+        x, y = px + gx, py + gy
+        self.params[base] = (self.position[0] - (c * x - s * y)) * 1e3
+        self.params[base + 1] = (self.position[1] - (s * x + c * y)) * 1e3
+        self.params[P_SYSTEM] = current
 
     def g92(self, words: dict[str, float]) -> None:
         if "G92.1" in words or "G92.2" in words:
@@ -319,14 +345,14 @@ class Machine:
                 return
             raise self.error("G92", "needs X or Y (the current point's new coordinates)")
         on = self.params.get(P_G92_ON, 0.0)
-        base = P_SYSTEM_X + 20 * (int(self.params.get(P_SYSTEM, 1)) - 1)
+        old = [self.params.get(P_G92_X + axis, 0.0) if on else 0.0 for axis in (0, 1)]
+        self.params[P_G92_ON] = 0.0
+        unshifted = self.to_program(*self.position)  # the current point's coordinates without G92, m
         for axis, letter in enumerate("XY"):
-            old = self.params.get(P_G92_X + axis, 0.0) if on else 0.0
             if letter in words:
-                work_mm = self.params.get(base + axis, 0.0)
-                self.params[P_G92_X + axis] = self.position[axis] * 1e3 - work_mm - words[letter] * self.scale_m * 1e3
+                self.params[P_G92_X + axis] = (unshifted[axis] - words[letter] * self.scale_m) * 1e3
             else:
-                self.params[P_G92_X + axis] = old
+                self.params[P_G92_X + axis] = old[axis]
         self.params[P_G92_ON] = 1.0
 
     # -- moves ---------------------------------------------------------------------------------------------
@@ -337,16 +363,21 @@ class Machine:
             if self.incremental:
                 raise self.error("G53", "machine coordinates need G90 (absolute)")
             return (words["X"] * s if "X" in words else x), (words["Y"] * s if "Y" in words else y)
+        px, py = self.to_program(x, y)
         if "@" in words or "^" in words:
             radius, angle = words.get("@", 0.0) * s, math.radians(words.get("^", 0.0))
-            if self.incremental:
-                return x + radius * math.cos(angle), y + radius * math.sin(angle)
-            ox, oy = self.offset_m()
-            return ox + radius * math.cos(angle), oy + radius * math.sin(angle)
-        if self.incremental:
-            return x + words.get("X", 0.0) * s, y + words.get("Y", 0.0) * s
-        ox, oy = self.offset_m()
-        return (words["X"] * s + ox if "X" in words else x), (words["Y"] * s + oy if "Y" in words else y)
+            dx, dy = radius * math.cos(angle), radius * math.sin(angle)
+            px, py = (px + dx, py + dy) if self.incremental else (dx, dy)
+        elif self.incremental:
+            px, py = px + words.get("X", 0.0) * s, py + words.get("Y", 0.0) * s
+        else:
+            px, py = (words["X"] * s if "X" in words else px), (words["Y"] * s if "Y" in words else py)
+        end = self.to_machine(px, py)
+        # an axis not moved keeps its machine coordinate exactly (no round-trip rounding) in an unrotated system
+        if self.frame()[5] == 0.0 and not ("@" in words or "^" in words):
+            moved = ("X" in words, "Y" in words)
+            end = (end[0] if moved[0] else x, end[1] if moved[1] else y)
+        return end
 
     def move(self, words: dict[str, float], number: int) -> None:
         if self.motion is None:
@@ -377,6 +408,10 @@ class Machine:
                 self.emit(self.line(end, common))
             self.position = end
             return
+        c, s = self.frame()[4:]
+        if s != 0.0 and ("I" in words or "J" in words):  # the centre's offset turns with the system
+            i, j = words.get("I", 0.0), words.get("J", 0.0)
+            words = {**words, "I": c * i - s * j, "J": s * i + c * j}
         move = arc_move(words, self.position, end, self.scale_m, self.motion == 3, common, self.error)
         self.emit(move)
         self.position = move.end_m
