@@ -29,7 +29,8 @@ from pathlib import Path
 from gantry_twin.gcode.blocks import Structure, StructureError, structure
 from gantry_twin.gcode.expressions import ReadError
 from gantry_twin.gcode.lexer import Line, lex
-from gantry_twin.gcode.machine import MODAL_GROUPS, P_SYSTEM, P_SYSTEM_X, SYSTEMS, Machine
+from gantry_twin.gcode.machine import MODAL_GROUPS, SYSTEMS, Machine
+from gantry_twin.gcode.offsets import P_SYSTEM, P_SYSTEM_X
 from gantry_twin.gcode.program import TRAVEL_HALF_M, GcodeError, Program, check_move, read_bytes, text_lines
 
 #: Nested calls below the main program (LinuxCNC's INTERP_SUB_ROUTINE_LEVELS, 10, counts the main program).
