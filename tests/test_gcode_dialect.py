@@ -241,6 +241,8 @@ def test_endless_recursion_stops_at_linuxcnc_s_nine_levels():
     # nine levels are allowed
     deep = "o<r> sub\no1 if [#1 GT 0]\no<r> call [#1-1]\no1 endif\no<r> endsub\no<r> call [8]\nG1 X1 F1\n"
     assert path_mm(deep) == [((0, 0), (1, 0))]
+    with pytest.raises(GcodeError, match=r"^t.ngc:3:1: o<r> call: calls nested deeper than 9 levels"):
+        parse_program(deep.replace("call [8]", "call [9]"), name="t.ngc")  # a tenth level
 
 
 # -- coordinate systems ------------------------------------------------------------------------------------
