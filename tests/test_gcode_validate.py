@@ -89,3 +89,20 @@ def test_a_run_shows_and_keeps_the_programs_messages(tmp_path, capsys):
     assert "  dropped: Z axis 1; merged (G64 Q): 0 G1 line(s)" in printed
     part = json.loads((out / "summary.json").read_text())["part_error"]
     assert part["messages"] == messages and part["dropped"] == {"Z axis": 1} and part["merged"] == 0
+
+
+def test_a_scenario_gives_work_offsets_a_subroutine_path_and_the_block_bound(tmp_path):
+    from gantry_twin.scenario import ScenarioError, build, load_scenario
+
+    (tmp_path / "lib").mkdir()
+    (tmp_path / "lib" / "hop.ngc").write_text("o<hop> sub\nG1 X#1 Y0 F600\no<hop> endsub\n")
+    (tmp_path / "p.ngc").write_text("G55\no<hop> call [10]\nG54 G1 Y5\n")
+    scenario = tmp_path / "s.yaml"
+    contour = "{type: gcode, file: p.ngc, subroutine_path: [lib], work_offsets: {G55: [-20, 3]}, max_blocks: %d}"
+    scenario.write_text(f"contour: {contour % 100}\n")
+    moves = build(load_scenario(scenario), str(scenario)).path.moves
+    ends = [(round(m.end_m[0] * 1e3, 9), round(m.end_m[1] * 1e3, 9)) for m in moves]
+    assert ends == [(-10, 3), (-10, 5)]  # G55's origin at (-20, 3) mm; G54's at the machine's
+    scenario.write_text(f"contour: {contour % 2}\n")
+    with pytest.raises(ScenarioError, match=r"p.ngc:2: program: more than 2 blocks executed"):
+        build(load_scenario(scenario), str(scenario))
