@@ -80,6 +80,8 @@ DIALECT: tuple[Entry, ...] = (
     Entry("G92.2", "read", "suspend the G92 offset (parameters kept)", "G92 X1\nG92.2\n" + _F),
     Entry("G92.3", "read", "restore the G92 offset from its parameters", "G92 X1\nG92.2\nG92.3\n" + _F),
     Entry("G94", "read", "feed per minute (the only feed mode)", "G94\n" + _F),
+    Entry("G96", "dropped", "spindle speed mode", "G96 S100\n" + _F),
+    Entry("G97", "read", "spindle speed in rpm: nothing to do", "G97\n" + _F),
     Entry("G98", "read", "cycle retract to the start Z: nothing to do in XY", "G98\n" + _F),
     Entry("G99", "read", "cycle retract to R: nothing to do in XY", "G99\n" + _F),
     Entry("other G codes", "refused", "unsupported G code", "G5 X1\n"),

@@ -23,7 +23,7 @@ from gantry_twin.gcode.offsets import P_SYSTEM, Offsets
 AXES = "ZABCUVW"
 DROPPABLE_M = {3: "spindle", 4: "spindle", 5: "spindle", 7: "coolant", 8: "coolant", 9: "coolant"}
 #: Modal codes that change nothing on this machine.
-NOOP_G = {"G49", "G80", "G90.1", "G91.1", "G94", "G98", "G99", "G17"}
+NOOP_G = {"G49", "G80", "G90.1", "G91.1", "G94", "G97", "G98", "G99", "G17"}
 MOTION = {"G0": 0, "G1": 1, "G2": 2, "G3": 3}
 CYCLES = {f"G{n}" for n in range(81, 90)}
 #: The letters of a block that only moves (the fast path of :meth:`Machine.execute`).
@@ -128,13 +128,11 @@ class Machine(Offsets):
                 raise self.error(code, "unsupported M code")
             self.unsupported(code, kind)
             del words[code]
-        for letter, kind in (("S", "spindle speed"), ("H", "tool length offset"), ("$", "spindle number")):
-            if letter in words:
-                self.unsupported(letter, kind)
-                del words[letter]
-        if "G43" in words:
-            self.unsupported("G43", "tool length offset")
-            del words["G43"]
+        for word, kind in (("G43", "tool length offset"), ("G96", "spindle speed mode"), ("S", "spindle speed"),
+                           ("H", "tool length offset"), ("$", "spindle number")):  # fmt: skip
+            if word in words:
+                self.unsupported(word, kind)
+                del words[word]
         explicit = any(c in MOTION or c == "G80" for c in words)  # a new motion mode: no cycle on this line
         modal = self.motion if self.motion in CYCLES and not explicit else None
         cycle = next((c for c in words if c in CYCLES), None) or modal
