@@ -415,3 +415,10 @@ def test_a_rotated_system_turns_lines_arcs_and_increments_about_its_origin():
     assert path_mm("G10 L2 P1 R90\nG10 L20 P1 X0 Y0\nG1 X1 F100\n") == [((0, 0), (0, 1))]
     # G92 in a rotated system: offsets the program point before the rotation
     assert path_mm("G10 L2 P1 R90\nG1 X1 F100\nG92 X0\nG1 X2\n") == [((0, 0), (0, 1)), ((0, 1), (0, 3))]
+
+
+def test_a_subroutine_file_s_errors_name_that_file(tmp_path):
+    (tmp_path / "wide.ngc").write_text("o<wide> sub\nG1 X300 F100\no<wide> endsub\n")
+    (tmp_path / "main.ngc").write_text("G1 X1 F100\no<wide> call\n")
+    with pytest.raises(GcodeError, match=rf"^{re.escape(str(tmp_path / 'wide.ngc'))}:2: X: the move reaches 300 mm"):
+        read_program(tmp_path / "main.ngc")

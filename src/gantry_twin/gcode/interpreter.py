@@ -103,8 +103,9 @@ class Interpreter:
         self.frames = [Frame(unit)]
         self.number = 0
         self.machine = Machine(
-            self.params, drop_unsupported, self.error, lambda move: check_move(move, travel_half_m, unit.name)
+            self.params, drop_unsupported, self.error, lambda move: check_move(move, travel_half_m, self.unit.name)
         )
+        self.machine.file = unit.name
         self.messages: list[str] = []
         self.loaded: dict[str, Unit] = {}
         self.blocks = 0
@@ -337,6 +338,7 @@ class Interpreter:
         self.frames[-1].return_pc = pc + 1
         self.frames.append(Frame(self.unit, saved=saved, line=line.number))  # the caller's unit, for the return
         self.unit = unit
+        self.machine.file = unit.name
         return where + 1
 
     def find(self, label: str, column: int) -> tuple[Unit, int]:
@@ -374,6 +376,7 @@ class Interpreter:
         if frame.auto_restore is not None:
             self.machine.restore(frame.auto_restore)
         self.unit = frame.unit
+        self.machine.file = frame.unit.name
         return self.frames[-1].return_pc
 
 

@@ -86,6 +86,7 @@ class Machine(Offsets):
         self.chain: list[tuple[float, float]] = []  # the points of the last item's merged G1 lines
         self.column: dict[str, int] = {}
         self.axis_dropped = False
+        self.file = ""  # the file whose block runs (the interpreter sets it; a subroutine's may be another)
         self.number = 0
 
     # -- helpers -------------------------------------------------------------------------------------------
@@ -410,7 +411,10 @@ class Machine(Offsets):
         self.items.extend(item for item in run if isinstance(item, Dwell))
 
     def compensated_run(self, moves: list[Move], side: str, radius_m: float | None, tool: int, line: int) -> list[Move]:
-        """The tool-centre path of a G41 / G42 run (``radius_m`` None: the radius of ``tool`` in the tool
-        table). Cutter radius compensation is connected here; until it is, the run is refused at its G41."""
+        """The tool-centre path of a G41 / G42 run: ``moves`` from the entry move (the first after G41 / G42)
+        to the exit move (the first after G40; absent when the program ends with compensation on), ``side``
+        "left" or "right", ``radius_m`` from G41.1 / G42.1's D (None: the radius of ``tool``, G41 / G42's D or
+        the tool M6 selected, from a tool table), ``line`` the G41 / G42 line, ``self.file`` its file.
+        Cutter radius compensation is connected here; until it is, the run is refused at its G41 / G42."""
         self.column = {}
         raise self.fail(0, "G41" if side == "left" else "G42", "cutter radius compensation: not available", line)
