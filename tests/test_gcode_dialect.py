@@ -422,3 +422,14 @@ def test_a_subroutine_file_s_errors_name_that_file(tmp_path):
     (tmp_path / "main.ngc").write_text("G1 X1 F100\no<wide> call\n")
     with pytest.raises(GcodeError, match=rf"^{re.escape(str(tmp_path / 'wide.ngc'))}:2: X: the move reaches 300 mm"):
         read_program(tmp_path / "main.ngc")
+
+
+def test_g28_and_g30_go_home_through_the_given_point():
+    text = "G1 X20 Y10 F100\nG30.1\nG1 X0 Y0\nG28 X5\nG1 Y3\nG30\nG91 G28 Z0\nG90 G28\n"
+    got = path_mm(text, drop_unsupported=True)
+    # G28 X5: a rapid to X5, then X (only) to G28's position, machine 0 (unset); G30: both axes to (20, 10);
+    # G28 Z0: only Z (dropped) goes home; G28 alone: both axes to machine (0, 0)
+    assert got == [
+        ((0, 0), (20, 10)), ((20, 10), (0, 0)), ((0, 0), (5, 0)), ((5, 0), (0, 0)), ((0, 0), (0, 3)),
+        ((0, 3), (20, 10)), ((20, 10), (0, 0)),
+    ]  # fmt: skip

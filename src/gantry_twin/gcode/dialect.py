@@ -38,6 +38,15 @@ DIALECT: tuple[Entry, ...] = (
     Entry("G19", "refused", "only the XY plane (G17)", "G19\n"),
     Entry("G20", "read", "inches", "G20\n" + _F),
     Entry("G21", "read", "millimetres (the start)", "G21\n" + _F),
+    Entry(
+        "G28",
+        "read",
+        "rapid through the X Y given to the stored position (5161-5162, mm; both axes if none given)",
+        "G28.1\nG1 X5 F100\nG28 X1\n",
+    ),  # fmt: skip
+    Entry("G28.1", "read", "store the current point for G28", "G28.1\n" + _F),
+    Entry("G30", "read", "as G28 with the position 5181-5182", "G30\n" + _F),
+    Entry("G30.1", "read", "store the current point for G30", "G30.1\n" + _F),
     Entry("G33", "refused", "spindle-synchronised motion", "G33 X1\n"),
     Entry("G33.1", "refused", "spindle-synchronised motion", "G33.1 X1\n"),
     Entry("G40", "read", "cutter compensation off (after the next move)", "G40\n" + _F),

@@ -40,11 +40,12 @@ MODAL_GROUPS = {
     "path": {"G61", "G61.1", "G64"},
     "coordinate system": set(SYSTEMS),
     "cutter compensation": COMPENSATION,
-    "non-modal": {"G4", "G10", "G28", "G30", "G53", "G92", "G92.1", "G92.2", "G92.3"},
+    "non-modal": {"G4", "G10", "G28", "G28.1", "G30", "G30.1", "G53", "G92", "G92.1", "G92.2", "G92.3"},
 }
 #: Every G code read (the dialect table in docs/gcode.md is checked against it).
 READ_G = set(MOTION) | CYCLES | NOOP_G | set(SYSTEMS) | COMPENSATION | {
-    "G4", "G10", "G20", "G21", "G53", "G61", "G61.1", "G64", "G90", "G91", "G92", "G92.1", "G92.2", "G92.3",
+    "G4", "G10", "G20", "G21", "G28", "G28.1", "G30", "G30.1", "G53", "G61", "G61.1", "G64", "G90", "G91",
+    "G92", "G92.1", "G92.2", "G92.3",
 }  # fmt: skip
 READ_M = {"M0", "M1", "M2", "M30", "M6", "M70", "M71", "M72", "M73"} | {f"M{n}" for n in DROPPABLE_M}
 REFUSED_G = {
@@ -186,6 +187,10 @@ class Machine(Offsets):
             return "M2" in words or "M30" in words
         if any(c in words for c in ("G92", "G92.1", "G92.2", "G92.3")):
             self.g92(words)
+            return "M2" in words or "M30" in words
+        home = next((c for c in ("G28", "G28.1", "G30", "G30.1") if c in words), None)
+        if home is not None:
+            self.home(home, words, number)
             return "M2" in words or "M30" in words
         motion = next((c for c in words if c in MOTION or c in CYCLES), None) or ("G80" if "G80" in words else None)
         if motion is not None:
@@ -345,16 +350,37 @@ class Machine(Offsets):
             raise self.error("L", "a cycle's repeats are a whole number >= 1")
         cycle = str(self.motion)
         for _ in range(int(repeats) if self.incremental else 1):
-            end = self.target(words)
             self.unsupported(cycle, "drilling cycle (its Z motion)")
-            if self.start is None and not self.items:
-                self.start = self.position = end
-                continue
-            if self.start is None:
-                self.start = self.position
-            if end != self.position:
-                self.emit(Move("line", self.position, end, math.inf, True, number, self.exact_stop, self.tolerance_m))
-            self.position = end
+            self.rapid_to(self.target(words), number)
+
+    def rapid_to(self, end: tuple[float, float], number: int) -> None:
+        """A rapid line to ``end`` (machine m); the program's first one places its start."""
+        if self.start is None and not self.items and not self.compensated and self.compensation is None:
+            self.start = self.position = end
+            return
+        if self.start is None:
+            self.start = self.position
+        if end != self.position:
+            self.emit(Move("line", self.position, end, math.inf, True, number, self.exact_stop, self.tolerance_m))
+        self.position = end
+
+    def home(self, code: str, words: dict[str, float], number: int) -> None:
+        """G28 / G30: a rapid to the X Y given (if any, in the mode in force), then to the stored position
+        (parameters 5161-5162 / 5181-5182, machine mm) of the axes given, or of both when none is; G28.1 / G30.1
+        store the current point there (LinuxCNC's G28)."""
+        base = 5161 if code.startswith("G28") else 5181
+        if code.endswith(".1"):
+            self.params[base], self.params[base + 1] = self.position[0] * 1e3, self.position[1] * 1e3
+            return
+        given = ("X" in words, "Y" in words)
+        if not any(given) and self.axis_dropped:
+            return  # G28 Z0: only a dropped axis goes home
+        if any(given):
+            self.rapid_to(self.target(words), number)
+        stored = (self.params.get(base, 0.0) * 1e-3, self.params.get(base + 1, 0.0) * 1e-3)
+        both = not any(given)
+        end = tuple(stored[a] if both or given[a] else self.position[a] for a in (0, 1))
+        self.rapid_to((end[0], end[1]), number)
 
     def emit(self, item: Move | Dwell) -> None:
         """Append a move or a dwell: into the compensated run while G41 / G42 is on, else merged by G64 Q."""
