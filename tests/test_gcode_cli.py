@@ -42,7 +42,7 @@ def test_a_bad_program_is_one_line_file_line_word(tmp_path, capsys):
     bad.write_text("G21\nG1 X10 Y0\n")
     assert cli.main(["run", str(bad), "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert err == [f"gantry-twin: error: {bad}:2: G1: no feed: F must be given before the first feed move"]
+    assert err == [f"gantry-twin: error: {bad}:2:1: G1: no feed: F must be given before the first feed move"]
     assert not (tmp_path / "o").exists()
 
 

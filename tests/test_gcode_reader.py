@@ -16,7 +16,7 @@ from gantry_twin.gcode.planner import plan_program
 from gantry_twin.gcode.reader import MAX_FILE_BYTES
 
 #: FILE:LINE: WORD: what is wrong
-ONE_LINE = re.compile(r"^[^\n:]+:\d+: [^\n:]+: [^\n]+$")
+ONE_LINE = re.compile(r"^[^\n:]+:\d+(?::\d+)?: [^\n:]+: [^\n]+$")
 
 
 def moves(text: str, **kwargs):
@@ -63,7 +63,7 @@ def test_an_arc_end_within_linuxcnc_tolerance_ends_on_its_circle():
 
 def test_dropped_words_are_counted():
     program = parse_program("G0 X0 Y0 Z5\nM3 S1000\nG1 X10 Z-1 F100\nT1 M6\nM8\nM30", drop_unsupported=True)
-    assert program.dropped == {"Z axis": 2, "spindle": 1, "spindle speed": 1, "tool": 1, "tool change": 1, "coolant": 1}
+    assert program.dropped == {"Z axis": 2, "spindle": 1, "spindle speed": 1, "coolant": 1}  # T M6 select a tool
     assert [m.end_m for m in program.moves] == [pytest.approx((0.010, 0.0))]
 
 
@@ -79,14 +79,14 @@ BAD = {
     "full circle by R": ("G0 X10 Y0\nG2 X10 Y0 R5 F100\n", 2, "R: a full circle needs I J"),
     "zero radius": ("G0 X10 Y0\nG2 X0 Y0 I-10 J0 F100\n", 2, "zero-radius arc"),
     "no F": ("G0 X1\nG1 X2\n", 2, "G1: no feed"),
-    "F zero": ("G1 X1 F0\n", 1, "F: the feed must be > 0"),
+    "F zero": ("G1 X1 F0\n", 1, "G1: no feed: F is 0"),
+    "F negative": ("G1 X1 F-1\n", 1, "F: the feed must be >= 0"),
     "G18": ("G18\n", 1, "G18: only the XY plane"),
     "G19": ("G19 G1 X1 F1\n", 1, "G19: only the XY plane"),
     "Z move": ("G1 X1 Z-1 F100\n", 1, "Z: Z axis: a two-axis gantry cannot do this"),
     "A axis": ("G0 A90\n", 1, "A: A axis"),
     "spindle": ("M3 S1000\n", 1, "M3: spindle"),
     "spindle speed": ("S1000\n", 1, "S: spindle speed"),
-    "tool change": ("T1 M6\n", 1, "tool"),
     "coolant": ("M8\n", 1, "M8: coolant"),
     "K word": ("G2 X1 Y0 I0.5 K1 F10\n", 1, "K: not used in the XY plane"),
     "leaving the travel": ("G1 X300 F100\n", 1, "X: the move reaches 300 mm, outside the travel"),
@@ -95,22 +95,21 @@ BAD = {
     "word repeated": ("G1 X1 X2 F10\n", 1, "X: word repeated"),
     "G4 without P": ("G4\n", 1, "G4: a dwell needs P"),
     "negative dwell": ("G4 P-1\n", 1, "P: a dwell cannot be negative"),
-    "G64 P zero": ("G64 P0\n", 1, "P: the G64 tolerance must be > 0"),
-    "stray P": ("G1 X1 P3 F10\n", 1, "P: P only follows G4, G64 or an arc"),
+    "G64 P negative": ("G64 P-1\n", 1, "P: the G64 tolerance must be >= 0"),
+    "stray P": ("G1 X1 P3 F10\n", 1, "P: P only follows G4, G64, G10 or an arc"),
     "unclosed comment": ("G1 X1 (oops\n", 1, "(: comment not closed"),
     "nested comment": ("(a (b) c)\n", 1, "(: nested comment"),
     "stray parenthesis": ("G1 X1 F1)\n", 1, "): closing parenthesis"),
-    "parameter": ("#1=5\n", 1, "#: parameters and expressions"),
-    "expression": ("G1 F1 X[1+2]\n", 1, "[: parameters and expressions"),
+    "parameter alone": ("#1\n", 1, "#: a parameter on its own"),
+    "unclosed bracket": ("G1 F1 X[1+2\n", 1, "[: expression not closed"),
     "letter without number": ("G1 X F10\n", 1, "X: a number must follow"),
     "not a word": ("G1 X1 F10\n123\n", 2, "line: expected a word (a letter and a number) at '123'"),
     "binary junk": (b"G1 X1 F10\n\x00\xff\x13binary\n", 2, "line: byte 0x00 at column 1"),
     "non-ascii": ("G1 X1 F10 (caf\u00e9)\n", 1, "line: byte 0xc3"),
     "axis word without motion": ("X10\n", 1, "X: an axis word without G0"),
     "I on a line": ("G1 X1 I2 F10\n", 1, "I: only arcs take it"),
-    "block delete": ("/G1 X1 F1\n", 1, "/: block delete"),
     "negative line number": ("N-5 G1 X1 F1\n", 1, "N: a line number is a whole number"),
-    "unknown letter": ("G1 X1 F10 D3\n", 1, "D: unsupported word"),
+    "unknown letter": ("G1 X1 F10 E3\n", 1, "E: unsupported word"),
     "arc turns": ("G0 X10 Y0\nG3 I-10 J0 P1.5 F100\n", 2, "P: arc turns must be a whole number"),
     "no moves": ("G21 G90\nM30\n", 0, "program: has no moves to run"),
 }
@@ -124,7 +123,7 @@ def test_each_bad_program_has_its_own_one_line_message(case):
         plan_program(program)
     text_of = str(info.value)
     assert ONE_LINE.match(text_of), text_of
-    assert text_of.startswith(f"bad.ngc:{line}: ") and message in text_of, text_of
+    assert re.match(rf"bad.ngc:{line}(:\d+)?: ", text_of) and message in text_of, text_of
 
 
 def test_the_messages_are_all_different():
@@ -194,5 +193,5 @@ def test_any_input_is_a_program_or_one_gcode_error(data):
 def test_huge_numbers_are_refused():
     with pytest.raises(GcodeError, match=r"t.ngc:1: X: the move reaches 1e\+2\d\d mm, outside the travel"):
         parse_program("G1 X" + "9" * 240 + " F10", name="t.ngc")
-    with pytest.raises(GcodeError, match=r"t.ngc:1: G9{12}\.\.\.: unknown G code$"):
+    with pytest.raises(GcodeError, match=r"t.ngc:1:1: G1e\+250: unknown G code$"):
         parse_program("G" + "9" * 250, name="t.ngc")

@@ -151,6 +151,19 @@ CASES = [
     Case("sweep_workers_of_20_digits", {"w.yaml": SWEEP}, (*SWEEP_RUN, "--workers", "9" * 20)),
     Case("sweep_workers_past_the_cores", {"w.yaml": SWEEP}, (*SWEEP_RUN, "--workers", "100000")),
     Case("sweep_scheduler_not_an_address", {"w.yaml": SWEEP}, (*SWEEP_RUN, "--scheduler", "notaurl")),
+    # Part programs (docs/gcode.md): bounded execution, and each malformed construct in one line with its column.
+    *(
+        Case(f"gcode_{name}", {"p.ngc": text}, ("validate", "p.ngc"))
+        for name, text in (
+            ("endless_loop", "G1 F600\no1 while [1]\n  X1\n  X0\no1 endwhile\n"),
+            ("endless_recursion", "o<r> sub\n  o<r> call\no<r> endsub\no<r> call\n"),
+            ("unclosed_bracket", "G1 X[1+2 F100\n"),
+            ("unknown_function", "G1 X[COSH[1]] F100\n"),
+            ("endwhile_without_while", "G1 X1 F100\no1 endwhile\n"),
+            ("call_of_a_missing_subroutine", "o<pocket> call [1]\n"),
+            ("g41_without_a_tool", "G41 G1 X10 F100\n"),
+        )
+    ),
     # A log in other units than the machine's.
     Case(
         "monitor_log_t_in_milliseconds", {"log.csv": _log_csv(1000.0)}, ("monitor", "--log", "log.csv", "--out", "out")

@@ -20,7 +20,6 @@ finished run, one of them stops it (exit status of the run).
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import signal
 import sys
@@ -34,6 +33,7 @@ from gantry_twin.cli import compile as compile_command
 from gantry_twin.cli import excite as excite_command
 from gantry_twin.cli import export as export_command
 from gantry_twin.cli import identify as identify_command
+from gantry_twin.cli import program as program_command
 from gantry_twin.cli import report as report_command
 from gantry_twin.cli import runs as runs_command
 from gantry_twin.cli import serve as serve_command
@@ -75,7 +75,7 @@ from gantry_twin.scenario import (
     shipped,
 )
 from gantry_twin.scenario.listing import listing
-from gantry_twin.settings import label_from, shorten
+from gantry_twin.settings import shorten
 from gantry_twin.sysid.logs import LogError
 from gantry_twin.telemetry import TelemetryError
 
@@ -94,7 +94,7 @@ EXAMPLES = """examples:
 
 docs: docs/cli.md (every command, exit codes), docs/scenarios.md (every field)."""
 #: File names ``run`` takes as a G-code part program rather than a scenario.
-PROGRAM_SUFFIXES = (".ngc", ".nc", ".gcode")
+PROGRAM_SUFFIXES = program_command.PROGRAM_SUFFIXES
 #: The scenario ``run`` uses when none is given.
 #: Where outputs go by default: RUNS_DIR/<scenario name>/, RUNS_DIR/report/.
 
@@ -134,6 +134,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_out(run)
     _add_plots(run)
     _add_strict(run)
+    program_command.add_arguments(run)
     add_progress_arguments(run)
     add_telemetry_arguments(run)
 
@@ -156,11 +157,12 @@ def build_parser() -> argparse.ArgumentParser:
     add_telemetry_arguments(monitor)
     shadow_command.add_arguments(monitor)
 
-    validate = sub.add_parser("validate", help="check scenario files without running them")
+    validate = sub.add_parser("validate", help="check scenario files or read and plan part programs, without running")
     validate.set_defaults(func=_validate)
-    validate.add_argument("scenario", nargs="+", help="scenario YAML file(s)")
+    validate.add_argument("scenario", nargs="+", help="scenario YAML file(s) or part programs (.ngc .nc .gcode)")
     _add_controller(validate)
     _add_set(validate)
+    program_command.add_arguments(validate)
 
     report = sub.add_parser("report", help="run the paper's matrix and write a Markdown report with figures")
     report_command.add_arguments(report, RUNS_DIR)
@@ -299,8 +301,11 @@ def _monitor(args: argparse.Namespace) -> int:
 
 def _validate(args: argparse.Namespace) -> int:
     for arg in args.scenario:
+        if program_command.is_program(arg):
+            program_command.validate_program(Path(arg), args)
+            continue
         name = str(scenario_path(arg))
-        scenario = load_scenario(name, args.overrides, args.controller)
+        scenario = load_scenario(name, [*program_command.overrides(args, None), *args.overrides], args.controller)
         build(scenario, name)
         print(f"{name}: ok ({scenario.controller.name}, {scenario.contour.type}, {scenario.duration_s:g} s)")
     return EXIT_OK
@@ -383,10 +388,7 @@ def _run(args: argparse.Namespace) -> int:
     program = None
     if path.suffix.lower() in PROGRAM_SUFFIXES:  # a part program runs in the default scenario (docs/gcode.md)
         program, path = path.resolve(), shipped(DEFAULT_SCENARIO)
-        overrides[:0] = [
-            f"contour={{type: gcode, file: {json.dumps(str(program))}}}",
-            f"name={label_from(program.stem)}",
-        ]
+    overrides[:0] = program_command.overrides(args, program)
     if args.command == "monitor":
         overrides.insert(0, "monitor.enable=true")
     scenario = load_scenario(path, overrides, args.controller)

@@ -55,6 +55,10 @@ def format_part(summary: RunSummary) -> list[str]:
             f"  worst corner: line {c.line} ({c.kind}, turn {c.turn_rad * 57.29577951308232:.0f} deg) "
             f"max {c.max_um:.3f} um at {1e3 * c.speed_m_s:.1f} mm/s, t = {c.time_s:.3f} s"
         )
+    if p.dropped or p.merged:
+        dropped = ", ".join(f"{kind} {n}" for kind, n in sorted(p.dropped.items())) or "nothing"
+        lines.append(f"  dropped: {dropped}; merged (G64 Q): {p.merged} G1 line(s)")
+    lines += [f"  {message}" for message in p.messages]
     return lines
 
 

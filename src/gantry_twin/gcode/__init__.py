@@ -1,6 +1,7 @@
 """Part programs: read G-code, plan its feed into a reference, measure the part's error.
 
-:mod:`~gantry_twin.gcode.reader` reads the RS274/NGC subset into
+:mod:`~gantry_twin.gcode.reader` reads LinuxCNC's dialect (lexer, expressions,
+interpreter, machine state and offsets, each a module) into
 :mod:`~gantry_twin.gcode.geometry` moves; :mod:`~gantry_twin.gcode.planner`
 plans them (1-D profiles of :mod:`~gantry_twin.gcode.profiles`) into a
 :class:`~gantry_twin.gcode.sampling.Plan`, the jerk-limited reference the

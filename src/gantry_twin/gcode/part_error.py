@@ -218,4 +218,7 @@ class PartErrorWatch:
                  "max_um": 1e6 * c.max_m, "speed_m_s": c.speed_m_s, "time_s": c.time_s}
                 for c in corners
             ],
+            "messages": list(self.plan.program.messages),
+            "dropped": dict(self.plan.program.dropped),
+            "merged": self.plan.program.merged,
         }  # fmt: skip

@@ -172,6 +172,10 @@ class PartErrorRecord(Model):
     corners: int
     worst_blocks: list[PartBlock]
     worst_corners: list[PartCorner]
+    #: The program's (print, ...) (debug, ...) (msg, ...) lines, the words dropped and the G1 lines merged (G64 Q).
+    messages: list[str] = []
+    dropped: dict[str, int] = {}
+    merged: int = 0
 
 
 class LiveLink(Model):

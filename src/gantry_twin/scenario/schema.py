@@ -24,7 +24,7 @@ from pydantic_core import PydanticCustomError
 
 from gantry_twin.controllers import available
 from gantry_twin.gcode.planner import AxisLimits, PlanOptions, default_limits, plan_program
-from gantry_twin.gcode.reader import read_program
+from gantry_twin.gcode.reader import Program, read_program
 from gantry_twin.gcode.sampling import Plan
 from gantry_twin.health.excitation import ExcitationSettings, ExcitationWindowS, MinParameterV
 from gantry_twin.health.monitor import DecisionIntervalS, HealthSettings
@@ -57,6 +57,8 @@ class TimingSpec(Model):
 
 Point2 = tuple[Real, Real]
 Extent = Range(0.0, 1.0, "m", lo_open=True)
+#: The work coordinate systems a scenario may offset (gcode.machine.SYSTEMS).
+WORK_SYSTEMS = ("G54", "G55", "G56", "G57", "G58", "G59", "G59.1", "G59.2", "G59.3")
 
 
 class CircleSpec(Model):
@@ -118,13 +120,23 @@ class GcodeSpec(Model):
     limits: the reference's per-axis limits (default: derived from the
     plant, :func:`gantry_twin.gcode.planner.default_limits`); rapid_limits
     for G0 (default: limits); pivot_s: how long the task frame takes to turn
-    at a stop; drop_unsupported: drop Z, spindle and tool words instead of
-    refusing the program.
+    at a stop; drop_unsupported: drop Z, spindle and coolant words and a
+    drilling cycle's Z part instead of refusing the program; block_delete:
+    skip the lines that start with ``/`` (LinuxCNC's default); max_blocks:
+    the blocks executed before a program is stopped as endless;
+    subroutine_path: directories (relative to the scenario file) searched
+    for ``NAME.ngc`` before the program's own; work_offsets: G54 ... G59.3
+    -> (x, y) mm, the work offsets at the start (machine coordinates of
+    each system's origin).
     """
 
     type: Literal["gcode"] = "gcode"
     file: str
     drop_unsupported: bool = False
+    block_delete: bool = True
+    max_blocks: Range(1, 100_000_000, "blocks") = 1_000_000
+    subroutine_path: list[str] = []
+    work_offsets: dict[Literal[WORK_SYSTEMS], tuple[Range(-1e4, 1e4, "mm"), Range(-1e4, 1e4, "mm")]] = {}
     limits: LimitsSpec | None = None
     rapid_limits: LimitsSpec | None = None
     pivot_s: Range(0.0, 1.0, "s", lo_open=True) = 0.02
@@ -132,17 +144,27 @@ class GcodeSpec(Model):
 
     default_rate_rad_s: ClassVar[float] = 1.0
 
-    def plan(self, base_dir: Path | None = None) -> Plan:
-        """Read and plan the program (raises :class:`~gantry_twin.gcode.GcodeError`)."""
-        path = Path(self.file)
-        if base_dir is not None and not path.is_absolute():
-            path = base_dir / path
+    def plan(self, base_dir: Path | None = None, program: Program | None = None) -> Plan:
+        """Read (unless given) and plan the program (raises :class:`~gantry_twin.gcode.GcodeError`)."""
         options = PlanOptions(
             limits=self.limits.limits() if self.limits else default_limits(),
             rapid_limits=self.rapid_limits.limits() if self.rapid_limits else None,
             pivot_s=self.pivot_s,
         )
-        return plan_program(read_program(path, drop_unsupported=self.drop_unsupported), options)
+        return plan_program(program if program is not None else self.read(base_dir), options)
+
+    def read(self, base_dir: Path | None = None) -> Program:
+        """Read the program (raises :class:`~gantry_twin.gcode.GcodeError`)."""
+
+        def here(name: str) -> Path:
+            path = Path(name)
+            return base_dir / path if base_dir is not None and not path.is_absolute() else path
+
+        return read_program(
+            here(self.file), drop_unsupported=self.drop_unsupported, block_delete=self.block_delete,
+            max_blocks=int(self.max_blocks), subroutine_path=tuple(here(d) for d in self.subroutine_path),
+            work_offsets_mm={WORK_SYSTEMS.index(k) + 1: tuple(v) for k, v in self.work_offsets.items()},
+        )  # fmt: skip
 
     def path(self) -> Plan:
         return self.plan()

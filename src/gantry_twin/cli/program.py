@@ -1,0 +1,62 @@
+"""``validate PROGRAM.ngc`` and the part-program options of ``run`` and ``validate`` (docs/gcode.md)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from gantry_twin.cli.common import DEFAULT_SCENARIO, BadInput
+from gantry_twin.gcode.program import GcodeError
+from gantry_twin.gcode.reader import TRAVEL_HALF_M
+from gantry_twin.gcode.report import validation_lines
+from gantry_twin.scenario import load_scenario
+from gantry_twin.scenario.files import shipped
+from gantry_twin.settings import label_from
+
+#: File names taken as a G-code part program rather than a scenario.
+PROGRAM_SUFFIXES = (".ngc", ".nc", ".gcode")
+
+
+def is_program(path: str | Path) -> bool:
+    return Path(path).suffix.lower() in PROGRAM_SUFFIXES
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--drop-unsupported",
+        action="store_true",
+        help="a part program's Z, spindle and coolant words and drilling cycles' Z part are dropped and counted "
+        "(default: refused)",
+    )
+    parser.add_argument(
+        "--subroutine-path",
+        action="append",
+        default=[],
+        metavar="DIR",
+        help="a directory searched for a part program's NAME.ngc subroutines before the program's own (repeatable)",
+    )
+
+
+def overrides(args: argparse.Namespace, program: Path | None) -> list[str]:
+    """The --set overrides that run a part program in the default scenario with the options given."""
+    out = []
+    if program is not None:
+        out += [f"contour={{type: gcode, file: {json.dumps(str(program))}}}", f"name={label_from(program.stem)}"]
+    if getattr(args, "drop_unsupported", False):
+        out.append("contour.drop_unsupported=true")
+    if getattr(args, "subroutine_path", None):
+        out.append(f"contour.subroutine_path={json.dumps([str(Path(d).resolve()) for d in args.subroutine_path])}")
+    return out
+
+
+def validate_program(path: Path, args: argparse.Namespace) -> None:
+    """Read and plan a program without simulating it; print its summary (BadInput: one line, exit 2)."""
+    scenario = load_scenario(shipped(DEFAULT_SCENARIO), [*overrides(args, path), *args.overrides])  # named as given
+    contour = scenario.contour
+    try:
+        program = contour.read()
+        plan = contour.plan(program=program)
+    except GcodeError as exc:
+        raise BadInput(str(exc)) from None
+    print("\n".join(validation_lines(program, plan, TRAVEL_HALF_M)), flush=True)

@@ -1,0 +1,446 @@
+"""The modal state of a two-axis machine and one block's words turned into moves (LinuxCNC's dialect).
+
+Positions are machine coordinates in metres (the twin's: origin at the
+centre of the travel); the work coordinate systems are
+:mod:`~gantry_twin.gcode.offsets`'s. ``@`` ``^`` are polar coordinates
+(radius, angle in degrees) about the work origin (G90) or the current
+point (G91). G64 Q merges consecutive collinear-within-Q G1 lines (the
+naive CAM detector); G81-G89 drill at each X Y: the rapid there is a move,
+the Z part dropped (``drop_unsupported``) and counted.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from collections.abc import Callable
+
+from gantry_twin.gcode.arcs import MM_PER_INCH, arc_move
+from gantry_twin.gcode.geometry import Dwell, Move
+from gantry_twin.gcode.offsets import P_SYSTEM, Offsets
+
+#: Words a two-axis gantry cannot do, by kind, dropped only on request.
+AXES = "ZABCUVW"
+DROPPABLE_M = {3: "spindle", 4: "spindle", 5: "spindle", 7: "coolant", 8: "coolant", 9: "coolant"}
+#: Modal codes that change nothing on this machine.
+NOOP_G = {"G49", "G80", "G90.1", "G91.1", "G94", "G97", "G98", "G99", "G17"}
+MOTION = {"G0": 0, "G1": 1, "G2": 2, "G3": 3}
+CYCLES = {f"G{n}" for n in range(81, 90)}
+#: The letters of a block that only moves (the fast path of :meth:`Machine.execute`).
+SIMPLE = frozenset("XYF@^")
+#: Distinct lines kept for reuse (a program that loops over the same moves holds each once).
+INTERNED = 4096
+SYSTEMS = {"G54": 1, "G55": 2, "G56": 3, "G57": 4, "G58": 5, "G59": 6, "G59.1": 7, "G59.2": 8, "G59.3": 9}
+COMPENSATION = {"G40", "G41", "G42", "G41.1", "G42.1"}
+MODAL_GROUPS = {
+    "motion": {"G0", "G1", "G2", "G3", "G80"} | CYCLES,
+    "plane": {"G17", "G18", "G19"},
+    "units": {"G20", "G21"},
+    "distance": {"G90", "G91"},
+    "path": {"G61", "G61.1", "G64"},
+    "coordinate system": set(SYSTEMS),
+    "cutter compensation": COMPENSATION,
+    "non-modal": {"G4", "G10", "G28", "G28.1", "G30", "G30.1", "G53", "G92", "G92.1", "G92.2", "G92.3"},
+}
+#: Every G code read (the dialect table in docs/gcode.md is checked against it).
+READ_G = set(MOTION) | CYCLES | NOOP_G | set(SYSTEMS) | COMPENSATION | {
+    "G4", "G10", "G20", "G21", "G28", "G28.1", "G30", "G30.1", "G53", "G61", "G61.1", "G64", "G90", "G91",
+    "G92", "G92.1", "G92.2", "G92.3",
+}  # fmt: skip
+READ_M = {"M0", "M1", "M2", "M30", "M6", "M70", "M71", "M72", "M73"} | {f"M{n}" for n in DROPPABLE_M}
+REFUSED_G = {
+    "G18": "only the XY plane (G17) exists on a two-axis gantry",
+    "G19": "only the XY plane (G17) exists on a two-axis gantry",
+    "G33": "spindle-synchronised motion: the gantry has no spindle",
+    "G33.1": "spindle-synchronised motion: the gantry has no spindle",
+    "G76": "spindle-synchronised motion (threading): the gantry has no spindle",
+    "G7": "lathe diameter mode: the gantry is a mill's XY",
+    "G8": "lathe radius mode: the gantry is a mill's XY",
+}
+
+
+class Machine(Offsets):
+    """Modal state and the moves so far; ``params`` is the interpreter's numbered parameters (mm offsets)."""
+
+    def __init__(
+        self, params: dict[int, float], drop: bool, error: Callable[..., Exception], check: Callable[[Move], None]
+    ) -> None:
+        self.params, self.drop, self.fail, self.check = params, drop, error, check
+        self.interned: dict[tuple, Move] = {}  # a loop's repeated lines are one object each
+        self.items: list[Move | Dwell] = []
+        self.programmed: list[Move] = []
+        self.dropped: Counter[str] = Counter()
+        self.merged = 0
+        self.position = (0.0, 0.0)
+        self.start: tuple[float, float] | None = None
+        self.motion: int | str | None = None
+        self.scale_m = 1e-3  # G21
+        self.incremental = False
+        self.exact_stop = False  # LinuxCNC starts in G64
+        self.tolerance_m = math.inf
+        self.naive_m = 0.0  # G64 Q: 0 = no merging
+        self.feed_m_s: float | None = None
+        self.tool = 0  # T (prepared)
+        self.selected = 0  # M6
+        self.compensation: tuple[str, float | None, int, int] | None = None  # side, radius, tool, G41 line
+        self.compensated: list[Move | Dwell] = []
+        self.chain: list[tuple[float, float]] = []  # the points of the last item's merged G1 lines
+        self.column: dict[str, int] = {}
+        self.axis_dropped = False
+        self.file = ""  # the file whose block runs (the interpreter sets it; a subroutine's may be another)
+        self.number = 0
+
+    # -- helpers -------------------------------------------------------------------------------------------
+    def error(self, word: str, what: str) -> Exception:
+        return self.fail(self.column.get(word, 0), word, what)
+
+    def unsupported(self, word: str, kind: str) -> None:
+        if not self.drop:
+            raise self.error(word, f"{kind}: a two-axis gantry cannot do this (--drop-unsupported drops it)")
+        self.dropped[kind] += 1
+
+    def snapshot(self) -> tuple:
+        """The modal state M70 saves and M72 restores."""
+        return (self.motion, self.scale_m, self.incremental, self.exact_stop, self.tolerance_m, self.naive_m,
+                self.feed_m_s, self.params.get(P_SYSTEM, 1))  # fmt: skip
+
+    def restore(self, state: tuple) -> None:
+        (self.motion, self.scale_m, self.incremental, self.exact_stop, self.tolerance_m, self.naive_m,
+         self.feed_m_s, self.params[P_SYSTEM]) = state  # fmt: skip
+
+    # -- one block -----------------------------------------------------------------------------------------
+    def execute(self, words: dict[str, float], number: int, column: dict[str, int]) -> bool:
+        """Execute one block's words (codes 'G1', 'M30' and letters); True when it ends the program."""
+        self.column, self.number = column, number
+        if words.keys() <= SIMPLE and self.motion not in CYCLES:  # the common block: axes and feed only
+            if "F" in words:
+                if words["F"] < 0.0:
+                    raise self.error("F", "the feed must be >= 0")
+                self.feed_m_s = words["F"] * self.scale_m / 60.0
+            if "X" in words or "Y" in words or "@" in words or "^" in words:
+                if "P" in words and self.motion not in (2, 3):
+                    raise self.error("P", "P only follows G4, G64, G10 or an arc (turns)")
+                self.move(words, number)
+            return False
+        for code in [c for c in words if c[0] == "M"]:
+            if code in ("M2", "M30", "M0", "M1", "M6") or code in ("M70", "M71", "M72", "M73"):
+                continue
+            kind = DROPPABLE_M.get(int(float(code[1:])))
+            if kind is None:
+                raise self.error(code, "unsupported M code")
+            self.unsupported(code, kind)
+            del words[code]
+        for word, kind in (("G43", "tool length offset"), ("G96", "spindle speed mode"), ("S", "spindle speed"),
+                           ("H", "tool length offset"), ("$", "spindle number")):  # fmt: skip
+            if word in words:
+                self.unsupported(word, kind)
+                del words[word]
+        explicit = any(c in MOTION or c == "G80" for c in words)  # a new motion mode: no cycle on this line
+        modal = self.motion if self.motion in CYCLES and not explicit else None
+        cycle = next((c for c in words if c in CYCLES), None) or modal
+        axes_words = any(letter in words for letter in "XY@^")
+        if cycle is not None and (axes_words or any(c in words for c in CYCLES)):
+            for letter in "ZRQ":
+                words.pop(letter, None)
+            if cycle in ("G82", "G89") or "P" in words:
+                words.pop("P", None)
+        self.axis_dropped = False
+        for letter in AXES:
+            if letter in words:
+                self.unsupported(letter, f"{letter} axis")
+                del words[letter]
+                self.axis_dropped = True  # G53 or G92 with only Z: nothing left to do in XY
+        self.check_words(words)
+        if "T" in words:
+            if words["T"] < 0 or words["T"] != int(words["T"]):
+                raise self.error("T", "a tool number is a whole number >= 0")
+            self.tool = int(words["T"])
+        if "M6" in words:
+            self.selected = self.tool
+        if "F" in words:
+            if words["F"] < 0.0:
+                raise self.error("F", "the feed must be >= 0")
+        if "G20" in words:
+            self.scale_m = MM_PER_INCH * 1e-3
+        if "G21" in words:
+            self.scale_m = 1e-3
+        if "F" in words:
+            self.feed_m_s = words["F"] * self.scale_m / 60.0
+        if "G4" in words:
+            if "P" not in words:
+                raise self.error("G4", "a dwell needs P (seconds)")
+            if words["P"] < 0.0:
+                raise self.error("P", "a dwell cannot be negative")
+            if words["P"] > 0.0:
+                self.emit(Dwell(words["P"], number))
+        self.path_mode(words)
+        system = next((c for c in words if c in SYSTEMS), None)
+        if system is not None:
+            self.params[P_SYSTEM] = float(SYSTEMS[system])
+        self.compensation_words(words)
+        if "G90" in words:
+            self.incremental = False
+        if "G91" in words:
+            self.incremental = True
+        if "G10" in words:
+            self.g10(words)
+            return "M2" in words or "M30" in words
+        if any(c in words for c in ("G92", "G92.1", "G92.2", "G92.3")):
+            self.g92(words)
+            return "M2" in words or "M30" in words
+        home = next((c for c in ("G28", "G28.1", "G30", "G30.1") if c in words), None)
+        if home is not None:
+            self.home(home, words, number)
+            return "M2" in words or "M30" in words
+        motion = next((c for c in words if c in MOTION or c in CYCLES), None) or ("G80" if "G80" in words else None)
+        if motion is not None:
+            self.motion = None if motion == "G80" else MOTION.get(motion, motion)
+        uses_p = "G4" in words or "G64" in words
+        axes = any(letter in words for letter in "XY@^")
+        arc_p = self.motion in (2, 3) and (axes or "I" in words or "J" in words)
+        if "P" in words and not uses_p and not arc_p:
+            raise self.error("P", "P only follows G4, G64, G10 or an arc (turns)")
+        if not axes and any(letter in words for letter in "IJR"):
+            if self.motion in (2, 3) and "R" not in words:
+                axes = True  # a full circle: I J without X Y
+            else:
+                raise self.error(next(c for c in "IJR" if c in words), "needs an arc with X or Y")
+        if axes:
+            self.move(words, number)
+        elif "G53" in words and not self.axis_dropped:
+            raise self.error("G53", "needs X or Y on its line")
+        return "M2" in words or "M30" in words
+
+    def check_words(self, words: dict[str, float]) -> None:
+        if "K" in words:
+            raise self.error("K", "not used in the XY plane (G17): arcs take I and J")
+        allowed = set("XYIJRFNPTDLQ@^") | READ_G | READ_M
+        for word in words:
+            if word not in allowed:
+                if word in REFUSED_G:
+                    raise self.error(word, REFUSED_G[word])
+                if word.startswith("G"):
+                    raise self.error(word, "unsupported G code")
+                raise self.error(word, "unsupported word")
+        if "L" in words and "G10" not in words and not (self.motion in CYCLES or any(c in words for c in CYCLES)):
+            raise self.error("L", "L only follows G10 or a drilling cycle (repeats)")
+        if "Q" in words and "G64" not in words:
+            raise self.error("Q", "Q only follows G64 (or a drilling cycle's peck)")
+        if "D" in words and not any(c in words for c in ("G41", "G42", "G41.1", "G42.1")):
+            raise self.error("D", "D only follows G41 / G42 (a tool) or G41.1 / G42.1 (a diameter)")
+        if ("@" in words or "^" in words) and ("X" in words or "Y" in words):
+            raise self.error("@" if "@" in words else "^", "polar (@ ^) and X Y on one line")
+
+    def path_mode(self, words: dict[str, float]) -> None:
+        if "G61" in words or "G61.1" in words or "G64" in words:
+            self.chain = []  # a new path mode starts a new chain (LinuxCNC flushes its segments)
+        if "G61" in words or "G61.1" in words:
+            self.exact_stop, self.tolerance_m, self.naive_m = True, math.inf, 0.0
+        if "G64" in words:
+            tolerance = words.get("P", 0.0)
+            if tolerance < 0.0:
+                raise self.error("P", "the G64 tolerance must be >= 0 (P0: no tolerance, as G64 alone)")
+            naive = words.get("Q", tolerance)
+            if naive < 0.0:
+                raise self.error("Q", "the G64 Q tolerance must be >= 0 (Q0: no merging)")
+            self.exact_stop = False
+            self.tolerance_m = tolerance * self.scale_m if tolerance > 0.0 else math.inf
+            self.naive_m = naive * self.scale_m
+
+    def compensation_words(self, words: dict[str, float]) -> None:
+        code = next((c for c in words if c in COMPENSATION), None)
+        if code is None:
+            return
+        if code == "G40":
+            if self.compensation is not None:
+                self.compensation = (*self.compensation[:3], -self.compensation[3])  # ends after the next move
+            return
+        if self.compensation is not None:
+            raise self.error(code, "cutter compensation is already on (G40 first)")
+        side = "left" if code.startswith("G41") else "right"
+        if code.endswith(".1"):
+            if "D" not in words or words["D"] < 0:
+                raise self.error(code, "needs D, the tool's diameter (>= 0)")
+            self.compensation = (side, 0.5 * words["D"] * self.scale_m, 0, self.number)
+            return
+        tool = int(words["D"]) if "D" in words else self.selected
+        if "D" in words and (words["D"] < 0 or words["D"] != int(words["D"])):
+            raise self.error("D", "a tool number is a whole number >= 0")
+        if tool == 0:
+            raise self.error(code, "no tool: select one (T.. M6) or name it with D")
+        self.compensation = (side, None, tool, self.number)
+
+    # -- moves ---------------------------------------------------------------------------------------------
+    def target(self, words: dict[str, float]) -> tuple[float, float]:
+        """The block's end point, machine m, from X Y (or @ ^) in the distance mode and system in force."""
+        s = self.scale_m
+        x, y = self.position
+        if "G53" in words:
+            if self.incremental:
+                raise self.error("G53", "machine coordinates need G90 (absolute)")
+            return (words["X"] * s if "X" in words else x), (words["Y"] * s if "Y" in words else y)
+        polar = "@" in words or "^" in words
+        wx, wy, gx, gy, c, sn = self.frame()
+        if sn == 0.0 and not polar:  # unrotated: an axis not given keeps its machine coordinate exactly
+            if self.incremental:
+                return x + words.get("X", 0.0) * s, y + words.get("Y", 0.0) * s
+            return (words["X"] * s + wx + gx if "X" in words else x), (words["Y"] * s + wy + gy if "Y" in words else y)
+        px, py = self.to_program(x, y)
+        if polar:
+            radius, angle = words.get("@", 0.0) * s, math.radians(words.get("^", 0.0))
+            dx, dy = radius * math.cos(angle), radius * math.sin(angle)
+            px, py = (px + dx, py + dy) if self.incremental else (dx, dy)
+        elif self.incremental:
+            px, py = px + words.get("X", 0.0) * s, py + words.get("Y", 0.0) * s
+        else:
+            px, py = (words["X"] * s if "X" in words else px), (words["Y"] * s if "Y" in words else py)
+        return self.to_machine(px, py)
+
+    def move(self, words: dict[str, float], number: int) -> None:
+        if self.motion is None:
+            raise self.error("X" if "X" in words else "Y", "an axis word without G0, G1, G2, G3 or a cycle in force")
+        if self.motion in CYCLES:
+            self.drill(words, number)
+            return
+        if "G53" in words and self.motion not in (0, 1):
+            raise self.error("G53", "machine coordinates only with G0 or G1")
+        end = self.target(words)
+        rapid = self.motion == 0
+        if not rapid and not self.feed_m_s:
+            what = "F must be given before the first feed move" if self.feed_m_s is None else "F is 0"
+            raise self.error(f"G{self.motion}", f"no feed: {what}")
+        if not self.items and not self.compensated and rapid and self.start is None and self.compensation is None:
+            self.start = self.position = end  # the run starts at rest after its first G0
+            return
+        if self.start is None:
+            self.start = self.position
+        common = dict(
+            feed_m_s=math.inf if rapid else self.feed_m_s, rapid=rapid, line=number,
+            exact_stop=self.exact_stop, tolerance_m=self.tolerance_m,
+        )  # fmt: skip
+        if self.motion in (0, 1):
+            if "I" in words or "J" in words or "R" in words:
+                raise self.error("I" if "I" in words else "J" if "J" in words else "R", "only arcs take it")
+            if end != self.position:
+                self.emit(self.line(end, common))
+            self.position = end
+            return
+        c, s = self.frame()[4:]
+        if s != 0.0 and ("I" in words or "J" in words):  # the centre's offset turns with the system
+            i, j = words.get("I", 0.0), words.get("J", 0.0)
+            words = {**words, "I": c * i - s * j, "J": s * i + c * j}
+        move = arc_move(words, self.position, end, self.scale_m, self.motion == 3, common, self.error)
+        self.emit(move)
+        self.position = move.end_m
+
+    def line(self, end: tuple[float, float], common: dict) -> Move:
+        """The line from the current point to ``end``; the same object for the same line (a loop's repeats)."""
+        key = (self.position, end, *common.values())
+        move = self.interned.get(key)
+        if move is None:
+            move = Move("line", self.position, end, **common)
+            if len(self.interned) < INTERNED:
+                self.interned[key] = move
+        return move
+
+    def drill(self, words: dict[str, float], number: int) -> None:
+        """A drilling cycle: per hole (L repeats in G91) a rapid to X Y, the Z part dropped and counted."""
+        repeats = words.get("L", 1.0)
+        if repeats < 1 or repeats != int(repeats):
+            raise self.error("L", "a cycle's repeats are a whole number >= 1")
+        cycle = str(self.motion)
+        for _ in range(int(repeats) if self.incremental else 1):
+            self.unsupported(cycle, "drilling cycle (its Z motion)")
+            self.rapid_to(self.target(words), number)
+
+    def rapid_to(self, end: tuple[float, float], number: int) -> None:
+        """A rapid line to ``end`` (machine m); the program's first one places its start."""
+        if self.start is None and not self.items and not self.compensated and self.compensation is None:
+            self.start = self.position = end
+            return
+        if self.start is None:
+            self.start = self.position
+        if end != self.position:
+            self.emit(Move("line", self.position, end, math.inf, True, number, self.exact_stop, self.tolerance_m))
+        self.position = end
+
+    def home(self, code: str, words: dict[str, float], number: int) -> None:
+        """G28 / G30: a rapid to the X Y given (if any, in the mode in force), then to the stored position
+        (parameters 5161-5162 / 5181-5182, machine mm) of the axes given, or of both when none is; G28.1 / G30.1
+        store the current point there (LinuxCNC's G28)."""
+        base = 5161 if code.startswith("G28") else 5181
+        if code.endswith(".1"):
+            self.params[base], self.params[base + 1] = self.position[0] * 1e3, self.position[1] * 1e3
+            return
+        given = ("X" in words, "Y" in words)
+        if not any(given) and self.axis_dropped:
+            return  # G28 Z0: only a dropped axis goes home
+        if any(given):
+            self.rapid_to(self.target(words), number)
+        stored = (self.params.get(base, 0.0) * 1e-3, self.params.get(base + 1, 0.0) * 1e-3)
+        both = not any(given)
+        end = tuple(stored[a] if both or given[a] else self.position[a] for a in (0, 1))
+        self.rapid_to((end[0], end[1]), number)
+
+    def emit(self, item: Move | Dwell) -> None:
+        """Append a move or a dwell: into the compensated run while G41 / G42 is on, else merged by G64 Q."""
+        if isinstance(item, Move):
+            self.check(item)  # a runaway leaves the travel here, not after a million moves
+            self.programmed.append(item)
+        if self.compensation is not None:
+            self.compensated.append(item)
+            if self.compensation[3] < 0 and isinstance(item, Move):  # the move after G40 closes the run
+                self.finish_compensation()
+            return
+        if self.merges(item):
+            return
+        self.items.append(item)
+        self.chain = [item.start_m, item.end_m] if isinstance(item, Move) and item.kind == "line" else []
+
+    def merges(self, item: Move | Dwell) -> bool:
+        """The naive CAM detector: the G1 line joins the previous one when every point of the chain stays within
+        Q of the line from the chain's start to the new end and the new end goes on forward."""
+        if not (isinstance(item, Move) and item.kind == "line" and not item.rapid and self.naive_m > 0.0):
+            return False
+        if not self.chain or not self.items or not isinstance(self.items[-1], Move):
+            return False
+        last = self.items[-1]
+        if last.rapid or last.feed_m_s != item.feed_m_s or last.exact_stop or item.exact_stop:
+            return False
+        (x0, y0), (x1, y1) = self.chain[0], item.end_m
+        length = math.hypot(x1 - x0, y1 - y0)
+        if length <= 0.0:
+            return False
+        ux, uy = (x1 - x0) / length, (y1 - y0) / length
+        along = [(px - x0) * ux + (py - y0) * uy for px, py in self.chain[1:]]
+        if any(abs(-(px - x0) * uy + (py - y0) * ux) > self.naive_m for px, py in self.chain[1:]):
+            return False
+        if any(b < a for a, b in zip([0.0, *along], [*along, length], strict=True)):
+            return False
+        self.items[-1] = Move("line", self.chain[0], item.end_m, item.feed_m_s, False, last.line, False,
+                              item.tolerance_m)  # fmt: skip
+        self.chain.append(item.end_m)
+        self.merged += 1
+        return True
+
+    def finish_compensation(self) -> None:
+        """Hand the compensated run to :meth:`compensated_run` and place its tool-centre moves."""
+        assert self.compensation is not None
+        side, radius_m, tool, line = self.compensation
+        run, self.compensated, self.compensation = self.compensated, [], None
+        moves = [item for item in run if isinstance(item, Move)]
+        if moves:
+            centre = self.compensated_run(moves, side, radius_m, tool, abs(line))
+            for move in centre:
+                self.items.append(move)
+                self.chain = []
+        self.items.extend(item for item in run if isinstance(item, Dwell))
+
+    def compensated_run(self, moves: list[Move], side: str, radius_m: float | None, tool: int, line: int) -> list[Move]:
+        """The tool-centre path of a G41 / G42 run: ``moves`` from the entry move (the first after G41 / G42)
+        to the exit move (the first after G40; absent when the program ends with compensation on), ``side``
+        "left" or "right", ``radius_m`` from G41.1 / G42.1's D (None: the radius of ``tool``, G41 / G42's D or
+        the tool M6 selected, from a tool table), ``line`` the G41 / G42 line, ``self.file`` its file.
+        Cutter radius compensation is connected here; until it is, the run is refused at its G41 / G42."""
+        self.column = {}
+        raise self.fail(0, "G41" if side == "left" else "G42", "cutter radius compensation: not available", line)
