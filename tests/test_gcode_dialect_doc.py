@@ -7,8 +7,9 @@ from pathlib import Path
 import pytest
 
 from gantry_twin.gcode import GcodeError, parse_program
-from gantry_twin.gcode.dialect import DIALECT, dialect_table
+from gantry_twin.gcode.dialect import DIALECT, EXAMPLE_TOOLS, dialect_table
 from gantry_twin.gcode.machine import DROPPABLE_M, READ_G, READ_M, REFUSED_G
+from gantry_twin.gcode.tools import parse_tool_table
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "gcode.md"
 
@@ -16,7 +17,7 @@ DOC = Path(__file__).resolve().parents[1] / "docs" / "gcode.md"
 @pytest.mark.parametrize("entry", DIALECT, ids=[e.word for e in DIALECT])
 def test_each_entry_does_what_the_table_says(entry):
     if entry.status == "read":
-        program = parse_program(entry.example, name="d.ngc")
+        program = parse_program(entry.example, name="d.ngc", tools=parse_tool_table(EXAMPLE_TOOLS))
         assert program.dropped == {}
     elif entry.status == "dropped":
         with pytest.raises(GcodeError, match=f"{entry.what.split(';')[0].replace('(', '.').replace(')', '.')}"):

@@ -36,6 +36,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="DIR",
         help="a directory searched for a part program's NAME.ngc subroutines before the program's own (repeatable)",
     )
+    parser.add_argument(
+        "--tool-table",
+        metavar="FILE",
+        help="a LinuxCNC tool table: the diameters (mm) that cutter radius compensation (G41 / G42) uses",
+    )
 
 
 def overrides(args: argparse.Namespace, program: Path | None) -> list[str]:
@@ -45,6 +50,8 @@ def overrides(args: argparse.Namespace, program: Path | None) -> list[str]:
         out += [f"contour={{type: gcode, file: {json.dumps(str(program))}}}", f"name={label_from(program.stem)}"]
     if getattr(args, "drop_unsupported", False):
         out.append("contour.drop_unsupported=true")
+    if getattr(args, "tool_table", None):
+        out.append(f"contour.tool_table={json.dumps(str(Path(args.tool_table).resolve()))}")
     if getattr(args, "subroutine_path", None):
         out.append(f"contour.subroutine_path={json.dumps([str(Path(d).resolve()) for d in args.subroutine_path])}")
     return out

@@ -72,7 +72,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 from gantry_twin.gcode.geometry import Move
-from gantry_twin.gcode.reader import GcodeError
+from gantry_twin.gcode.program import GcodeError
 
 #: Corner angle tolerance, rad (LinuxCNC's TOLERANCE_CONCAVE_CORNER).
 CORNER_TOLERANCE_RAD = 0.05

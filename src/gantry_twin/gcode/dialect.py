@@ -10,6 +10,9 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+#: The tool table the examples read with (G41 / G42 D1 and T1 M6 name its tool 1): LinuxCNC's format.
+EXAMPLE_TOOLS = "T1 P1 D3.0 ;a 3 mm end mill\n"
+
 
 class Entry(NamedTuple):
     word: str  # the code, letter or construct, as the table shows it
@@ -50,10 +53,15 @@ DIALECT: tuple[Entry, ...] = (
     Entry("G33", "refused", "spindle-synchronised motion", "G33 X1\n"),
     Entry("G33.1", "refused", "spindle-synchronised motion", "G33.1 X1\n"),
     Entry("G40", "read", "cutter compensation off (after the next move)", "G40\n" + _F),
-    Entry("G41", "refused", "cutter radius compensation: not available", "T1 M6\nG41 G1 X1 F100\nG40 X2\n"),
-    Entry("G41.1", "refused", "cutter radius compensation: not available", "G41.1 D3 G1 X1 F100\nG40 X2\n"),
-    Entry("G42", "refused", "cutter radius compensation: not available", "G42 D1 G1 X1 F100\nG40 X2\n"),
-    Entry("G42.1", "refused", "cutter radius compensation: not available", "G42.1 D3 G1 X1 F100\nG40 X2\n"),
+    Entry(
+        "G41",
+        "read",
+        "cutter radius compensation, tool left of the path: D a tool of the tool table (or the one M6 selected)",
+        "T1 M6\nG41 G1 X5 F100\nX10\nG40 X15\n",
+    ),  # fmt: skip
+    Entry("G41.1", "read", "as G41, D the tool's diameter", "G41.1 D3 G1 X5 F100\nX10\nG40 X15\n"),
+    Entry("G42", "read", "cutter radius compensation, tool right of the path (as G41)", "G42 D1 G1 X5 F100\nG40 X10\n"),
+    Entry("G42.1", "read", "as G42, D the tool's diameter", "G42.1 D3 G1 X5 F100\nG40 X10\n"),
     Entry("G43", "dropped", "tool length offset", "G43 H1\n" + _F),
     Entry("G49", "read", "tool length offset off: nothing to do", "G49\n" + _F),
     Entry("G53", "read", "machine coordinates for its line (G0 / G1, G90)", "G10 L2 P1 X5\nG53 G1 X1 F100\n"),
@@ -120,8 +128,8 @@ DIALECT: tuple[Entry, ...] = (
     Entry("H", "dropped", "tool length offset", "H1\n" + _F),
     Entry(
         "D (G41 / G42: a tool; G41.1 / G42.1: a diameter)",
-        "refused",
-        "cutter radius compensation: not available",
+        "read",
+        "the tool, or the diameter, that cutter radius compensation offsets by",
         "G41.1 D0 G1 X1 F100\nG40 X2\n",
     ),  # fmt: skip
     Entry("L P Q", "read", "G10's level and system, dwell time, arc turns, G64's tolerances, cycle repeats", _F),

@@ -32,6 +32,7 @@ from gantry_twin.gcode.lexer import Line, lex
 from gantry_twin.gcode.machine import MODAL_GROUPS, SYSTEMS, Machine
 from gantry_twin.gcode.offsets import P_SYSTEM, P_SYSTEM_X
 from gantry_twin.gcode.program import TRAVEL_HALF_M, GcodeError, Program, check_move, read_bytes, text_lines
+from gantry_twin.gcode.tools import Tool
 
 #: Nested calls below the main program (LinuxCNC's INTERP_SUB_ROUTINE_LEVELS, 10, counts the main program).
 MAX_CALL_DEPTH = 9
@@ -93,6 +94,7 @@ class Interpreter:
         subroutine_path: tuple[Path, ...] = (),
         work_offsets_mm: dict[int, tuple[float, float]] | None = None,
         travel_half_m: tuple[float, float] = TRAVEL_HALF_M,
+        tools: dict[int, Tool] | None = None,
     ) -> None:
         self.main, self.unit = unit, unit
         self.block_delete, self.max_blocks, self.path = block_delete, max_blocks, subroutine_path
@@ -103,7 +105,11 @@ class Interpreter:
         self.frames = [Frame(unit)]
         self.number = 0
         self.machine = Machine(
-            self.params, drop_unsupported, self.error, lambda move: check_move(move, travel_half_m, self.unit.name)
+            self.params,
+            drop_unsupported,
+            self.error,
+            lambda move: check_move(move, travel_half_m, self.unit.name),
+            tools,
         )
         self.machine.file = unit.name
         self.messages: list[str] = []

@@ -16,8 +16,10 @@ from collections import Counter
 from collections.abc import Callable
 
 from gantry_twin.gcode.arcs import MM_PER_INCH, arc_move
+from gantry_twin.gcode.compensation import compensate
 from gantry_twin.gcode.geometry import Dwell, Move
 from gantry_twin.gcode.offsets import P_SYSTEM, Offsets
+from gantry_twin.gcode.tools import Tool, tool_for_compensation
 
 #: Words a two-axis gantry cannot do, by kind, dropped only on request.
 AXES = "ZABCUVW"
@@ -63,9 +65,15 @@ class Machine(Offsets):
     """Modal state and the moves so far; ``params`` is the interpreter's numbered parameters (mm offsets)."""
 
     def __init__(
-        self, params: dict[int, float], drop: bool, error: Callable[..., Exception], check: Callable[[Move], None]
+        self,
+        params: dict[int, float],
+        drop: bool,
+        error: Callable[..., Exception],
+        check: Callable[[Move], None],
+        tools: dict[int, Tool] | None = None,
     ) -> None:
         self.params, self.drop, self.fail, self.check = params, drop, error, check
+        self.tools = tools or {}  # the tool table (gantry_twin.gcode.tools), for G41 / G42
         self.interned: dict[tuple, Move] = {}  # a loop's repeated lines are one object each
         self.items: list[Move | Dwell] = []
         self.programmed: list[Move] = []
@@ -390,7 +398,7 @@ class Machine(Offsets):
         if self.compensation is not None:
             self.compensated.append(item)
             if self.compensation[3] < 0 and isinstance(item, Move):  # the move after G40 closes the run
-                self.finish_compensation()
+                self.finish_compensation(exit_move=True)
             return
         if self.merges(item):
             return
@@ -423,24 +431,29 @@ class Machine(Offsets):
         self.merged += 1
         return True
 
-    def finish_compensation(self) -> None:
-        """Hand the compensated run to :meth:`compensated_run` and place its tool-centre moves."""
+    def finish_compensation(self, exit_move: bool = False) -> None:
+        """Hand the compensated run to :meth:`compensated_run` and place its tool-centre moves; ``exit_move``:
+        its last move is the one after G40 (False: the program ended with compensation on)."""
         assert self.compensation is not None
         side, radius_m, tool, line = self.compensation
         run, self.compensated, self.compensation = self.compensated, [], None
         moves = [item for item in run if isinstance(item, Move)]
         if moves:
-            centre = self.compensated_run(moves, side, radius_m, tool, abs(line))
+            centre = self.compensated_run(moves, side, radius_m, tool, abs(line), exit_move)
             for move in centre:
                 self.items.append(move)
                 self.chain = []
         self.items.extend(item for item in run if isinstance(item, Dwell))
 
-    def compensated_run(self, moves: list[Move], side: str, radius_m: float | None, tool: int, line: int) -> list[Move]:
-        """The tool-centre path of a G41 / G42 run: ``moves`` from the entry move (the first after G41 / G42)
-        to the exit move (the first after G40; absent when the program ends with compensation on), ``side``
-        "left" or "right", ``radius_m`` from G41.1 / G42.1's D (None: the radius of ``tool``, G41 / G42's D or
-        the tool M6 selected, from a tool table), ``line`` the G41 / G42 line, ``self.file`` its file.
-        Cutter radius compensation is connected here; until it is, the run is refused at its G41 / G42."""
-        self.column = {}
-        raise self.fail(0, "G41" if side == "left" else "G42", "cutter radius compensation: not available", line)
+    def compensated_run(
+        self, moves: list[Move], side: str, radius_m: float | None, tool: int, line: int, exit_move: bool
+    ) -> list[Move]:
+        """The tool-centre path of a G41 / G42 run (:func:`gantry_twin.gcode.compensation.compensate`): ``moves``
+        from the entry move (the first after G41 / G42) to the exit move (the first after G40; absent when the
+        program ends with compensation on, ``exit_move`` False), ``side`` "left" or "right", ``radius_m`` from
+        G41.1 / G42.1's D (None: the radius of ``tool``, G41 / G42's D or the tool M6 selected, from the tool
+        table), ``line`` the G41 / G42 line, ``self.file`` its file."""
+        code = "G41" if side == "left" else "G42"
+        if radius_m is None:
+            radius_m = tool_for_compensation(self.tools, None, tool, file=self.file, line=line, code=code).radius_m
+        return compensate(moves, side, radius_m, self.file, ends_with_exit=exit_move)

@@ -30,6 +30,7 @@ from gantry_twin.gcode.program import (
     check_move,
     read_bytes,
 )
+from gantry_twin.gcode.tools import Tool
 
 __all__ = [
     "ARC_RADIUS_TOLERANCE_IN",
@@ -60,7 +61,8 @@ def read_program(
 
     ``options``: ``block_delete`` (default True: skip lines starting ``/``), ``max_blocks``,
     ``subroutine_path`` (directories searched for ``NAME.ngc`` before the program's own),
-    ``work_offsets_mm`` ({1: (x, y), ...}: G54 ... G59.3's offsets at the start, mm).
+    ``work_offsets_mm`` ({1: (x, y), ...}: G54 ... G59.3's offsets at the start, mm), ``tools`` (the tool table
+    G41 / G42 take their tool's diameter from, :func:`gantry_twin.gcode.tools.read_tool_table`).
     """
     data = read_bytes(path, max_bytes)
     return parse_program(
@@ -80,6 +82,7 @@ def parse_program(
     max_blocks: int = MAX_BLOCKS,
     subroutine_path: tuple[str | os.PathLike, ...] = (),
     work_offsets_mm: dict[int, tuple[float, float]] | None = None,
+    tools: dict[int, Tool] | None = None,
 ) -> Program:
     """Parse program text (str, or bytes that must be ASCII) into a :class:`Program`."""
     data = source.encode("utf-8") if isinstance(source, str) else bytes(source)
@@ -87,7 +90,7 @@ def parse_program(
     interpreter = Interpreter(
         unit, drop_unsupported=drop_unsupported, block_delete=block_delete, max_blocks=max_blocks,
         subroutine_path=tuple(Path(p) for p in subroutine_path), work_offsets_mm=work_offsets_mm,
-        travel_half_m=travel_half_m,
+        travel_half_m=travel_half_m, tools=tools,
     )  # fmt: skip
     program = interpreter.run()
     _check_travel(program, travel_half_m)

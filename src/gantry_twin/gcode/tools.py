@@ -32,7 +32,7 @@ import os
 import re
 from dataclasses import dataclass
 
-from gantry_twin.gcode.reader import GcodeError
+from gantry_twin.gcode.program import GcodeError
 from gantry_twin.inputs import InputFileError, read_input_file
 
 #: The largest tool and pocket number (a C int, as LinuxCNC reads them).

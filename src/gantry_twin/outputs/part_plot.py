@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from gantry_twin.gcode.geometry import MoveTable
 from gantry_twin.gcode.part_error import nearest_on_program
 from gantry_twin.gcode.sampling import Plan
 
@@ -95,7 +96,14 @@ def _geometry_points(plan: Plan) -> np.ndarray:
 
 
 def _draw_program(ax: Any, plan: Plan) -> None:
-    """The programmed lines and arcs, mm: feed moves solid, rapids dotted."""
+    """The programmed lines and arcs, mm: feed moves solid, rapids dotted; under cutter radius compensation
+    (G41 / G42) these are the tool centre's, and the part's outline as programmed is drawn thin and dashed."""
+    programmed = [m for m in getattr(plan.program, "programmed_moves", ()) if not m.rapid]
+    if programmed and programmed != [m for m in plan.moves if not m.rapid]:
+        outline = MoveTable(programmed)
+        for k in range(outline.count):
+            p = outline.polyline(k) * 1e3
+            ax.plot(p[:, 0], p[:, 1], "--", color="0.35", lw=0.8, label=None if k else "part outline (G41 / G42)")
     feed = rapid = True  # label each kind once
     for k, move in enumerate(plan.moves):
         p = plan.table.polyline(k) * 1e3

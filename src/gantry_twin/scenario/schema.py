@@ -26,6 +26,7 @@ from gantry_twin.controllers import available
 from gantry_twin.gcode.planner import AxisLimits, PlanOptions, default_limits, plan_program
 from gantry_twin.gcode.reader import Program, read_program
 from gantry_twin.gcode.sampling import Plan
+from gantry_twin.gcode.tools import Tool, read_tool_table
 from gantry_twin.health.excitation import ExcitationSettings, ExcitationWindowS, MinParameterV
 from gantry_twin.health.monitor import DecisionIntervalS, HealthSettings
 from gantry_twin.loop.simulate import Disturbance
@@ -127,7 +128,10 @@ class GcodeSpec(Model):
     subroutine_path: directories (relative to the scenario file) searched
     for ``NAME.ngc`` before the program's own; work_offsets: G54 ... G59.3
     -> (x, y) mm, the work offsets at the start (machine coordinates of
-    each system's origin).
+    each system's origin); tool_table: a LinuxCNC tool table (relative to
+    the scenario file; docs/gcode.md, "Cutter radius compensation") and
+    tools: tool number -> diameter mm, beside or instead of it (an entry
+    here replaces the table's), for G41 / G42.
     """
 
     type: Literal["gcode"] = "gcode"
@@ -137,6 +141,8 @@ class GcodeSpec(Model):
     max_blocks: Range(1, 100_000_000, "blocks") = 1_000_000
     subroutine_path: list[str] = []
     work_offsets: dict[Literal[WORK_SYSTEMS], tuple[Range(-1e4, 1e4, "mm"), Range(-1e4, 1e4, "mm")]] = {}
+    tool_table: str | None = None
+    tools: dict[Range(1, 99_999, "tool number"), Range(-1000.0, 1000.0, "mm")] = {}
     limits: LimitsSpec | None = None
     rapid_limits: LimitsSpec | None = None
     pivot_s: Range(0.0, 1.0, "s", lo_open=True) = 0.02
@@ -160,10 +166,14 @@ class GcodeSpec(Model):
             path = Path(name)
             return base_dir / path if base_dir is not None and not path.is_absolute() else path
 
+        tools = read_tool_table(here(self.tool_table)) if self.tool_table is not None else {}
+        for number, diameter_mm in self.tools.items():
+            tools[int(number)] = Tool(int(number), 0, diameter_mm * 1e-3)
         return read_program(
             here(self.file), drop_unsupported=self.drop_unsupported, block_delete=self.block_delete,
             max_blocks=int(self.max_blocks), subroutine_path=tuple(here(d) for d in self.subroutine_path),
             work_offsets_mm={WORK_SYSTEMS.index(k) + 1: tuple(v) for k, v in self.work_offsets.items()},
+            tools=tools,
         )  # fmt: skip
 
     def path(self) -> Plan:
