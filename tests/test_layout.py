@@ -186,7 +186,7 @@ TIERS: tuple[tuple[str, ...], ...] = (
     ("outputs", "telemetry"),
     ("scenario",),
     ("run",),
-    ("sweep", "link"),
+    ("sweep", "link", "fmi"),
     ("reports", "calibration", "tune"),
     ("cli",),
 )

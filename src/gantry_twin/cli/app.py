@@ -33,6 +33,7 @@ from gantry_twin.cli import compare as compare_command
 from gantry_twin.cli import compile as compile_command
 from gantry_twin.cli import excite as excite_command
 from gantry_twin.cli import export as export_command
+from gantry_twin.cli import fmu as fmu_command
 from gantry_twin.cli import identify as identify_command
 from gantry_twin.cli import report as report_command
 from gantry_twin.cli import runs as runs_command
@@ -118,7 +119,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(
         dest="command",
         required=True,
-        metavar="{run,monitor,validate,report,sweep,calibrate,tune,scenarios,sweeps,runs,export,compare,identify,excite,compile,serve}",
+        metavar="{run,monitor,validate,report,sweep,calibrate,tune,scenarios,sweeps,runs,export,compare,identify,excite,compile,serve,fmu}",
         parser_class=_Parser,
     )
 
@@ -134,6 +135,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_out(run)
     _add_plots(run)
     _add_strict(run)
+    fmu_command.add_log_argument(run)
     add_progress_arguments(run)
     add_telemetry_arguments(run)
 
@@ -152,6 +154,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--fail-on-alarm", action="store_true", help=f"exit with status {EXIT_ALARM} if the monitor raised any alarm"
     )
     _add_strict(monitor)
+    fmu_command.add_log_argument(monitor)
     add_progress_arguments(monitor)
     add_telemetry_arguments(monitor)
     shadow_command.add_arguments(monitor)
@@ -203,6 +206,7 @@ def build_parser() -> argparse.ArgumentParser:
     compile_parser = sub.add_parser("compile", help="compile the loops for this install before a first run")
     compile_command.add_arguments(compile_parser, DEFAULT_SCENARIO)
     compile_parser.set_defaults(func=compile_command.command)
+    fmu_command.register(sub)
     return parser
 
 
@@ -389,7 +393,7 @@ def _run(args: argparse.Namespace) -> int:
         ]
     if args.command == "monitor":
         overrides.insert(0, "monitor.enable=true")
-    scenario = load_scenario(path, overrides, args.controller)
+    scenario = fmu_command.with_logged_variables(load_scenario(path, overrides, args.controller), args.log_fmu_variables)
     try:
         built = build(scenario, str(path))
     except ScenarioError as exc:

@@ -37,6 +37,9 @@ from gantry_twin.fmi.instance import Instance
 from gantry_twin.numerics.jit import kernel
 from gantry_twin.numerics.jit import reference as uncompiled
 
+#: A logged FMU variable's key in the trace (and its trace.parquet column): ``fmu_<name>``, apart from the
+#: trace's own columns (an FMU's ``u_x_v`` is ``fmu_u_x_v``).
+LOG_PREFIX = "fmu_"
 #: Which call failed (FmuState.failed[1]).
 CALLS = ("", "fmi2SetReal", "fmi2DoStep", "fmi2GetReal")
 CALL_SET_REAL, CALL_DO_STEP, CALL_GET_REAL = 1, 2, 3
@@ -169,7 +172,7 @@ class FmuStep:
         params, state = self.kernel_arguments()
         out = np.zeros(len(self.fmu.logged))
         uncompiled(fmu_log)(params, state, out)
-        return {v.name: out[i : i + 1].copy() for i, v in enumerate(self.fmu.logged)}
+        return {LOG_PREFIX + v.name: out[i : i + 1].copy() for i, v in enumerate(self.fmu.logged)}
 
     def fault(self) -> str | None:
         """Why the last command is not finite: the FMU call that failed (None if none did)."""
@@ -227,5 +230,5 @@ def fmu_controller(
     checked = read_controller(fmu, variables, parameters, tuple(log_variables))
     if checked.needs_python:
         return PythonFmuController(checked)
-    cls = _with_log_layout(tuple((v.name, ()) for v in checked.logged)) if checked.logged else FmuController
+    cls = _with_log_layout(tuple((LOG_PREFIX + v.name, ()) for v in checked.logged)) if checked.logged else FmuController
     return cls(checked)

@@ -91,6 +91,7 @@ class ControllerFmu:
     parameters: tuple[tuple[Variable, float], ...]
     logged: tuple[Variable, ...]
     library: str  # the member of the archive that holds this platform's binary
+    settable: tuple[tuple[str, str], ...] = ()  # every Real parameter a scenario may set: (name, start value)
 
     def mapping_lines(self) -> list[str]:
         """The binding, one line per signal: ``x_m <- FMU input 'pos_x' (vr 1)``; unbound inputs as such."""
@@ -141,8 +142,24 @@ def read_controller(
     tool = str(description.generationTool or "")
     needs_python = tool.startswith("PythonFMU") or "resources/slavemodule.txt" in members
     inputs, outputs, params, logged = bind(path, description.modelVariables, variables, parameters, log_variables)
+    settable = tuple(
+        (v.name, str(v.start))
+        for v in description.modelVariables
+        if v.causality == "parameter" and v.type == "Real" and v.variability in ("fixed", "tunable")
+    )
     return ControllerFmu(
-        path, version, cs.modelIdentifier, str(description.guid), tool, needs_python, inputs, outputs, params, logged, library
+        path,
+        version,
+        cs.modelIdentifier,
+        str(description.guid),
+        tool,
+        needs_python,
+        inputs,
+        outputs,
+        params,
+        logged,
+        library,
+        settable,
     )
 
 
