@@ -393,7 +393,9 @@ def _run(args: argparse.Namespace) -> int:
         ]
     if args.command == "monitor":
         overrides.insert(0, "monitor.enable=true")
-    scenario = fmu_command.with_logged_variables(load_scenario(path, overrides, args.controller), args.log_fmu_variables)
+    scenario = fmu_command.with_logged_variables(
+        load_scenario(path, overrides, args.controller), args.log_fmu_variables
+    )
     try:
         built = build(scenario, str(path))
     except ScenarioError as exc:

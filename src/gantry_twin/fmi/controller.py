@@ -230,5 +230,7 @@ def fmu_controller(
     checked = read_controller(fmu, variables, parameters, tuple(log_variables))
     if checked.needs_python:
         return PythonFmuController(checked)
-    cls = _with_log_layout(tuple((LOG_PREFIX + v.name, ()) for v in checked.logged)) if checked.logged else FmuController
+    cls = (
+        _with_log_layout(tuple((LOG_PREFIX + v.name, ()) for v in checked.logged)) if checked.logged else FmuController
+    )
     return cls(checked)

@@ -50,10 +50,11 @@ DESCRIPTION = "modelDescription.xml"
 
 
 class FmuError(ValueError):
-    """An FMU that cannot be run as a controller: ``<file>: <what is wrong>``, one line."""
+    """An FMU that cannot be run as a controller: ``<file name>: <what is wrong>``, one line (short: a scenario's
+    error quotes 120 characters of it; the scenario names the whole path)."""
 
     def __init__(self, path: str | Path, what: str) -> None:
-        super().__init__(f"{path}: {what}")
+        super().__init__(f"{Path(path).name}: {what}")
         self.path, self.what = str(path), what
 
 
@@ -129,16 +130,16 @@ def read_controller(
     description = _description(path, members)
     version = str(description.fmiVersion)
     if not version.startswith("2."):
-        raise FmuError(path, f"FMI {version}: the loop runs FMI 2.0 co-simulation FMUs only")
+        raise FmuError(path, f"FMI {shorten(version, 12)}; the loop runs FMI 2.0 co-simulation FMUs")
     cs = description.coSimulation
     if cs is None:
-        raise FmuError(path, "a Model Exchange-only FMU: the loop runs co-simulation FMUs (FMI 2.0), which step themselves")
+        raise FmuError(path, "a Model Exchange-only FMU; the loop runs FMI 2.0 co-simulation FMUs")
     platform, suffix = this_platform()
     library = f"binaries/{platform}/{cs.modelIdentifier}{suffix}"
     if library not in members:
         found = sorted({m.split("/")[1] for m in members if m.startswith("binaries/") and m.count("/") >= 2})
-        has = f"it has binaries for {', '.join(found)}" if found else "it has no binaries/ at all"
-        raise FmuError(path, f"no binary for this platform ({library} is missing; {has})")
+        has = f"it has {shorten(', '.join(found), 40)}" if found else "it has none"
+        raise FmuError(path, f"no binary for this platform ({library}; {has})")
     tool = str(description.generationTool or "")
     needs_python = tool.startswith("PythonFMU") or "resources/slavemodule.txt" in members
     inputs, outputs, params, logged = bind(path, description.modelVariables, variables, parameters, log_variables)
@@ -166,7 +167,7 @@ def read_controller(
 def _members(path: Path) -> dict[str, int]:
     """The archive's members and their unpacked sizes; FmuError if it is not a zip or unpacks too large."""
     if not zipfile.is_zipfile(path):
-        raise FmuError(path, f"not a zip archive; an FMU is a zip holding {DESCRIPTION} and binaries/")
+        raise FmuError(path, "not a zip archive, so not an FMU")
     try:
         with zipfile.ZipFile(path) as archive:
             members = {info.filename: info.file_size for info in archive.infolist()}
@@ -180,7 +181,7 @@ def _members(path: Path) -> dict[str, int]:
 def _description(path: Path, members: dict[str, int]) -> Any:
     """fmpy's ModelDescription of the archive; FmuError if it is missing or cannot be read."""
     if DESCRIPTION not in members:
-        raise FmuError(path, f"no {DESCRIPTION} at the top of the archive: not an FMU")
+        raise FmuError(path, f"no {DESCRIPTION} at the top of the archive, so not an FMU")
     if members[DESCRIPTION] > DESCRIPTION_MAX_BYTES:
         raise FmuError(path, f"{DESCRIPTION} is larger than {DESCRIPTION_MAX_BYTES >> 20} MiB")
     from fmpy import read_model_description
@@ -189,7 +190,7 @@ def _description(path: Path, members: dict[str, int]) -> Any:
         return read_model_description(str(path), validate=True)
     except Exception as exc:  # fmpy raises plain Exceptions (schema, XML syntax, missing attributes)
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise FmuError(path, f"{DESCRIPTION} cannot be read ({shorten(first, 160)})") from None
+        raise FmuError(path, f"{DESCRIPTION} cannot be read ({shorten(first, 60)})") from None
 
 
 def bind(
@@ -208,9 +209,7 @@ def bind(
         if name not in by_name:
             raise FmuError(path, f"variables: {quote(name)} is not a variable of the FMU{_near(name, by_name)}")
         if signal not in signals:
-            raise FmuError(
-                path, f"variables.{shorten(name)}: {quote(signal)} is not a signal; give one of {', '.join(signals)}"
-            )
+            raise FmuError(path, f"variables.{shorten(name)}: {quote(signal)} is not a signal (docs/fmi.md lists them)")
     by_signal: dict[str, list[str]] = {}
     for name, signal in mapping.items():
         by_signal.setdefault(signal, []).append(name)
@@ -227,20 +226,14 @@ def bind(
     bound_inputs = {v.name for v in inputs}
     for v in model_variables:
         if v.causality == "input" and v.name not in bound_inputs:
-            raise FmuError(
-                path,
-                f"input {quote(v.name)} is bound to no signal; name it as one of {', '.join(INPUT_SIGNALS)} "
-                "or map it in controller.options.variables (docs/fmi.md)",
-            )
+            raise FmuError(path, f"input {quote(v.name)} is bound to no signal; map it in variables (docs/fmi.md)")
     outputs = []
     for signal in OUTPUT_SIGNALS:
         names = by_signal.get(signal, [])
         if not names:
-            raise FmuError(
-                path, f"no output for {signal}: declare an output named {signal} or map one in controller.options.variables"
-            )
+            raise FmuError(path, f"no output for {signal}; name one so or map one in variables")
         if len(names) > 1:
-            raise FmuError(path, f"{signal} is mapped from {len(names)} variables ({', '.join(map(quote, names))}); give one")
+            raise FmuError(path, f"{signal} is mapped from {len(names)} variables; give one")
         v = by_name[names[0]]
         _expect(path, v, signal, "output")
         outputs.append(Variable(v.name, int(v.valueReference), signal))
@@ -251,10 +244,7 @@ def bind(
         if v is None:
             raise FmuError(path, f"parameters: {quote(name)} is not a variable of the FMU{_near(name, by_name)}")
         if v.causality != "parameter" or v.variability not in ("fixed", "tunable"):
-            raise FmuError(
-                path, f"parameters: {quote(name)} has causality {v.causality}, variability {v.variability}; "
-                "expected a fixed or tunable parameter",
-            )
+            raise FmuError(path, f"parameters: {quote(name)} is a {v.variability} {v.causality}, not a parameter")
         if v.type != "Real":
             raise FmuError(path, f"parameters: {quote(name)} is {v.type}; only Real parameters are set")
         params.append((Variable(name, int(v.valueReference)), float(value)))
@@ -273,9 +263,7 @@ def bind(
 def _expect(path: Path, v: Any, signal: str, causality: str) -> None:
     """A bound variable has the causality its signal needs and is Real."""
     if v.causality != causality:
-        raise FmuError(
-            path, f"{quote(v.name)} (bound to {signal}) has causality {v.causality}; expected causality {causality}"
-        )
+        raise FmuError(path, f"{quote(v.name)} (bound to {signal}) has causality {v.causality}; expected {causality}")
     if v.type != "Real":
         raise FmuError(path, f"{quote(v.name)} (bound to {signal}) is {v.type}; expected Real")
 

@@ -59,7 +59,10 @@ class Instance:
             archive.extractall(self.directory)
         try:
             self.slave = FMU2Slave(
-                guid=fmu.guid, unzipDirectory=self.directory, modelIdentifier=fmu.model_identifier, instanceName="controller"
+                guid=fmu.guid,
+                unzipDirectory=self.directory,
+                modelIdentifier=fmu.model_identifier,
+                instanceName="controller",
             )
         except Exception as exc:  # a library that does not load, or lacks an FMI function
             raise FmuError(fmu.path, f"its binary cannot be loaded ({_first_line(exc)})") from None
