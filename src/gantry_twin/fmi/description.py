@@ -189,8 +189,10 @@ def _description(path: Path, members: dict[str, int]) -> Any:
     try:
         return read_model_description(str(path), validate=True)
     except Exception as exc:  # fmpy raises plain Exceptions (schema, XML syntax, missing attributes)
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise FmuError(path, f"{DESCRIPTION} cannot be read ({shorten(first, 60)})") from None
+        lines = [line.strip(" -") for line in str(exc).splitlines() if line.strip(" -")]
+        # fmpy's "Failed to validate modelDescription.xml:" says less than the problem listed under it
+        why = lines[1] if len(lines) > 1 and lines[0].endswith(":") else lines[0] if lines else type(exc).__name__
+        raise FmuError(path, f"{DESCRIPTION} cannot be read ({shorten(why, 60)})") from None
 
 
 def bind(

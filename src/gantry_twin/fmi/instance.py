@@ -103,7 +103,7 @@ class Instance:
         """The line for a call that failed during the run, and remembers the status (close then skips what FMI 2.0
         forbids after it)."""
         self.failed_status = status
-        return f"{self.fmu.path}: {call} returned {status_name(status)}{self._said()}"
+        return f"{self.fmu.path.name}: {call} returned {status_name(status)}{self._said()}"
 
     def close(self, terminate: bool = True) -> None:
         """fmi2Terminate (unless the FMU failed or ``terminate`` is False), fmi2FreeInstance (unless it was fatal),
