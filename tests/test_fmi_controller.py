@@ -356,17 +356,19 @@ def test_a_bad_fmu_is_refused_in_one_line(case, tmp_path, build, capsys, monkeyp
     assert not (tmp_path / "out").exists()
 
 
-def test_a_python_fmu_runs_on_the_python_loop(tmp_path):
-    """An FMU built with pythonfmu: PythonFmuController (no compiled step); the Python loop runs pd's law in it."""
+@pytest.fixture(scope="module")
+def python_fmu(tmp_path_factory) -> Path:
+    """pd's law as an FMU built with pythonfmu (examples/fmu-pd/pypd.py)."""
     pytest.importorskip("pythonfmu")
-    source = tmp_path / "pypd.py"
-    source.write_text(PYTHON_PD)
-    subprocess.run(
-        [sys.executable, "-m", "pythonfmu", "build", "-f", str(source), "-d", str(tmp_path)],
-        check=True,
-        capture_output=True,
-    )
-    controller = fmu_controller(tmp_path / "pypd.fmu", parameters=GAINS)
+    where = tmp_path_factory.mktemp("pythonfmu")
+    command = [sys.executable, "-m", "pythonfmu", "build", "-f", str(EXAMPLE / "pypd.py"), "-d", str(where)]
+    subprocess.run(command, check=True, capture_output=True)
+    return where / "pypd.fmu"
+
+
+def test_a_python_fmu_runs_on_the_python_loop(python_fmu):
+    """An FMU built with pythonfmu: PythonFmuController (no compiled step); the Python loop runs pd's law in it."""
+    controller = fmu_controller(python_fmu, parameters=GAINS)
     assert isinstance(controller, PythonFmuController)
     path, timing, plant = circle(), TimingLaw(2.0, "on_path"), Plant()
     ours = simulate(plant, path, timing, controller, 0.02)
@@ -374,33 +376,14 @@ def test_a_python_fmu_runs_on_the_python_loop(tmp_path):
     assert np.array_equal(ours.q_m, pd.q_m)
 
 
-#: pd's law as a pythonfmu slave, in the order of operations of controllers/pd.py.
-PYTHON_PD = """
-from pythonfmu import Fmi2Causality, Fmi2Slave, Fmi2Variability, Real
-
-
-class pypd(Fmi2Slave):
-    def __init__(self, **kwargs):
-        super().__init__(**kwargs)
-        names = ["x_m", "y_m", "dx_m_s", "dy_m_s", "x_d_m", "y_d_m", "dx_d_m_s", "dy_d_m_s", "ddx_d_m_s2", "ddy_d_m_s2"]
-        for name in names:
-            setattr(self, name, 0.0)
-            self.register_variable(Real(name, causality=Fmi2Causality.input))
-        for name in ["u_x_v", "u_y_v"]:
-            setattr(self, name, 0.0)
-            self.register_variable(Real(name, causality=Fmi2Causality.output))
-        for name in ["kp_x", "kp_y", "kd_x", "kd_y", "kv_x", "kv_y", "ka_x", "ka_y"]:
-            setattr(self, name, 1.0)
-            self.register_variable(Real(name, causality=Fmi2Causality.parameter, variability=Fmi2Variability.tunable))
-
-    def do_step(self, current_time, step_size):
-        for a in "xy":
-            e = getattr(self, f"{a}_m") - getattr(self, f"{a}_d_m")
-            de = getattr(self, f"d{a}_m_s") - getattr(self, f"d{a}_d_m_s")
-            u = -getattr(self, f"kp_{a}") * e - getattr(self, f"kd_{a}") * de
-            u = u + getattr(self, f"kv_{a}") * getattr(self, f"d{a}_d_m_s") + getattr(self, f"ka_{a}") * getattr(
-                self, f"dd{a}_d_m_s2"
-            )
-            setattr(self, f"u_{a}_v", u)
-        return True
-"""
+def test_a_python_fmus_run_says_so_and_its_cost(python_fmu, tmp_path, capsys):
+    (tmp_path / "s.yaml").write_text(_scenario(python_fmu, 0.02))
+    code, _, err = run_main(["run", str(tmp_path / "s.yaml"), "--out", str(tmp_path / "out"), "--no-plots"], capsys)
+    assert code == 0, err
+    assert re.search(
+        r"note: pypd\.fmu needs Python \(built with PythonFMU [^)]*\): it ran on the Python loop, \d+ us per "
+        r"sample \(100 samples in",
+        err,
+    ), err
+    code, out, _ = run_main(["fmu", "check", str(python_fmu)], capsys)
+    assert code == 0 and "needs Python (built with pythonfmu): runs on the Python loop" in out

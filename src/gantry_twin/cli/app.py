@@ -431,6 +431,8 @@ def _run(args: argparse.Namespace) -> int:
     if telemetry.recording_failed is not None:  # e.g. a full disk: the run's files are complete, the recording not
         print(f"{PROG}: {telemetry.recording_failed}; the run's results are in {out}/", file=sys.stderr)
         return EXIT_RUN_FAILED
+    if (note := fmu_command.python_loop_note(built.controller, outcome.summary.steps, outcome.wall_time_s)) is not None:
+        print(note, file=sys.stderr)
     if writer.plots_skipped is not None:
         print(f"{PROG}: note: no plots: {writer.plots_skipped}", file=sys.stderr)
     for line in travel_warnings(outcome.summary):

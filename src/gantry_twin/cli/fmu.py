@@ -76,6 +76,21 @@ def with_logged_variables(scenario: Scenario, names: tuple[str, ...]) -> Scenari
     return scenario.model_copy(update={"controller": controller.model_copy(update={"options": options})})
 
 
+def python_loop_note(controller: object, samples: int, wall_time_s: float) -> str | None:
+    """The note ``run`` prints after a run of an FMU that needs Python: it ran on the Python loop, and its cost per
+    sample; None for any other controller."""
+    from gantry_twin.fmi.controller import PythonFmuController
+
+    if not isinstance(controller, PythonFmuController) or samples <= 0:
+        return None
+    tool = controller.fmu.generation_tool or "pythonfmu"
+    return (
+        f"{PROG}: note: {controller.fmu.path.name} needs Python (built with {tool}): it ran on the Python loop, "
+        f"{wall_time_s / samples * 1e6:.0f} us per sample ({samples} samples in "
+        f"{wall_time_s:.1f} s; a native FMU runs in the compiled loop, docs/fmi.md)"
+    )
+
+
 def check_command(args: argparse.Namespace) -> int:
     """Read and check the FMU, start one instance (unpack, load, instantiate, initialise, terminate), print the
     binding; exit 2 with one line if it cannot run as a controller."""
