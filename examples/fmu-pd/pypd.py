@@ -18,8 +18,18 @@ class pypd(Fmi2Slave):
         for name in ["u_x_v", "u_y_v"]:
             setattr(self, name, 0.0)
             self.register_variable(Real(name, causality=Fmi2Causality.output))
-        for name in ["kp_x", "kp_y", "kd_x", "kd_y", "kv_x", "kv_y", "ka_x", "ka_y"]:
-            setattr(self, name, 1.0)
+        gains = {
+            "kp_x": 1e4,
+            "kp_y": 1e4,
+            "kd_x": 100.0,
+            "kd_y": 100.0,
+            "kv_x": 0.5,
+            "kv_y": 0.7,
+            "ka_x": 0.12,
+            "ka_y": 0.5,
+        }
+        for name, start in gains.items():  # pd's defaults, as in pd.c
+            setattr(self, name, start)
             self.register_variable(Real(name, causality=Fmi2Causality.parameter, variability=Fmi2Variability.tunable))
 
     def do_step(self, current_time, step_size):

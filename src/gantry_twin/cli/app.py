@@ -1,5 +1,5 @@
 """The command line: ``gantry-twin run | monitor | validate | report | sweep | scenarios | sweeps | export | compare |
-identify | excite`` (docs/cli.md, docs/sweeps.md, docs/logs.md).
+identify | excite | fmu`` (docs/cli.md, docs/sweeps.md, docs/logs.md, docs/fmi.md).
 
 Exit codes: 0 success; 2 bad input (one line on stderr naming the file, the
 field and what is allowed; nothing written), an output directory that
