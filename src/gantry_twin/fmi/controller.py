@@ -215,7 +215,7 @@ def _with_log_layout(layout: LogLayout) -> type[FmuController]:
 
 
 def fmu_controller(
-    fmu: Path,
+    fmu: Path | None = None,
     variables: dict[str, str] | None = None,
     parameters: dict[str, float] | None = None,
     log_variables: tuple[str, ...] = (),
@@ -227,6 +227,8 @@ def fmu_controller(
     initialisation. log_variables: FMU variables recorded every sample into the trace, as a plug-in's state.
     FmuError (a ValueError) naming the file if the FMU cannot run.
     """
+    if fmu is None:
+        raise ValueError("no FMU: give controller.options.fmu, the .fmu file (docs/fmi.md)")
     checked = read_controller(fmu, variables, parameters, tuple(log_variables))
     if checked.needs_python:
         return PythonFmuController(checked)
