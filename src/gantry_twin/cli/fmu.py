@@ -12,11 +12,9 @@ from pathlib import Path
 
 from gantry_twin.cli.common import EXIT_OK, PROG, BadInput
 from gantry_twin.fmi.description import INPUT_SIGNALS, OUTPUT_SIGNALS, FmuError, read_controller
+from gantry_twin.fmi.instance import trial_start
 from gantry_twin.scenario import Scenario
 from gantry_twin.settings import shorten
-
-#: The communication step of ``fmu check``'s trial start, s: the twin's sample period (models/gantry.xml's timestep).
-CHECK_STEP_S = 2e-4
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -102,7 +100,7 @@ def check_command(args: argparse.Namespace) -> int:
         variables[name] = signal
     try:
         fmu = read_controller(args.file, variables, None, args.log_fmu_variables)
-        _start_once(fmu)
+        trial_start(fmu)
     except FmuError as exc:
         raise BadInput(str(exc)) from None
     how = (
@@ -118,11 +116,3 @@ def check_command(args: argparse.Namespace) -> int:
         print(f"  settable parameter {name!r} (start {start}): controller.options.parameters.{name}")
     print(f"{PROG}: {args.file}: ok, runs as controller: {{name: fmu, options: {{fmu: {args.file}}}}}", file=sys.stderr)
     return EXIT_OK
-
-
-def _start_once(fmu: object) -> None:
-    """Unpack, load, instantiate and initialise the FMU at t = 0 with the 0.2 ms step, then end it (FmuError if any
-    of it fails)."""
-    from gantry_twin.fmi.instance import Instance
-
-    Instance(fmu, 0.0, CHECK_STEP_S).close()  # type: ignore[arg-type]

@@ -33,7 +33,7 @@ from gantry_twin.controllers.base import (
 )
 from gantry_twin.fmi.calls import FMI2_WARNING, do_step, get_real, set_real
 from gantry_twin.fmi.description import INPUT_SIGNALS, ControllerFmu, read_controller
-from gantry_twin.fmi.instance import Instance
+from gantry_twin.fmi.instance import Instance, trial_start
 from gantry_twin.numerics.jit import kernel
 from gantry_twin.numerics.jit import reference as uncompiled
 
@@ -225,11 +225,12 @@ def fmu_controller(
     fmu: the .fmu file (a scenario's is relative to the scenario file). variables: {FMU variable: signal} for
     variables not named as the convention's signals. parameters: {FMU parameter: value}, set before
     initialisation. log_variables: FMU variables recorded every sample into the trace, as a plug-in's state.
-    FmuError (a ValueError) naming the file if the FMU cannot run.
+    FmuError (a ValueError) naming the file if the FMU cannot run: checked, then started once and ended.
     """
     if fmu is None:
         raise ValueError("no FMU: give controller.options.fmu, the .fmu file (docs/fmi.md)")
     checked = read_controller(fmu, variables, parameters, tuple(log_variables))
+    trial_start(checked)  # a binary that does not load is bad input too: refused before the run, as the rest
     if checked.needs_python:
         return PythonFmuController(checked)
     cls = (

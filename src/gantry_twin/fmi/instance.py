@@ -23,6 +23,8 @@ from gantry_twin.settings import shorten
 
 #: How many of the FMU's log messages are kept for an error message.
 LOG_KEPT = 4
+#: The communication step of a trial start (:func:`trial_start`), s: the twin's sample period (models/gantry.xml).
+TRIAL_STEP_S = 2e-4
 
 
 def _remove(directory: str) -> None:
@@ -65,7 +67,8 @@ class Instance:
                 instanceName="controller",
             )
         except Exception as exc:  # a library that does not load, or lacks an FMI function
-            raise FmuError(fmu.path, f"its binary cannot be loaded ({_first_line(exc)})") from None
+            why = _first_line(exc).replace(f"{Path(self.directory).resolve()}/", "").replace(f"{self.directory}/", "")
+            raise FmuError(fmu.path, f"its binary cannot be loaded ({shorten(why.split('. ')[-1], 70)})") from None
         self.callbacks = fmi2CallbackFunctions()
         self.callbacks.logger = fmi2CallbackLoggerTYPE(self._log)
         from fmpy import calloc, free
@@ -127,11 +130,12 @@ class Instance:
             raise FmuError(self.fmu.path, problem)
 
 
+def trial_start(fmu: ControllerFmu) -> None:
+    """Unpack, load, instantiate and initialise the FMU at t = 0, then end it and remove its files: FmuError if
+    any of it fails (a binary that does not load, an instantiation or initialisation that fails), before a run."""
+    Instance(fmu, 0.0, TRIAL_STEP_S).close()
+
+
 def _first_line(exc: BaseException) -> str:
     text = str(exc).strip()
     return shorten(text.splitlines()[0], 160) if text else type(exc).__name__
-
-
-def temporary_root() -> Path:
-    """Where instances unpack their FMUs (a ``gantry-twin-fmu-*`` directory each)."""
-    return Path(tempfile.gettempdir())
