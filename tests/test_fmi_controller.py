@@ -352,6 +352,8 @@ def _make_case(case: str, directory: Path, build) -> str:
         members["modelDescription.xml"] = xml.replace('name="u_y_v"', 'name="u_y"')
     elif case == "fmu_parameter_not_a_parameter":
         options += ", parameters: {x_m: 1.0}"
+    elif case == "fmu_parameter_infinite":
+        options += ", parameters: {kp_x: .inf}"
     elif case == "fmu_log_variable_missing":
         options += ", log_variables: [e_x]"
     else:

@@ -187,6 +187,7 @@ class FmuStep:
         instance, self.instance = self.instance, None
         self._params = None
         if instance is not None:
+            instance.failed_status = max(instance.failed_status, int(self._state.failed[0]))  # what FMI then forbids
             instance.close()
 
 

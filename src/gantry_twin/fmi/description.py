@@ -14,6 +14,7 @@ measurement and the reference sample of the plug-in interface, SI) and reads the
 
 from __future__ import annotations
 
+import math
 import zipfile
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -249,7 +250,11 @@ def bind(
             raise FmuError(path, f"parameters: {quote(name)} is a {v.variability} {v.causality}, not a parameter")
         if v.type != "Real":
             raise FmuError(path, f"parameters: {quote(name)} is {v.type}; only Real parameters are set")
-        params.append((Variable(name, int(v.valueReference)), float(value)))
+        value = float(value)
+        lo, hi = _bound(v.min, -math.inf), _bound(v.max, math.inf)
+        if not (math.isfinite(value) and lo <= value <= hi):
+            raise FmuError(path, f"parameters.{shorten(name)}: must be in [{lo:g}, {hi:g}] (the FMU's), got {value:g}")
+        params.append((Variable(name, int(v.valueReference)), value))
 
     logged = []
     for name in log_variables:
@@ -260,6 +265,14 @@ def bind(
             raise FmuError(path, f"log_variables: {quote(name)} is {v.type}; only Real variables are logged")
         logged.append(Variable(name, int(v.valueReference)))
     return tuple(inputs), (outputs[0], outputs[1]), tuple(params), tuple(logged)
+
+
+def _bound(text: Any, default: float) -> float:
+    """A variable's declared min or max as a number (its absence: ``default``)."""
+    try:
+        return default if text is None else float(text)
+    except (TypeError, ValueError):
+        return default
 
 
 def _expect(path: Path, v: Any, signal: str, causality: str) -> None:
