@@ -134,7 +134,7 @@ class FmuStep:
     def reset(self, context: RunContext) -> None:
         """A fresh instance at the first measurement's time, the communication step the sample period."""
         self.close()
-        self.instance = Instance(self.fmu, float(context.initial_measurement.t_s), float(context.sample_period_s))
+        self.instance = Instance(self.fmu, float(context.initial_measurement.t_s))
         f = self.fmu
         self._params = FmuParams(
             *self.instance.addresses,

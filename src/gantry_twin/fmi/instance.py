@@ -23,8 +23,6 @@ from gantry_twin.settings import shorten
 
 #: How many of the FMU's log messages are kept for an error message.
 LOG_KEPT = 4
-#: The communication step of a trial start (:func:`trial_start`), s: the twin's sample period (models/gantry.xml).
-TRIAL_STEP_S = 2e-4
 
 
 def _remove(directory: str) -> None:
@@ -38,7 +36,7 @@ class Instance:
     (fmi2Terminate, fmi2FreeInstance) and removes the unpacked files; FmuError if fmi2Terminate fails.
     """
 
-    def __init__(self, fmu: ControllerFmu, start_s: float, step_s: float) -> None:
+    def __init__(self, fmu: ControllerFmu, start_s: float) -> None:
         self.fmu = fmu
         self.messages: collections.deque[str] = collections.deque(maxlen=LOG_KEPT)
         self.directory = tempfile.mkdtemp(prefix="gantry-twin-fmu-")
@@ -47,12 +45,12 @@ class Instance:
         self.slave: Any = None
         self.failed_status = 0
         try:
-            self._start(start_s, step_s)
+            self._start(start_s)
         except BaseException:
             self.close(terminate=False)
             raise
 
-    def _start(self, start_s: float, step_s: float) -> None:
+    def _start(self, start_s: float) -> None:
         from fmpy.fmi1 import FMICallException
         from fmpy.fmi2 import FMU2Slave, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE
 
@@ -133,7 +131,7 @@ class Instance:
 def trial_start(fmu: ControllerFmu) -> None:
     """Unpack, load, instantiate and initialise the FMU at t = 0, then end it and remove its files: FmuError if
     any of it fails (a binary that does not load, an instantiation or initialisation that fails), before a run."""
-    Instance(fmu, 0.0, TRIAL_STEP_S).close()
+    Instance(fmu, 0.0).close()
 
 
 def _first_line(exc: BaseException) -> str:
