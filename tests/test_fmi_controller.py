@@ -220,10 +220,15 @@ def test_the_unpacked_fmu_is_removed_on_sigint(fmus, tmp_path):
     command = [sys.executable, "-m", "gantry_twin", "run", "s.yaml", "--out", "out", "--no-plots", "--no-progress"]
     child = subprocess.Popen(command, cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     try:
-        deadline = time.monotonic() + 120
-        while not list(root.glob("gantry-twin-fmu-*")) and time.monotonic() < deadline and child.poll() is None:
-            time.sleep(0.05)
-        assert list(root.glob("gantry-twin-fmu-*")), "the FMU was never unpacked"
+        deadline = time.monotonic() + 180
+        running = False  # the run's instance: a directory that stays (the build's trial start removes its own at once)
+        while not running and time.monotonic() < deadline and child.poll() is None:
+            time.sleep(0.5)
+            running = bool(list(root.glob("gantry-twin-fmu-*")))
+            if running:
+                time.sleep(1.0)
+                running = bool(list(root.glob("gantry-twin-fmu-*")))
+        assert running, "the FMU was never unpacked for the run"
         child.send_signal(signal.SIGINT)
         _, err = child.communicate(timeout=60)
     finally:
