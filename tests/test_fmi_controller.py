@@ -322,6 +322,8 @@ def _make_case(case: str, directory: Path, build) -> str:
             '<CoSimulation modelIdentifier="pd" canHandleVariableCommunicationStepSize="true"/>',
             '<ModelExchange modelIdentifier="pd"/>',
         )
+    elif case == "fmu_fmi_3":
+        members["modelDescription.xml"] = FMI3_DESCRIPTION
     elif case == "fmu_no_binary_for_this_platform":
         members["binaries/win64/pd.dll"] = members.pop("binaries/linux64/pd.so")
     elif case == "fmu_binary_not_loadable":
@@ -365,6 +367,18 @@ def _make_case(case: str, directory: Path, build) -> str:
         raise AssertionError(f"no such case {case}")
     _zip(directory / "pd.fmu", members)
     return options
+
+
+#: A minimal FMI 3.0 co-simulation description (fmpy reads it).
+FMI3_DESCRIPTION = """<?xml version="1.0" encoding="UTF-8"?>
+<fmiModelDescription fmiVersion="3.0" modelName="pd" instantiationToken="{6f1d2c1e-5b0a-4c1e-9a53-7d2f0e3b8a11}">
+  <CoSimulation modelIdentifier="pd"/>
+  <ModelVariables>
+    <Float64 name="time" valueReference="0" causality="independent" variability="continuous"/>
+  </ModelVariables>
+  <ModelStructure/>
+</fmiModelDescription>
+"""
 
 
 def documented_cases() -> dict[str, str]:
