@@ -23,6 +23,7 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
+import gantry_twin
 from gantry_twin import Plant, TimingLaw, circle, run_scenario, simulate
 from gantry_twin.controllers import PD
 from gantry_twin.fmi import fmu_controller
@@ -37,6 +38,9 @@ ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "examples" / "fmu-pd"
 DOC = ROOT / "docs" / "hostile-input.md"
 SECTION = "## Controller FMUs"
+#: Where this process imported gantry_twin from (the source tree or an install): a child imports the same code, so
+#: that it finds the loops this process compiled in numba's cache (keyed on the install path).
+IMPORTED_FROM = str(Path(gantry_twin.__file__).resolve().parents[1])
 
 pytestmark = pytest.mark.skipif(
     shutil.which("gcc") is None, reason="gcc not found: the test FMUs are built from C (examples/fmu-pd/pd.c) with gcc"
@@ -129,7 +133,8 @@ def test_the_python_loop_runs_the_same_step_to_the_bit(fmus):
 
 def test_a_new_process_loads_the_fmus_loop_from_numbas_cache(fmus):
     """The loop takes the FMU's addresses as arguments: a new process (other addresses) loads it from the cache that
-    the runs above filled, and it runs there (pd's trajectory)."""
+    this process filled, and it runs there (pd's trajectory)."""
+    simulate(Plant(), circle(), TimingLaw(2.0, "on_path"), fmu_controller(fmus["pd"], parameters=GAINS), 0.01)
     code = f"""
 import numpy as np
 from gantry_twin import Plant, TimingLaw, circle, simulate
@@ -142,7 +147,7 @@ a = simulate(Plant(), circle(), TimingLaw(2.0, "on_path"), controller, 0.05)
 b = simulate(Plant(), circle(), TimingLaw(2.0, "on_path"), PD(), 0.05)
 assert np.array_equal(a.q_m, b.q_m)
 """
-    env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
+    env = {**os.environ, "PYTHONPATH": IMPORTED_FROM}
     done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
 
@@ -216,7 +221,7 @@ def test_the_unpacked_fmu_is_removed_on_sigint(fmus, tmp_path):
     root = tmp_path / "tmp"
     root.mkdir()
     (tmp_path / "s.yaml").write_text(_scenario(fmus["pd"], 600))
-    env = {**os.environ, "TMPDIR": str(root), "PYTHONPATH": str(ROOT / "src")}
+    env = {**os.environ, "TMPDIR": str(root), "PYTHONPATH": IMPORTED_FROM}
     command = [sys.executable, "-m", "gantry_twin", "run", "s.yaml", "--out", "out", "--no-plots", "--no-progress"]
     child = subprocess.Popen(command, cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     try:
