@@ -25,7 +25,8 @@ import pytest
 
 import gantry_twin
 from gantry_twin import Plant, TimingLaw, circle, run_scenario, simulate
-from gantry_twin.controllers import PD
+from gantry_twin.controllers import PD, Measurement, ReferenceSample, RunContext
+from gantry_twin.controllers.base import REF_DDQ, REF_DQ, REF_Q
 from gantry_twin.fmi import fmu_controller
 from gantry_twin.fmi.controller import FmuController, PythonFmuController
 from gantry_twin.fmi.description import read_controller
@@ -120,6 +121,27 @@ def test_other_gains_give_another_trajectory(fmus):
     assert not np.array_equal(a.q_m[:, 0], b.q_m[:, 0])
 
 
+def test_every_signal_reaches_its_input_and_a_mapping_moves_one(fmus):
+    """One sample through update() (the step uncompiled): the FMU's law on the signals it is given, by the formula
+    computed here; with ``variables: {ddx_d_m_s2: t_s}`` the X feed-forward multiplies the sample's time."""
+    rng = np.random.default_rng(7)
+    q, dq, ref = rng.normal(size=2), rng.normal(size=2), rng.normal(size=9)
+    t_s = 0.37
+    context = RunContext(2e-4, np.array([1e9, 1e9]), Measurement(0.0, q, dq))
+    for variables, ddx in (({}, ref[REF_DDQ]), ({"ddx_d_m_s2": "t_s"}, t_s)):
+        controller = fmu_controller(fmus["pd"], variables=variables, parameters=GAINS)
+        controller.reset(context)
+        try:
+            u = controller.update(Measurement(t_s, q, dq), ReferenceSample.from_row(ref))
+        finally:
+            controller.close()
+        feed = (ddx, ref[REF_DDQ + 1])
+        for i, a in enumerate("xy"):
+            e, de = q[i] - ref[REF_Q + i], dq[i] - ref[REF_DQ + i]
+            expected = -GAINS[f"kp_{a}"] * e - GAINS[f"kd_{a}"] * de + GAINS[f"kv_{a}"] * ref[REF_DQ + i]
+            assert u[i] == expected + GAINS[f"ka_{a}"] * feed[i]
+
+
 def test_the_python_loop_runs_the_same_step_to_the_bit(fmus):
     """The reference backend calls the FMU through ctypes (the same step, uncompiled): the same trace."""
     path, timing, plant = circle(), TimingLaw(2.0, "on_path"), Plant()
@@ -138,7 +160,8 @@ def test_a_new_process_loads_the_fmus_loop_from_numbas_cache(fmus):
     code = f"""
 import numpy as np
 from gantry_twin import Plant, TimingLaw, circle, simulate
-from gantry_twin.controllers import PD
+from gantry_twin.controllers import PD, Measurement, ReferenceSample, RunContext
+from gantry_twin.controllers.base import REF_DDQ, REF_DQ, REF_Q
 from gantry_twin.fmi import fmu_controller
 from gantry_twin.loop.simulate import loop_needs_compiling
 controller = fmu_controller({str(fmus["pd"])!r}, parameters={GAINS!r})
