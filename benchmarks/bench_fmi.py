@@ -4,11 +4,11 @@
 
 ``controller``: the per-sample CPU of a native controller FMU in the compiled loop over the built-in ``pd``'s,
 side by side in one run. The FMU is examples/fmu-pd/pd.c (the same law as ``pd``, built with gcc by
-examples/fmu-pd/build.py), run with pd's gains on the no-load circle on ``Plant()`` (models/gantry.xml); both loops are compiled (and warmed up)
-first, then timed interleaved, ``--repeats`` times each, ``--seconds`` simulated per run, best of each. CPU is the
-process's (``time.process_time``: every thread), wall beside it. The bar is 1.3 (the FMU's loop at most 1.3 times
-pd's). Also, for the record: the same law as an FMU built with pythonfmu (examples/fmu-pd/pypd.py), which runs on
-the Python loop, one run, over ``pd``'s compiled loop.
+examples/fmu-pd/build.py), run with pd's gains on the no-load circle on ``Plant()`` (models/gantry.xml); both
+loops are compiled (and warmed up) first, then timed interleaved, ``--repeats`` times each, ``--seconds``
+simulated per run, best of each. CPU is the process's (``time.process_time``: every thread), wall beside it. The
+bar is 1.3 (the FMU's loop at most 1.3 times pd's). Also, for the record: the same law as an FMU built with
+pythonfmu (examples/fmu-pd/pypd.py), which runs on the Python loop, one run, over ``pd``'s compiled loop.
 """
 
 from __future__ import annotations
