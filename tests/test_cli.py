@@ -96,7 +96,7 @@ MALFORMED = [
     ),
     ("disturbance_not_list", "disturbance: {y: {type: step, value_v: 1}}\n", "disturbance.y", "valid list"),
     ("ramp_missing_end", "disturbance: {y: [{type: ramp, to_v: 1}]}\n", "disturbance.y[0].end_s", "required"),
-    ("unknown_controller", "controller: {name: lqr}\n", "controller", "available: darc, diarc, drc, pd"),
+    ("unknown_controller", "controller: {name: lqr}\n", "controller", "available: darc, diarc, drc, fmu, pd"),
     ("controller_not_mapping", "controller: diarc\n", "controller", "valid dictionary"),
     (
         "unknown_controller_option",

@@ -44,7 +44,7 @@ def test_help_lists_the_controllers_registered_plug_ins_included(capsys):
             code, out, _ = run_main([command, "--help"], capsys)
             assert code == 0
             text = " ".join(out.split()).replace("gantry- twin", "gantry-twin")  # argparse wraps the help
-            assert "instead of the scenario's: darc, diarc, drc, my_plug_in, pd" in text
+            assert "instead of the scenario's: darc, diarc, drc, fmu, my_plug_in, pd" in text
             assert command == "validate" or "gantry-twin scenarios lists them" in text
     finally:
         unregister("my_plug_in")

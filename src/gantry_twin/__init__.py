@@ -1,5 +1,6 @@
 """gantry-twin: a MuJoCo digital twin of a biaxial linear-motor gantry (Hu, Yao, Wang 2010)."""
 
+import gantry_twin.fmi  # noqa: F401 -- registers the controller "fmu" (a room above the core: docs/fmi.md)
 from gantry_twin.controllers import available, create, register
 from gantry_twin.loop.simulate import simulate
 from gantry_twin.loop.trace import Trace

@@ -1,5 +1,5 @@
 """The command line: ``gantry-twin run | monitor | validate | report | sweep | scenarios | sweeps | export | compare |
-identify | excite`` (docs/cli.md, docs/sweeps.md, docs/logs.md).
+identify | excite | fmu`` (docs/cli.md, docs/sweeps.md, docs/logs.md, docs/fmi.md).
 
 Exit codes: 0 success; 2 bad input (one line on stderr naming the file, the
 field and what is allowed; nothing written), an output directory that
@@ -32,6 +32,7 @@ from gantry_twin.cli import compare as compare_command
 from gantry_twin.cli import compile as compile_command
 from gantry_twin.cli import excite as excite_command
 from gantry_twin.cli import export as export_command
+from gantry_twin.cli import fmu as fmu_command
 from gantry_twin.cli import identify as identify_command
 from gantry_twin.cli import program as program_command
 from gantry_twin.cli import report as report_command
@@ -118,7 +119,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(
         dest="command",
         required=True,
-        metavar="{run,monitor,validate,report,sweep,calibrate,tune,scenarios,sweeps,runs,export,compare,identify,excite,compile,serve}",
+        metavar="{run,monitor,validate,report,sweep,calibrate,tune,scenarios,sweeps,runs,export,compare,identify,excite,compile,serve,fmu}",
         parser_class=_Parser,
     )
 
@@ -135,6 +136,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_plots(run)
     _add_strict(run)
     program_command.add_arguments(run)
+    fmu_command.add_log_argument(run)
     add_progress_arguments(run)
     add_telemetry_arguments(run)
 
@@ -153,6 +155,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--fail-on-alarm", action="store_true", help=f"exit with status {EXIT_ALARM} if the monitor raised any alarm"
     )
     _add_strict(monitor)
+    fmu_command.add_log_argument(monitor)
     add_progress_arguments(monitor)
     add_telemetry_arguments(monitor)
     shadow_command.add_arguments(monitor)
@@ -205,6 +208,7 @@ def build_parser() -> argparse.ArgumentParser:
     compile_parser = sub.add_parser("compile", help="compile the loops for this install before a first run")
     compile_command.add_arguments(compile_parser, DEFAULT_SCENARIO)
     compile_parser.set_defaults(func=compile_command.command)
+    fmu_command.register(sub)
     return parser
 
 
@@ -391,7 +395,9 @@ def _run(args: argparse.Namespace) -> int:
     overrides[:0] = program_command.overrides(args, program)
     if args.command == "monitor":
         overrides.insert(0, "monitor.enable=true")
-    scenario = load_scenario(path, overrides, args.controller)
+    scenario = fmu_command.with_logged_variables(
+        load_scenario(path, overrides, args.controller), args.log_fmu_variables
+    )
     try:
         built = build(scenario, str(path))
     except ScenarioError as exc:
@@ -427,6 +433,8 @@ def _run(args: argparse.Namespace) -> int:
     if telemetry.recording_failed is not None:  # e.g. a full disk: the run's files are complete, the recording not
         print(f"{PROG}: {telemetry.recording_failed}; the run's results are in {out}/", file=sys.stderr)
         return EXIT_RUN_FAILED
+    if (note := fmu_command.python_loop_note(built.controller, outcome.summary.steps, outcome.wall_time_s)) is not None:
+        print(note, file=sys.stderr)
     if writer.plots_skipped is not None:
         print(f"{PROG}: note: no plots: {writer.plots_skipped}", file=sys.stderr)
     for line in travel_warnings(outcome.summary):

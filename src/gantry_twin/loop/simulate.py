@@ -224,9 +224,31 @@ def simulate(
                     raise error
         for observer in observers:
             observer.on_end(trace)
-    finally:
+    except BaseException:
         _restore(model, saved)
+        _close(controller, None)  # the run's own error (or the interrupt) is what is raised
+        raise
+    _restore(model, saved)
+    _close(controller, trace)
     return trace
+
+
+def _close(controller: Controller, trace: Trace | None) -> None:
+    """The controller's optional ``close()`` (it releases what ``reset`` took: an FMU's instance, its files).
+    After a run that went well (``trace``) an exception from it fails the run at its last sample; after a run
+    that failed, the run's own error stands."""
+    close = getattr(controller, "close", None)
+    if not callable(close):
+        return
+    try:
+        close()
+    except Exception as exc:
+        if trace is None:
+            return
+        why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        error = _stopped_at(trace, trace.first + trace.t_s.size - 1, "closing the controller failed", f": {why}")
+        error.trace = trace
+        raise error from exc
 
 
 def _changed_fields(model: mujoco.MjModel) -> tuple[np.ndarray, ...]:
@@ -286,7 +308,7 @@ class _Loop:
         controller.reset(RunContext(plant.timestep_s, u_max.copy(), Measurement(t0, position, velocity)))
 
         self.plant = plant_io(plant, u_max)
-        self.encoder, self.changes, self.compiled = sensor, changes, compiled
+        self.encoder, self.changes, self.compiled, self.controller = sensor, changes, compiled, controller
         if compiled is not None:
             self.params, self.state = controller.kernel_arguments()
             self.function = _chunk_for(compiled)
@@ -337,6 +359,10 @@ class _Loop:
             q, dq = self.sample.position.copy(), self.sample.velocity.copy()
             return k, _stopped_at(self.trace, k, "non-finite measurement", f": q = {q}, q' = {dq}")
         if status == STATUS_BAD_COMMAND:
+            fault = getattr(self.controller, "fault", None)
+            why = fault() if callable(fault) else None  # a controller that wraps outside code says what failed
+            if why:
+                return k, _stopped_at(self.trace, k, "the controller failed", f": {why}")
             command = self.sample.command.copy()
             return k, _stopped_at(self.trace, k, f"controller returned {command!r}", "; expected 2 finite volts")
         return stop, None

@@ -66,6 +66,7 @@ def build(scenario: Scenario, source: str = "<scenario>") -> BuiltRun:
     _check_travel(plant, path, source)
     _check_samples(scenario, plant.timestep_s, source)
     kwargs = controller_options(scenario, source)
+    scenario, kwargs = _controller_files(scenario, kwargs, source)
     try:
         controller = create(scenario.controller.name, **kwargs)
     except PluginError as exc:  # its module is missing, raised at import, or its factory raised or exited
@@ -79,6 +80,21 @@ def build(scenario: Scenario, source: str = "<scenario>") -> BuiltRun:
     return BuiltRun(
         scenario, plant, path, scenario.timing_law(), controller, scenario.sensing, disturbance, changes, monitor
     )
+
+
+def _controller_files(scenario: Scenario, kwargs: dict[str, object], source: str) -> tuple[Scenario, dict[str, object]]:
+    """A built-in controller's options typed as files (``pathlib.Path``: the FMU of ``controller: {name: fmu}``)
+    are relative to the scenario file; they are named by their absolute path from here on (so that the run's
+    scenario.yaml finds them from anywhere), as a part program's file is."""
+    if not Path(source).is_file():
+        return scenario, kwargs
+    base = Path(source).parent
+    files = {k: (base / v).resolve() for k, v in kwargs.items() if isinstance(v, Path) and not v.is_absolute()}
+    if not files:
+        return scenario, kwargs
+    options = {**scenario.controller.options, **{k: str(v) for k, v in files.items()}}
+    controller = scenario.controller.model_copy(update={"options": options})
+    return scenario.model_copy(update={"controller": controller}), {**kwargs, **files}
 
 
 def _follow_the_plan(scenario: Scenario, path: Contour, timestep_s: float, source: str = "") -> Scenario:
