@@ -272,6 +272,29 @@ def first_run_costs() -> None:
     )
 
 
+def pairs(count: int, seconds: float) -> None:
+    """DIARC and pd against their rollouts, measured alternately ``count`` times: the median and the spread of the
+    pairwise CPU ratios (how much one measurement can say on a shared machine)."""
+    replays = {name: Replay(name, seconds) for name in ("diarc", "pd")}
+    load_before = _load()
+    ratios: dict[str, list[float]] = {"diarc": [], "pd": []}
+    cpu: dict[str, list[float]] = {"diarc": [], "pd": [], "diarc rollout": [], "pd rollout": []}
+    for _ in range(count):
+        for name in ratios:
+            own, floor = loop(name, seconds)[1], replays[name].timed()[1]
+            ratios[name].append(own / floor)
+            cpu[name].append(own)
+            cpu[f"{name} rollout"].append(floor)
+    for name, values in ratios.items():
+        median = statistics.median(cpu[name]) / statistics.median(cpu[f"{name} rollout"])
+        shown = ", ".join(f"{v:.2f}" for v in values)
+        print(f"{name} / its rollout, {count} pairs of {seconds:g} s: medians {median:.3f}x CPU; pairs {shown}")
+    print(
+        f"threads other than the loop's: {OTHER_THREADS_CPU_S[0]:.3f} s of CPU; load average {load_before} before, "
+        f"{_load()} after"
+    )
+
+
 def _load() -> str:
     """The load average over 1, 5 and 15 minutes."""
     return "/".join(f"{v:.1f}" for v in os.getloadavg())
@@ -286,7 +309,11 @@ def main() -> None:
     parser.add_argument("--skip-compile", action="store_true", help="leave out the cold-compile measurements")
     parser.add_argument("--skip-first-run", action="store_true", help="leave out the first gantry-twin run")
     parser.add_argument("--only-compile", action="store_true", help="only the compile and first-run measurements")
+    parser.add_argument("--pairs", type=int, metavar="N", help="only DIARC and pd against their rollouts, N pairs")
     args = parser.parse_args()
+    if args.pairs:
+        pairs(args.pairs, args.seconds)
+        return
     ts = 2e-4
     n = int(round(args.seconds / ts))
 
