@@ -143,10 +143,10 @@ def test_an_export_that_fails_midway_leaves_no_file(run_dir, tmp_path):
         def read_row_group(self, group):
             self.calls.append(group)
             if group:
-                raise OSError(28, "No space left on device")
+                raise OSError(5, "Input/output error")
             return trace.read_row_group(group)
 
     failing = FailsAtTheSecondGroup()
-    with pytest.raises(OSError):
-        export.write_csv(failing, tmp_path / "t.csv")
+    with pytest.raises(export.ExportError, match=r"^RUN in\.parquet: damaged: row group 1 of 2 cannot be read \("):
+        export.write_csv(failing, tmp_path / "t.csv", "in.parquet")  # a read that fails is the input's, not --out's
     assert failing.calls == [0, 1] and list(tmp_path.iterdir()) == []

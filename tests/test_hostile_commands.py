@@ -71,6 +71,30 @@ SAVE = ("run", "--set", "duration_s=0.01", "--no-plots", "--out", "out", "--save
 UNWRITABLE = "/proc/gantry-twin-out"
 
 
+#: A regular file: a directory under it cannot be made, by root either (ENOTDIR), as a read-only folder cannot.
+UNDER_A_FILE = {"afile": "x"}
+#: An existing directory no one may write in, root included (a chmod 555 folder does not stop root).
+NOT_WRITABLE = "/proc/sys"
+
+
+def _trace(damaged: bool = False) -> bytes:
+    """A small zstd-compressed Parquet trace; ``damaged``: the magic number of its first compressed page zeroed, so
+    that reading its row group fails inside the decompression (the file's footer and metadata are intact)."""
+    import io
+
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    sink = io.BytesIO()
+    table = pa.table({"t_s": [k * 2e-4 for k in range(500)], "x_m": [k * 1e-6 for k in range(500)]})
+    pq.write_table(table, sink, compression="zstd", use_dictionary=False)
+    data = bytearray(sink.getvalue())
+    if damaged:
+        at = data.index(b"\x28\xb5\x2f\xfd")  # zstd's frame magic, in the first data page
+        data[at : at + 4] = bytes(4)
+    return bytes(data)
+
+
 def _summary(**changes: object) -> str:
     return json.dumps({**json.loads(SUMMARY), **changes})
 
@@ -225,6 +249,40 @@ CASES = [
     Case("report_rig_not_json", {"rig.json": "overrides: [a=1]\n"}, RIG),
     Case("report_rig_overrides_not_a_list", {"rig.json": '{"overrides": "plant.model=rig"}'}, RIG),
     Case("report_rig_override_unknown_field", {"rig.json": '{"overrides": ["plant.nosuch=1"]}'}, RIG),
+    # Every command that writes: its output location checked before any work (a regular file in the way, or a folder
+    # no one may write in), one line, exit 2.
+    Case("run_out_under_a_file", UNDER_A_FILE, ("run", "--set", "duration_s=0.01", "--no-plots", "--out", "afile/d")),
+    Case("run_out_not_writable", {}, ("run", "--set", "duration_s=0.01", "--no-plots", "--out", NOT_WRITABLE)),
+    Case(
+        "monitor_out_under_a_file",
+        UNDER_A_FILE,
+        ("monitor", "no_load_circle", "--set", "duration_s=0.1", "--set", "monitor.baseline_window_s=[0, 0.05]")
+        + ("--no-plots", "--out", "afile/d"),
+    ),
+    Case("report_out_under_a_file", UNDER_A_FILE, ("report", "--out", "afile/d")),
+    Case("report_out_not_writable", {}, ("report", "--out", NOT_WRITABLE)),
+    Case("sweep_out_not_writable", {"w.yaml": SWEEP}, ("sweep", "w.yaml", "--out", NOT_WRITABLE)),
+    Case(
+        "calibrate_out_under_a_file",
+        {"c.yaml": CALIBRATION, **UNDER_A_FILE},
+        ("calibrate", "c.yaml", "--out", "afile/d"),
+    ),
+    Case("tune_out_under_a_file", {"t.yaml": TUNE, **UNDER_A_FILE}, ("tune", "t.yaml", "--out", "afile/d")),
+    Case("identify_out_under_a_file", {"log.csv": LOG, **UNDER_A_FILE}, ("identify", "log.csv", "--out", "afile/d")),
+    Case("identify_out_not_writable", {"log.csv": LOG}, ("identify", "log.csv", "--out", NOT_WRITABLE)),
+    Case("excite_out_under_a_file", UNDER_A_FILE, ("excite", "--out", "afile/d")),
+    Case("export_out_under_a_file", {"trace.parquet": _trace(), **UNDER_A_FILE}, (*EXPORT[:3], "afile/x.csv")),
+    Case("export_out_not_writable", {"trace.parquet": _trace()}, (*EXPORT[:3], f"{NOT_WRITABLE}/x.csv")),
+    Case(
+        "compare_out_under_a_file",
+        {**A_RUN, "c/summary.json": SUMMARY, **UNDER_A_FILE},
+        (*CMP[:2], "c", "--out", "afile/d"),
+    ),
+    Case("monitor_log_out_under_a_file", {"log.csv": LOG, **UNDER_A_FILE}, (*MON[:3], "--out", "afile/d")),
+    Case("serve_out_under_a_file", UNDER_A_FILE, ("serve", "--port", "0", "--realtime", "max", "--out", "afile/d")),
+    Case("serve_out_not_writable", {}, ("serve", "--port", "0", "--realtime", "max", "--out", NOT_WRITABLE)),
+    # A damaged trace: blamed on the trace, not on --out.
+    Case("export_run_damaged_page", {"trace.parquet": _trace(damaged=True)}, EXPORT),
     # validate and runs
     Case("validate_fifo", {"s.yaml": Fifo()}, ("validate", "s.yaml")),
     Case("validate_dev_zero", {"s.yaml": Link("/dev/zero")}, ("validate", "s.yaml")),
@@ -348,3 +406,65 @@ def test_serve_web_without_the_viewer_binary_exit_2_one_line_nothing_written(tmp
         f"gantry-twin: error: RERUN_CLI_PATH {tmp_path / 'no-rerun'}: not an executable file (the rerun viewer binary)"
     ]
     assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+#: The commands that compile (or load) the loops, each as a user would give it; NUMBA_CACHE_DIR is checked first.
+COMPILING = [
+    ("run", "--set", "duration_s=0.01", "--no-plots", "--out", "out"),
+    ("sweep", "w.yaml", "--out", "out"),
+    ("report", "--out", "out"),
+    ("compile",),
+    ("monitor", "--log", "log.csv", "--out", "out"),
+    ("excite", "--out", "out"),
+]
+
+
+@pytest.mark.parametrize("argv", COMPILING, ids=[a[0] if a[0] != "monitor" else "monitor_log" for a in COMPILING])
+def test_an_unwritable_numba_cache_dir_is_refused_at_once_naming_the_variable(tmp_path, argv):
+    """NUMBA_CACHE_DIR where no folder can be made (under a regular file: ENOTDIR, for root too; a ``chmod 555``
+    folder does not stop root, which the tests run as). Each command that compiles refuses it before any work, in a
+    fresh process (the variable is read at import): exit 2, one line naming the variable and the folder, nothing
+    written in the case's directory or beside the package's sources (numba's silent fallback cache, once). Before
+    this check: a sweep failed each point after minutes, ``run`` compiled into the package's ``__pycache__``."""
+    import subprocess
+    import sys
+
+    src = Path(__file__).resolve().parents[1] / "src"
+    (tmp_path / "afile").write_text("x")
+    (tmp_path / "w.yaml").write_text(SWEEP)
+    (tmp_path / "log.csv").write_text(LOG)
+    before = snapshot(tmp_path)
+    pycache = sorted(str(p) for p in src.rglob("*.nbi"))
+    env = {**os.environ, "PYTHONPATH": str(src), "NUMBA_CACHE_DIR": str(tmp_path / "afile" / "numba")}
+    done = subprocess.run(
+        [sys.executable, "-m", "gantry_twin", *argv], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120
+    )
+    lines = done.stderr.strip().splitlines()
+    assert done.returncode == 2 and done.stdout == "", done.stderr[-2000:]
+    assert len(lines) == 1, done.stderr[-2000:]
+    assert re.fullmatch(
+        rf"gantry-twin: error: NUMBA_CACHE_DIR: the compiled-kernel cache {re.escape(str(tmp_path))}/afile/numba/"
+        r"[0-9a-f]{16} cannot be made or written \(Not a directory\); set NUMBA_CACHE_DIR to a writable folder",
+        lines[0],
+    ), lines[0]
+    assert snapshot(tmp_path) == before
+    assert sorted(str(p) for p in src.rglob("*.nbi")) == pycache
+
+
+def test_commands_that_compile_nothing_ignore_an_unwritable_numba_cache_dir(tmp_path):
+    """``validate`` (and the other commands that run no kernel) do not refuse a bad NUMBA_CACHE_DIR: they need none."""
+    import subprocess
+    import sys
+
+    src = Path(__file__).resolve().parents[1] / "src"
+    (tmp_path / "afile").write_text("x")
+    env = {**os.environ, "PYTHONPATH": str(src), "NUMBA_CACHE_DIR": str(tmp_path / "afile" / "numba")}
+    done = subprocess.run(
+        [sys.executable, "-m", "gantry_twin", "validate", "no_load_circle"],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert done.returncode == 0 and ": ok (diarc, circle, 30 s)" in done.stdout, done.stderr[-2000:]

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 
 import numpy as np
 import pytest
@@ -103,10 +104,11 @@ def test_identify_command_writes_parameters_plant_and_fit_report(tmp_path):
 
 
 @pytest.mark.parametrize(("entry", "value"), [(2, -47.72), (5, -10.37), (0, 0.0), (1, -0.5)])
-def test_an_unphysical_fit_exits_1_with_the_reason_and_writes_no_plant(tmp_path, capsys, monkeypatch, entry, value):
-    """Negative damping or friction, a mass <= 0: exit 1, one line naming the entry, no plant.xml (nothing at all)."""
+def test_an_unphysical_fit_exits_2_with_the_reason_and_what_the_log_needs(tmp_path, capsys, monkeypatch, entry, value):
+    """Negative damping or friction, a mass <= 0: exit 2, one line naming the log, the entry and what a log needs,
+    nothing written (no plant.xml, no --out)."""
     from gantry_twin.cli import identify as identify_command
-    from gantry_twin.sysid.identify import THETA_UNITS
+    from gantry_twin.sysid.identify import LOG_NEEDS, THETA_UNITS
 
     theta = spec_theta(0.0)
     log = ode_log(theta, duration_s=1.0)
@@ -120,12 +122,52 @@ def test_an_unphysical_fit_exits_1_with_the_reason_and_writes_no_plant(tmp_path,
     monkeypatch.setattr(identify_command, "identify", unphysical)
     out = tmp_path / "id"
     capsys.readouterr()
-    assert main(["identify", str(tmp_path / "log.csv"), "--out", str(out)]) == 1
+    assert main(["identify", str(tmp_path / "log.csv"), "--out", str(out)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     name = ("M1", "M2", "B1", "B2", "Af1", "Af2")[entry]
-    assert len(err) == 1 and err[0].startswith("gantry-twin: identify failed: the fit is not physical (")
-    assert f"{name} = {value:.4g} {THETA_UNITS[entry]}" in err[0] and "no plant.xml written" in err[0]
+    assert len(err) == 1 and err[0].startswith(
+        f"gantry-twin: error: {tmp_path / 'log.csv'}: cannot identify this machine"
+    )
+    assert f"{name} = {value:.4g} {THETA_UNITS[entry]}" in err[0] and err[0].endswith(LOG_NEEDS)
     assert not out.exists()
+
+
+def _another_machine(tmp_path, theta: np.ndarray, polarity_x: float = 1.0) -> str:
+    """A CSV log of 1 s of the paper's model (ode_log, no MuJoCo) on a machine of ``theta`` whose X amplifier has
+    ``polarity_x`` (-1: +1 V pushes -x); its path."""
+    log = ode_log(theta, duration_s=1.0)
+    u = log.u_v * np.array([polarity_x, 1.0])
+    write_log(tmp_path / "other.csv", log.t_s, u, log.q_m, None)
+    return str(tmp_path / "other.csv")
+
+
+@pytest.mark.parametrize("machine", ["reversed_x", "x_heavier_than_y"])
+def test_a_log_of_another_machine_exits_2_saying_why_it_cannot_identify_this_model(tmp_path, capsys, machine):
+    """Logs a fit of this machine's model cannot come from: a machine whose X amplifier has the other polarity (the
+    fit's M1, B1, Af1 come out as that machine's negated), and one whose X carriage is heavier than the Y axis that
+    should carry it. Exit 2, one line: the log, the fit's values (checked against the simulated machine's) and why
+    no machine of this kind has them, and what the log would need (docs/logs.md); nothing written."""
+    from gantry_twin.sysid.identify import LOG_NEEDS
+
+    theta = spec_theta(0.0)
+    if machine == "reversed_x":
+        path = _another_machine(tmp_path, theta, polarity_x=-1.0)
+        expected, why = {"M1": -theta[0], "B1": -theta[2], "Af1": -theta[4]}, "a mass must be > 0"
+    else:
+        theta[0], theta[1] = 0.6, 0.5
+        path = _another_machine(tmp_path, theta)
+        expected, why = {"M1": 0.6, "M2": 0.5}, "M2 must exceed M1"
+    out = tmp_path / "id"
+    capsys.readouterr()
+    assert main(["identify", path, "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"gantry-twin: error: {path}: cannot identify this machine's model: ")
+    given = {name: float(value) for name, value in re.findall(r"\b(M[12]|B[12]|Af[12]) = (-?[0-9.e+-]+)", err[0])}
+    assert set(given) == set(expected), err[0]
+    for name, value in expected.items():
+        assert given[name] == pytest.approx(value, rel=2e-3), (name, err[0])
+    assert why in err[0] and err[0].endswith(LOG_NEEDS) and "Traceback" not in err[0]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["other.csv"]
 
 
 def _errors(result, truth):

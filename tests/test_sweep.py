@@ -405,3 +405,29 @@ def test_resume_keeps_ok_rows_of_this_sweep_and_reruns_failed_ones_and_refuses_a
     with pytest.raises(ScenarioError, match="holds the results of another sweep"):
         ResultsTable(changed, tmp_path / "results.parquet").load()
     assert [r["point"] for r in rows_of(tmp_path)] == [0, 1, 4]
+
+
+def test_compile_lock_is_reentrant_in_a_thread_and_exclusive_across_threads():
+    """``gantry-twin compile`` holds the lock while its short run compiles under it again: the inner take must not
+    wait on the outer (once a deadlock: a second flock of the same process blocks as another process's would).
+    Another thread still waits for it."""
+    import threading
+
+    from gantry_twin.sweep.engine import compile_lock
+
+    order = []
+    with compile_lock():
+        with compile_lock():  # returns at once (a deadlock otherwise: the test would hang)
+            order.append("inner")
+
+        def other():
+            with compile_lock():
+                order.append("other")
+
+        thread = threading.Thread(target=other)
+        thread.start()
+        thread.join(0.5)
+        assert thread.is_alive() and order == ["inner"]  # waits while this thread holds it
+        order.append("outer done")
+    thread.join(30)
+    assert order == ["inner", "outer done", "other"]

@@ -64,6 +64,7 @@ from gantry_twin.cli.progress import ProgressBar, add_progress_arguments, progre
 from gantry_twin.cli.telemetry import add_telemetry_arguments, telemetry_observers
 from gantry_twin.controllers import available
 from gantry_twin.loop.compiling import compile_notice
+from gantry_twin.numerics.jit import CacheDirError, check_cache_dir
 from gantry_twin.outputs.export import ExportError
 from gantry_twin.outputs.rundirs import LATEST, new_run_dir, point_latest
 from gantry_twin.outputs.signals import stop_signals_interrupt
@@ -272,6 +273,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args.argv = list(sys.argv[1:] if argv is None else argv)  # the command line, for a report's provenance
     try:
         with stop_signals_interrupt():
+            if args.command not in COMPILES_NOTHING and not getattr(args, "no_run", False):
+                _check_kernel_cache()
             return args.func(args)
     except (ScenarioError, BadInput, TelemetryError, ExportError, CompareError, LogError) as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
@@ -280,6 +283,21 @@ def main(argv: Sequence[str] | None = None) -> int:
         signum = getattr(exc, "signum", signal.SIGINT)
         print(f"{PROG}: interrupted ({signal.Signals(signum).name})", file=sys.stderr)
         return EXIT_INTERRUPTED + signum
+
+
+#: The commands that call no compiled kernel (every other one may compile, or load, the loops: the cache is
+#: checked before it starts). ``excite --no-run`` runs nothing either.
+COMPILES_NOTHING = ("validate", "scenarios", "sweeps", "runs", "export", "compare")
+
+
+def _check_kernel_cache() -> None:
+    """The compiled-kernel cache can be made and written (numerics.jit.check_cache_dir), once, before any work:
+    BadInput naming NUMBA_CACHE_DIR otherwise (numba would fall back, silently, to a folder beside the sources,
+    and a sweep's workers would fail each point)."""
+    try:
+        check_cache_dir()
+    except CacheDirError as exc:
+        raise BadInput(str(exc)) from None
 
 
 def _scenarios(args: argparse.Namespace) -> int:

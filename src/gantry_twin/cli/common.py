@@ -11,6 +11,7 @@ import tempfile
 from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 
+from gantry_twin.outputs.files import NotRegularFileError, check_replaceable
 from gantry_twin.outputs.rundirs import new_run_dir
 from gantry_twin.scenario import Scenario, resolve_scenario, shipped
 from gantry_twin.settings import quote
@@ -43,11 +44,9 @@ def checked_out(out: Path) -> Path:
     return out
 
 
-@contextlib.contextmanager
-def writable_out(out: Path) -> Iterator[Path]:
-    """:func:`checked_out`, made, and a file can be made in it (BadInput otherwise): for a command that would start
-    workers, a cluster or minutes of work before its first file (a read-only folder found before, not after). A
-    directory made here is removed again if the command then fails with it still empty (nothing left behind)."""
+def _probe_dir(out: Path, option: str) -> list[Path]:
+    """Make ``out`` and a temporary file in it; the directories made (deepest first). BadInput, one line, if it
+    cannot be written (whatever was made removed again)."""
     checked_out(out)
     made = [d for d in (out, *out.parents) if not d.exists()]  # deepest first
     try:
@@ -55,14 +54,52 @@ def writable_out(out: Path) -> Iterator[Path]:
         with tempfile.TemporaryFile(dir=out):
             pass
     except OSError as exc:
-        raise BadInput(f"--out {out}: cannot write there ({exc.strerror or exc})") from None
+        _remove_empty(made)
+        raise BadInput(f"{option} {out}: cannot write there ({exc.strerror or exc})") from None
+    return made
+
+
+def _remove_empty(directories: list[Path]) -> None:
+    for directory in directories:
+        with contextlib.suppress(OSError):
+            directory.rmdir()  # only if empty
+
+
+def check_writable(out: Path, option: str = "--out") -> Path:
+    """The one check of an output directory before any work (BadInput, one line, exit 2, if a file is in the way
+    or the directory cannot be made or written); it leaves nothing behind. :func:`writable_out` keeps it made."""
+    _remove_empty(_probe_dir(out, option))
+    return out
+
+
+@contextlib.contextmanager
+def writable_out(out: Path, option: str = "--out") -> Iterator[Path]:
+    """:func:`check_writable`, the directory kept made for the command's files: a read-only folder is found in
+    milliseconds, not after minutes of runs. A directory made here is removed again if the command then fails with
+    it still empty (nothing left behind)."""
+    made = _probe_dir(out, option)
     try:
         yield out
     except BaseException:
-        for directory in made:
-            with contextlib.suppress(OSError):
-                directory.rmdir()  # only if empty
+        _remove_empty(made)
         raise
+
+
+def writable_file(path: Path, option: str = "--out", what: str = "") -> Path:
+    """A file a command will write (atomically, beside itself): BadInput, one line, unless its folder exists and a
+    file can be made in it, and the path is not something that is never replaced (a directory, FIFO, socket or
+    device: :func:`gantry_twin.outputs.files.check_replaceable`). ``what``: a hint after the reason."""
+    hint = f" ({what})" if what else ""
+    try:
+        check_replaceable(path)
+    except NotRegularFileError as exc:
+        raise BadInput(f"{option} {path}: {exc.strerror}{hint}") from None
+    try:
+        with tempfile.TemporaryFile(dir=path.parent):
+            pass
+    except OSError as exc:
+        raise BadInput(f"{option} {path}: cannot write there ({exc.strerror or exc})") from None
+    return path
 
 
 def failed(what: str, exc: Exception) -> int:
@@ -85,11 +122,12 @@ def scenario_path(arg: str | None) -> Path:
 
 
 def out_dir(out: Path | None, scenario: Scenario) -> Path:
-    """--out, else a new run directory under runs/<name>/ (gantry_twin.outputs.rundirs)."""
+    """--out, else a new run directory under runs/<name>/ (gantry_twin.outputs.rundirs); either checked writable
+    (:func:`check_writable`), nothing made."""
     if out is not None:
-        return checked_out(out)
+        return check_writable(out)
     base = checked_out(RUNS_DIR / (scenario.outputs.dir or str(scenario.name)))  # labels (settings.Label): under runs/
-    return new_run_dir(base)
+    return check_writable(new_run_dir(base), "output directory")
 
 
 def number_type(

@@ -6,6 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from gantry_twin.cli.common import writable_out
 from gantry_twin.outputs.files import atomic_write_dir, atomic_write_text
 from gantry_twin.outputs.rundirs import new_run_dir
 from gantry_twin.reports.compare import (
@@ -32,41 +33,39 @@ def add_arguments(parser: argparse.ArgumentParser, runs_dir: Path) -> None:
 
 def command(args: argparse.Namespace) -> int:
     """Run ``compare``: CompareError on bad input (the command line exits 2), 0 when written."""
-    from gantry_twin.outputs.plots import draw, read_series
-
     if len(args.runs) < 2:
         raise CompareError(f"compare needs two runs or more, got one: {args.runs[0]}")
-    runs = [load_run(arg, f"#{i + 1}") for i, arg in enumerate(args.runs)]
     out = args.out if args.out is not None else new_run_dir(args.runs_dir / DEFAULT_SUBDIR)
-    if out.exists() and not out.is_dir():
-        raise CompareError(f"--out {out}: exists and is not a directory")
-    rows, notes = table(runs)
-    drawn = []
-    for run, label in zip(runs, labels(runs), strict=True):
-        plan, note = program_plan(run)
-        if note is not None:
-            notes.append(note)
+    with writable_out(out):  # before the runs are read; removed again, empty, if they are refused
+        from gantry_twin.outputs.plots import draw, read_series
+
+        runs = [load_run(arg, f"#{i + 1}") for i, arg in enumerate(args.runs)]
+        rows, notes = table(runs)
+        drawn = []
+        for run, label in zip(runs, labels(runs), strict=True):
+            plan, note = program_plan(run)
+            if note is not None:
+                notes.append(note)
+            try:
+                series = read_series(run.directory, run.summary, label, plan)
+            except Exception as exc:  # a damaged trace: the table does not need it
+                notes.append(
+                    f"{run.column} ({run.directory}): trace.parquet unreadable ({type(exc).__name__}), not in the plots"
+                )
+                continue
+            if series is None:
+                notes.append(f"{run.column} ({run.directory}): no trace.parquet, not in the plots")
+            else:
+                drawn.append(series)
+        text = markdown(runs, rows, notes)
         try:
-            series = read_series(run.directory, run.summary, label, plan)
-        except Exception as exc:  # a damaged trace: the table does not need it
-            notes.append(
-                f"{run.column} ({run.directory}): trace.parquet unreadable ({type(exc).__name__}), not in the plots"
-            )
-            continue
-        if series is None:
-            notes.append(f"{run.column} ({run.directory}): no trace.parquet, not in the plots")
-        else:
-            drawn.append(series)
-    text = markdown(runs, rows, notes)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        atomic_write_text(out / "compare.md", text)
-        atomic_write_text(out / "compare.json", as_json(runs, rows, notes))
-        figures: list[str] = []
-        if drawn:
-            atomic_write_dir(out / "plots", lambda tmp: figures.extend(draw(drawn, tmp)))
-    except OSError as exc:
-        raise CompareError(f"--out {out}: cannot write there ({exc.strerror or exc})") from None
+            atomic_write_text(out / "compare.md", text)
+            atomic_write_text(out / "compare.json", as_json(runs, rows, notes))
+            figures: list[str] = []
+            if drawn:
+                atomic_write_dir(out / "plots", lambda tmp: figures.extend(draw(drawn, tmp)))
+        except OSError as exc:
+            raise CompareError(f"--out {out}: cannot write there ({exc.strerror or exc})") from None
     print(text, end="")
     written = ["compare.md", "compare.json"] + [f"plots/{f}" for f in figures]
     print(f"written to {out}/ ({', '.join(written)})", flush=True)

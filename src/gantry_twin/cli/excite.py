@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from gantry_twin.cli.common import PROG
+from gantry_twin.cli.common import PROG, BadInput, writable_out
 from gantry_twin.plant.model import Payload, Plant
 from gantry_twin.sysid.logs import write_columns, write_log
 from gantry_twin.sysid.trajectory import design, log_of, run_on_twin, trajectory_table, with_plateaus
@@ -41,24 +41,20 @@ def command(args: argparse.Namespace) -> int:
             plant = Plant(payload, model_path=args.plant)
         except (ValueError, KeyError) as exc:
             raise ValueError(f"--plant {args.plant}: not a gantry model ({str(exc).splitlines()[0]})") from None
-        if out.exists() and not out.is_dir():
-            raise ValueError(f"--out {out}: exists and is not a directory")
     except ValueError as exc:  # a bad option, or a --plant file that is not a gantry model
-        print(f"gantry-twin: error: {str(exc).splitlines()[0]}", file=sys.stderr)
-        return 2
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        write_columns(out / "trajectory.csv", trajectory_table(path, plant.timestep_s))
-        print(f"trajectory ({path.duration_s:g} s) in {out / 'trajectory.csv'}")
-        if args.no_run:
-            return 0
-        trace = run_on_twin(path, plant, prog=PROG)  # says so if its loop compiles first
-        write_log(out / "log.parquet", *log_of(trace))
-    except OSError as exc:
-        print(f"gantry-twin: error: --out {out}: cannot write there ({exc.strerror or exc})", file=sys.stderr)
-        return 2
-    except SimulationError as exc:
-        print(f"gantry-twin: run failed: {exc}", file=sys.stderr)
-        return 1
+        raise BadInput(str(exc).splitlines()[0]) from None
+    with writable_out(out):  # before the trajectory is written or run
+        try:
+            write_columns(out / "trajectory.csv", trajectory_table(path, plant.timestep_s))
+            print(f"trajectory ({path.duration_s:g} s) in {out / 'trajectory.csv'}")
+            if args.no_run:
+                return 0
+            trace = run_on_twin(path, plant, prog=PROG)  # says so if its loop compiles first
+            write_log(out / "log.parquet", *log_of(trace))
+        except OSError as exc:
+            raise BadInput(f"--out {out}: cannot write there ({exc.strerror or exc})") from None
+        except SimulationError as exc:
+            print(f"{PROG}: run failed: {exc}", file=sys.stderr)
+            return 1
     print(f"log of the twin running it in {out / 'log.parquet'}")
     return 0

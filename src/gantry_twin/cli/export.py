@@ -5,10 +5,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import pyarrow as pa
-
+from gantry_twin.cli.common import writable_file
 from gantry_twin.outputs.export import CSV_FILE, ExportError, open_trace, trace_path, write_csv
-from gantry_twin.outputs.files import NotRegularFileError, check_replaceable
+from gantry_twin.outputs.files import NotRegularFileError
 from gantry_twin.outputs.tracefile import TRACE_FILE
 
 
@@ -30,15 +29,13 @@ def command(args: argparse.Namespace) -> int:
     """
     source = trace_path(args.run)
     out = args.out if args.out is not None else source.parent / CSV_FILE
+    writable_file(out, "--out", "give the CSV file's name")  # before the trace is read
+    trace = open_trace(source)
     try:
-        check_replaceable(out)
-        trace = open_trace(source)
-        write_csv(trace, out)
-    except NotRegularFileError as exc:
+        write_csv(trace, out, source)
+    except NotRegularFileError as exc:  # became one since the check
         raise ExportError(f"--out {out}: {exc.strerror} (give the CSV file's name)") from None
-    except OSError as exc:
+    except OSError as exc:  # reading errors are ExportError (write_csv): this is the writing
         raise ExportError(f"--out {out}: cannot write there ({exc.strerror or exc})") from None
-    except pa.ArrowException as exc:  # a damaged row group: nothing is written
-        raise ExportError(f"RUN {source}: not a readable Parquet trace ({str(exc).splitlines()[0]})") from None
     print(f"{trace.metadata.num_rows} rows x {trace.metadata.num_columns} columns written to {out}")
     return 0

@@ -12,13 +12,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from collections.abc import Sequence
 from dataclasses import asdict
 from pathlib import Path
 
 import yaml
 
+from gantry_twin.cli.common import BadInput, writable_out
 from gantry_twin.outputs.files import atomic_write_text
 from gantry_twin.plant.model import AXES, Plant
 from gantry_twin.sysid.identify import Identified, IdentifySettings, UnphysicalFit, identify, plant_xml
@@ -51,45 +51,42 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def command(args: argparse.Namespace) -> int:
-    """``gantry-twin identify``: exit 0; 2 with one line on stderr for a bad log or option; 1 with one line when the
-    fit is not physical (a mass <= 0, a negative damping or friction): nothing is written."""
-    try:
-        try:  # the range is IdentifySettings.filter_hz's, declared once
-            settings = IdentifySettings(filter_hz=(args.filter_hz, args.filter_hz))
-        except ValueError as exc:
-            raise ValueError("--filter-hz: " + str(exc).split(": ", 1)[-1]) from None
-        if not (0.0 < args.window_s <= 3600.0):
-            raise ValueError(f"--window-s: must be in (0, 3600] s, got {args.window_s:g}")
-        if args.out.exists() and not args.out.is_dir():
-            raise ValueError(f"--out {args.out}: exists and is not a directory")
-        logs = read_logs(args.logs)
-        machine_s = Plant().timestep_s
-        for log in logs:  # a log at its own period is taken; t_s in ms or us (1000x, 10^6x the machine's) is not
-            check_sample_period(log.path, log.sample_period_s, machine_s, exact=False)
-        result = identify(logs, settings)
-        lugre = identify_lugre(logs, result) if args.friction == "lugre" else None
-        note = "gantry-twin identify from " + ", ".join(str(p) for p in args.logs)
-        xml = plant_xml(result.theta, note)
-    except UnphysicalFit as exc:
-        print(f"gantry-twin: identify failed: {exc}", file=sys.stderr)
-        return 1
-    except ValueError as exc:  # LogError included
-        print(f"gantry-twin: error: {str(exc).splitlines()[0]}", file=sys.stderr)
-        return 2
+    """``gantry-twin identify``: exit 0; 2 with one line on stderr (BadInput) for a bad log or option, an --out that
+    cannot be written (checked first), or logs that cannot identify this machine's model (a fit no machine of this
+    kind has: a mass <= 0, a negative damping or friction; the line says what the logs would need): nothing is
+    written."""
+    try:  # the range is IdentifySettings.filter_hz's, declared once
+        settings = IdentifySettings(filter_hz=(args.filter_hz, args.filter_hz))
+    except ValueError as exc:
+        raise BadInput("--filter-hz: " + str(exc).split(": ", 1)[-1]) from None
+    if not (0.0 < args.window_s <= 3600.0):
+        raise BadInput(f"--window-s: must be in (0, 3600] s, got {args.window_s:g}")
     out: Path = args.out
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        atomic_write_text(out / PLANT_FILE, xml)
-        plant = Plant(model_path=out / PLANT_FILE, friction=None if lugre is None else lugre.friction())
-        replays = [replay(plant, log, args.window_s) for log in logs]
-        figures = write_figures(replays, out)
-        data = identified_json(result, lugre, logs, replays, figures)
-        atomic_write_text(out / IDENTIFIED_FILE, json.dumps(data, indent=2) + "\n")
-        atomic_write_text(out / SCENARIO_FILE, yaml.safe_dump(data["scenario"], sort_keys=False))
-        atomic_write_text(out / REPORT_FILE, fit_markdown(data))
-    except OSError as exc:
-        print(f"gantry-twin: error: --out {out}: cannot write there ({exc.strerror or exc})", file=sys.stderr)
-        return 2
+    with writable_out(out):  # before any log is read; removed again, empty, if the logs are refused
+        try:
+            logs = read_logs(args.logs)
+            machine_s = Plant().timestep_s
+            for log in logs:  # a log at its own period is taken; t_s in ms or us (1000x, 10^6x the machine's) is not
+                check_sample_period(log.path, log.sample_period_s, machine_s, exact=False)
+            result = identify(logs, settings)
+            lugre = identify_lugre(logs, result) if args.friction == "lugre" else None
+            note = "gantry-twin identify from " + ", ".join(str(p) for p in args.logs)
+            xml = plant_xml(result.theta, note)
+        except UnphysicalFit as exc:
+            raise BadInput(f"{', '.join(str(p) for p in args.logs)}: {exc}") from None
+        except ValueError as exc:  # LogError included
+            raise BadInput(str(exc).splitlines()[0]) from None
+        try:
+            atomic_write_text(out / PLANT_FILE, xml)
+            plant = Plant(model_path=out / PLANT_FILE, friction=None if lugre is None else lugre.friction())
+            replays = [replay(plant, log, args.window_s) for log in logs]
+            figures = write_figures(replays, out)
+            data = identified_json(result, lugre, logs, replays, figures)
+            atomic_write_text(out / IDENTIFIED_FILE, json.dumps(data, indent=2) + "\n")
+            atomic_write_text(out / SCENARIO_FILE, yaml.safe_dump(data["scenario"], sort_keys=False))
+            atomic_write_text(out / REPORT_FILE, fit_markdown(data))
+        except OSError as exc:
+            raise BadInput(f"--out {out}: cannot write there ({exc.strerror or exc})") from None
     print(format_identified(data, out))
     return 0
 

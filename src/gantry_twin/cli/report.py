@@ -10,7 +10,7 @@ import sys
 import time
 from pathlib import Path
 
-from gantry_twin.cli.common import EXIT_OK, PROG, BadInput, checked_out, failed
+from gantry_twin.cli.common import EXIT_OK, PROG, BadInput, failed, writable_out
 from gantry_twin.cli.progress import add_progress_arguments, progress_wanted
 from gantry_twin.run import package_version
 
@@ -42,9 +42,6 @@ def add_arguments(parser: argparse.ArgumentParser, runs_dir: Path) -> None:
 
 def command(args: argparse.Namespace) -> int:
     """Run the matrix (and the ideal twin's) and write the report. Exit code."""
-    from gantry_twin.reports import rig as rig_report
-    from gantry_twin.reports.paper import paper_matrix, provenance, run_matrix, write_report
-
     started = time.monotonic()
 
     workers, flag = args.workers, "--workers"
@@ -54,25 +51,30 @@ def command(args: argparse.Namespace) -> int:
             workers, flag = args.jobs, "--jobs"
     if workers is not None and workers < 1:
         raise BadInput(f"{flag}: must be a positive integer, got {workers}")
-    checked_out(args.out)
-    rig = rig_report.load_rig(args.rig) if args.rig is not None else ()
-    cases = paper_matrix((*args.overrides, *rig))  # validates every scenario before anything runs
-    plant = rig_report.plant_label(cases[0])
-    # The ideal twin beside the rig twin, unless told not to or the matrix runs on the ideal twin already.
-    ideal = (
-        []
-        if args.no_ideal or rig_report.is_ideal(cases[0])
-        else rig_report.rig_cases(paper_matrix(args.overrides, labels=rig_report.LABELS), rig_report.IDEAL)
-    )
-    try:
-        results = run_matrix([*cases, *ideal], jobs=workers or os.cpu_count() or 1, progress=progress_wanted(args))
-        results, ideal_results = results[: len(cases)], results[len(cases) :]
-        appendix = (
-            rig_report.section(ideal_results, results, rig, args.out, args.overrides, plant) if ideal_results else []
+    with writable_out(args.out):  # before the matrix is checked or any run starts (even imported)
+        from gantry_twin.reports import rig as rig_report
+        from gantry_twin.reports.paper import paper_matrix, provenance, run_matrix, write_report
+
+        rig = rig_report.load_rig(args.rig) if args.rig is not None else ()
+        cases = paper_matrix((*args.overrides, *rig))  # validates every scenario before anything runs
+        plant = rig_report.plant_label(cases[0])
+        # The ideal twin beside the rig twin, unless told not to or the matrix runs on the ideal twin already.
+        ideal = (
+            []
+            if args.no_ideal or rig_report.is_ideal(cases[0])
+            else rig_report.rig_cases(paper_matrix(args.overrides, labels=rig_report.LABELS), rig_report.IDEAL)
         )
-        made_by = provenance(shlex.join([PROG, *args.argv]), time.monotonic() - started, package_version())
-        path = write_report(results, args.out, (*args.overrides, *rig), appendix, made_by, plant)
-    except Exception as exc:
-        return failed("report", exc)
+        try:
+            results = run_matrix([*cases, *ideal], jobs=workers or os.cpu_count() or 1, progress=progress_wanted(args))
+            results, ideal_results = results[: len(cases)], results[len(cases) :]
+            appendix = (
+                rig_report.section(ideal_results, results, rig, args.out, args.overrides, plant)
+                if ideal_results
+                else []
+            )
+            made_by = provenance(shlex.join([PROG, *args.argv]), time.monotonic() - started, package_version())
+            path = write_report(results, args.out, (*args.overrides, *rig), appendix, made_by, plant)
+        except Exception as exc:
+            return failed("report", exc)
     print(f"report written to {path}")
     return EXIT_OK

@@ -12,7 +12,7 @@ from gantry_twin.cli.common import (
     EXIT_RUN_FAILED,
     PROG,
     BadInput,
-    checked_out,
+    check_writable,
     number_type,
     out_dir,
     scenario_path,
@@ -75,21 +75,26 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def command(args: argparse.Namespace) -> int:
+    from gantry_twin.scenario import build, load_scenario
+
+    path = scenario_path(args.scenario)
+    scenario = load_scenario(path, list(args.overrides), args.controller)
+    # the output location before the server starts: --out, or a new run directory under runs/ (made per pass)
+    base = check_writable(args.out) if args.out is not None else None
+    if base is None:
+        out_dir(None, scenario)
+    built = build(scenario, str(path))
+
     from gantry_twin.cli.printing import format_health
     from gantry_twin.link.security import Security, SecurityError
     from gantry_twin.link.server import LinkError, LinkObserver, Served, TwinServer
     from gantry_twin.run import RunWriter
-    from gantry_twin.scenario import build, load_scenario
     from gantry_twin.telemetry.sinks import RealtimePacer
 
-    path = scenario_path(args.scenario)
-    scenario = load_scenario(path, list(args.overrides), args.controller)
-    built = build(scenario, str(path))
     try:
         security = Security.for_host(args.host, args.users)
     except SecurityError as exc:
         raise BadInput(str(exc)) from None
-    base = None if args.out is None else checked_out(args.out)
     served = Served(
         str(scenario.name), short_label(scenario.plant.label), scenario.controller.name, built.plant.timestep_s
     )

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import tempfile
 import types
 from collections.abc import Callable
 from pathlib import Path
@@ -80,6 +81,31 @@ def cache_dir() -> str:
 
 
 _CACHE_DIR = cache_dir()
+
+
+class CacheDirError(Exception):
+    """The compiled-kernel cache cannot be made or written (one line naming NUMBA_CACHE_DIR)."""
+
+
+def check_cache_dir() -> str:
+    """The cache directory the kernels use, made and written to once (a temporary file), as numba will.
+
+    CacheDirError if it cannot be: numba would then fall back, silently, to a
+    folder beside the sources (or compile again in every process), and a
+    sweep's workers could not take the compile lock. Root ignores permission
+    bits, so a ``chmod 555`` folder is writable for root; a read-only file
+    system or a path under a regular file is not.
+    """
+    where = "NUMBA_CACHE_DIR" if os.environ.get("NUMBA_CACHE_DIR") else "the default cache (NUMBA_CACHE_DIR unset)"
+    try:
+        os.makedirs(_CACHE_DIR, exist_ok=True)
+        tempfile.TemporaryFile(dir=_CACHE_DIR).close()
+    except OSError as exc:
+        raise CacheDirError(
+            f"{where}: the compiled-kernel cache {_CACHE_DIR} cannot be made or written ({exc.strerror or exc}); "
+            "set NUMBA_CACHE_DIR to a writable folder",
+        ) from None
+    return _CACHE_DIR
 
 
 def kernel(

@@ -59,12 +59,23 @@ def open_trace(path: Path) -> pq.ParquetFile:
         raise ExportError(f"RUN {path}: not a readable Parquet trace ({str(exc).splitlines()[0]})") from None
 
 
-def write_csv(trace: pq.ParquetFile, out: Path) -> None:
-    """Write the trace as CSV to ``out`` atomically, one row group at a time."""
+def write_csv(trace: pq.ParquetFile, out: Path, source: Path | str = "") -> None:
+    """Write the trace as CSV to ``out`` atomically, one row group at a time.
+
+    A row group that cannot be read (a damaged page: a decompression error, a bad checksum; Arrow raises some of
+    these as OSError) is ExportError naming ``source`` and the row group, never an error of ``out``; the partial
+    CSV is removed."""
 
     def write(fh: IO[bytes]) -> None:
         with pacsv.CSVWriter(fh, trace.schema_arrow) as writer:
             for group in range(trace.num_row_groups):
-                writer.write_table(trace.read_row_group(group))
+                try:
+                    table = trace.read_row_group(group)
+                except (pa.ArrowException, OSError) as exc:
+                    raise ExportError(
+                        f"RUN {source}: damaged: row group {group} of {trace.num_row_groups} cannot be read "
+                        f"({str(exc).splitlines()[0]}); nothing written"
+                    ) from None
+                writer.write_table(table)
 
     atomic_write(out, write)

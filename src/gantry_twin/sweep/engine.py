@@ -24,6 +24,7 @@ import multiprocessing
 import os
 import re
 import socket
+import threading
 import time
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import replace
@@ -66,9 +67,24 @@ class ClusterError(RuntimeError):
 _warmed: set[str] = set()
 
 
+#: How deep this thread is in :func:`compile_lock` (the lock is taken by the outermost only).
+_lock_depth = threading.local()
+
+
 @contextlib.contextmanager
 def compile_lock() -> Iterator[None]:
-    """An exclusive lock on this machine's kernel cache (a file lock, so it holds across processes)."""
+    """An exclusive lock on this machine's kernel cache (a file lock, so it holds across processes).
+
+    Reentrant within a thread: ``gantry-twin compile`` holds it while its short run compiles, and whatever
+    takes it around each compile then does not wait on its own lock (a second ``flock`` on a new open file of
+    the same process blocks like another process's)."""
+    if getattr(_lock_depth, "depth", 0):
+        _lock_depth.depth += 1
+        try:
+            yield
+        finally:
+            _lock_depth.depth -= 1
+        return
     directory = cache_dir()
     try:
         os.makedirs(directory, exist_ok=True)
@@ -82,9 +98,11 @@ def compile_lock() -> Iterator[None]:
     with handle:
         if fcntl is not None:
             fcntl.flock(handle, fcntl.LOCK_EX)
+        _lock_depth.depth = 1
         try:
             yield
         finally:
+            _lock_depth.depth = 0
             if fcntl is not None:
                 fcntl.flock(handle, fcntl.LOCK_UN)
 

@@ -157,7 +157,15 @@ def identify(logs: Sequence[Log], settings: IdentifySettings | None = None) -> I
 
 
 class UnphysicalFit(ValueError):
-    """The regression's theta is no machine: a mass <= 0 or a negative damping or friction (nothing is written)."""
+    """The logs cannot identify this machine's model: the regression's theta is no machine of this kind (a mass
+    <= 0, a negative damping or friction, or masses no positive carriage masses give). Nothing is written."""
+
+
+#: What a log needs to identify this machine's model: the end of every UnphysicalFit's message.
+LOG_NEEDS = (
+    "it needs a log of a gantry like this one (Y carrying X) whose volts push each axis the way their sign says "
+    "(u_x_v > 0 accelerates +x), both axes moved both ways (docs/logs.md)"
+)
 
 
 def check_physical(theta: np.ndarray) -> None:
@@ -170,8 +178,8 @@ def check_physical(theta: np.ndarray) -> None:
     ]
     if bad:
         raise UnphysicalFit(
-            f"the fit is not physical ({', '.join(bad)}: a mass must be > 0, a damping or friction >= 0); "
-            "no plant.xml written: check the log's units and that it excites both axes in both directions"
+            f"cannot identify this machine's model: the fit gives {', '.join(bad)} (a mass must be > 0, a damping "
+            f"or friction >= 0); {LOG_NEEDS}"
         )
 
 
@@ -181,8 +189,8 @@ def plant_xml(theta: np.ndarray, note: str = "", model_path: Path | None = None)
     The moving masses are met by changing the carriages' masses (X: M1 gear;
     Y, which carries X: M2 gear in all), damping = B gear, frictionloss =
     Af gear. dN has no place in the model (the twin has no constant force):
-    it is reported, not written. ValueError if the masses cannot be met
-    (M2 <= M1: the Y axis moves the X carriage too); UnphysicalFit (a ValueError) for a theta no machine has.
+    it is reported, not written. UnphysicalFit (a ValueError) for a theta no
+    machine has, and if the masses cannot be met (M2 <= M1: the Y axis moves the X carriage too).
     """
     check_physical(theta)
     spec = build_spec(None, model_path)
@@ -195,7 +203,10 @@ def plant_xml(theta: np.ndarray, note: str = "", model_path: Path | None = None)
     dy = target_kg[1] - now_kg[1] - dx
     x_body, y_body = spec.body("x_carriage"), spec.body("y_carriage")
     if x_body.mass + dx <= 0.0 or y_body.mass + dy <= 0.0:
-        raise ValueError(f"M1 = {theta[0]:.4g}, M2 = {theta[1]:.4g} V/(m/s^2): no positive carriage masses give them")
+        raise UnphysicalFit(
+            f"cannot identify this machine's model: the fit gives M1 = {theta[0]:.4g}, M2 = {theta[1]:.4g} V/(m/s^2), "
+            f"which no positive carriage masses give (Y moves the X carriage too: M2 must exceed M1); {LOG_NEEDS}"
+        )
     x_body.mass += dx
     y_body.mass += dy
     for i, axis in enumerate(AXES):
