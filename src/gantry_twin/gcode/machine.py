@@ -120,7 +120,13 @@ class Machine(Offsets):
     def execute(self, words: dict[str, float], number: int, column: dict[str, int]) -> bool:
         """Execute one block's words (codes 'G1', 'M30' and letters); True when it ends the program."""
         self.column, self.number = column, number
-        if words.keys() <= SIMPLE and self.motion not in CYCLES:  # the common block: axes and feed only
+        extra = words.keys() - SIMPLE
+        straight = not extra or (len(extra) == 1 and next(iter(extra)) in ("G0", "G1"))
+        if straight and self.motion not in CYCLES:  # the common block: axes and feed only, maybe with G0 / G1
+            if extra:
+                self.motion = MOTION[next(iter(extra))]
+            if ("@" in words or "^" in words) and ("X" in words or "Y" in words):
+                raise self.error("@" if "@" in words else "^", "polar (@ ^) and X Y on one line")
             if "F" in words:
                 if words["F"] < 0.0:
                     raise self.error("F", "the feed must be >= 0")
