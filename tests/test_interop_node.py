@@ -6,6 +6,7 @@ Needs Node.js and ``npm ci`` in tests/interop (``.ci/run`` does it); without the
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
@@ -74,20 +75,12 @@ def test_node_opcua_with_a_wrong_password_is_refused(tmp_path):
     assert admitted["error"] is None
 
 
-def test_monitor_opcua_follows_a_node_opcua_machine_as_monitor_log_reads_its_trace(tmp_path):
-    """A recorded trace of a fault run, published by node-opcua as blocks of 500 samples: the shadow's alarms and
-    their times are those of monitor --log on the same trace."""
-    from gantry_twin.cli import main
-    from gantry_twin.outputs.summary import RunSummary
-
-    run = tmp_path / "run"
-    assert main(["run", "friction_drift_circle", *FAST_DRIFT, "--out", str(run), "--no-plots"]) == 0
-    assert main(["export", str(run), "--csv", "--out", str(tmp_path / "trace.csv")]) == 0
-    assert (
-        main(["monitor", "friction_drift_circle", *FAST_DRIFT, "--log", str(run), "--out", str(tmp_path / "log")]) == 0
-    )
+@contextlib.contextmanager
+def _node_machine(*args: str):
+    """machine_server.mjs ARGS (a node-opcua machine) in a process of its own: its endpoint once it listens; the
+    process waited for (60 s) and stopped on leaving, also when the test fails."""
     machine = subprocess.Popen(
-        [NODE, str(INTEROP / "machine_server.mjs"), str(tmp_path / "trace.csv"), "500"],
+        [NODE, str(INTEROP / "machine_server.mjs"), *args],
         cwd=INTEROP,
         stdout=subprocess.PIPE,
         stderr=subprocess.DEVNULL,
@@ -101,6 +94,25 @@ def test_monitor_opcua_follows_a_node_opcua_machine_as_monitor_log_reads_its_tra
                 endpoint = line.split()[1]
                 break
         assert endpoint, "the node-opcua machine did not start"
+        yield endpoint
+        machine.wait(60)
+    finally:
+        _stop(machine)
+
+
+def test_monitor_opcua_follows_a_node_opcua_machine_as_monitor_log_reads_its_trace(tmp_path):
+    """A recorded trace of a fault run, published by node-opcua as blocks of 500 samples: the shadow's alarms and
+    their times are those of monitor --log on the same trace."""
+    from gantry_twin.cli import main
+    from gantry_twin.outputs.summary import RunSummary
+
+    run = tmp_path / "run"
+    assert main(["run", "friction_drift_circle", *FAST_DRIFT, "--out", str(run), "--no-plots"]) == 0
+    assert main(["export", str(run), "--csv", "--out", str(tmp_path / "trace.csv")]) == 0
+    assert (
+        main(["monitor", "friction_drift_circle", *FAST_DRIFT, "--log", str(run), "--out", str(tmp_path / "log")]) == 0
+    )
+    with _node_machine(str(tmp_path / "trace.csv"), "500") as endpoint:
         shadow = tmp_path / "shadow"
         follow = subprocess.run(
             [sys.executable, "-m", "gantry_twin", "monitor", "friction_drift_circle", *FAST_DRIFT]
@@ -109,9 +121,6 @@ def test_monitor_opcua_follows_a_node_opcua_machine_as_monitor_log_reads_its_tra
             text=True,
             timeout=180,
         )
-        machine.wait(60)
-    finally:
-        _stop(machine)
     assert follow.returncode == 0, follow.stderr
     live, log = RunSummary.read(shadow / "summary.json"), RunSummary.read(tmp_path / "log" / "summary.json")
     assert (live.live.samples, live.live.gaps, live.live.mode) == (70_000, 0, "blocks")
@@ -144,21 +153,7 @@ def test_monitor_opcua_reads_a_node_opcua_machines_scalar_values_a_sample_per_so
         "signals": {k: {"node": node.format(v), "unit": units[k]} for k, v in signals.items()},
     }
     (tmp_path / "nodes.yaml").write_text(json.dumps(nodes))
-    machine = subprocess.Popen(
-        [NODE, str(INTEROP / "machine_server.mjs"), str(tmp_path / "trace.csv"), "500", "scalars", str(n), str(start)],
-        cwd=INTEROP,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.DEVNULL,
-        text=True,
-    )
-    try:
-        endpoint = None
-        for _ in range(50):  # node-opcua prints its own lines first
-            line = machine.stdout.readline()
-            if line.startswith("listening "):
-                endpoint = line.split()[1]
-                break
-        assert endpoint, "the node-opcua machine did not start"
+    with _node_machine(str(tmp_path / "trace.csv"), "500", "scalars", str(n), str(start)) as endpoint:
         shadow = tmp_path / "shadow"
         follow = subprocess.run(
             [
@@ -176,9 +171,6 @@ def test_monitor_opcua_reads_a_node_opcua_machines_scalar_values_a_sample_per_so
             text=True,
             timeout=120,
         )
-        machine.wait(60)
-    finally:
-        _stop(machine)
     assert follow.returncode in (0, 5), follow.stderr  # 5: too short for the monitor's baseline, said so
     live = RunSummary.read(shadow / "summary.json").live
     sent = pq.read_table(run / "trace.parquet")

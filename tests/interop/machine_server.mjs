@@ -67,7 +67,7 @@ if (mode === "scalars") {
       const value = new Variant({ dataType: DataType.Double, value: rows[k][indices[j]] });
       node._internal_set_dataValue(new DataValue({ value, sourceTimestamp, sourcePicoseconds }));
     });
-    if (k % 50 === 49) await sleep(30); // within what a 100 ms publishing interval's queues hold
+    if (k % 20 === 19) await sleep(30); // well within what the queues hold between two publishes, on a loaded machine too
   }
   rows.length = 0; // no blocks
 }
