@@ -72,9 +72,8 @@ def _serve(tmp: Path, *args: str) -> tuple[subprocess.Popen, str]:
 
 def _subscriber(endpoint: str, seconds: float, out: str) -> None:
     """Subscribe to the sample blocks until the run state is finished (or ``seconds``); write what came."""
-    from asyncua import Client
-
     from gantry_twin.link.blocks import decode
+    from gantry_twin.link.client import asyncua_client
 
     arrivals: list[tuple[float, int, int, float]] = []  # (arrived s, first index, samples, last t)
     state = {"finished": False}
@@ -89,7 +88,7 @@ def _subscriber(endpoint: str, seconds: float, out: str) -> None:
                 state["finished"] = True
 
     async def main():
-        async with Client(endpoint, timeout=10) as client:
+        async with asyncua_client(endpoint, 10.0) as client:
             idx = await client.get_namespace_index("urn:gantry-twin:opcua")
             block = client.get_node(f"ns={idx};s=GantryTwin.SampleBlock")
             run_state = client.get_node(f"ns={idx};s=GantryTwin.RunState")
@@ -219,9 +218,8 @@ async def _hostile_run(endpoint: str, hostile: bool) -> tuple[float, int]:
     in ten subscriptions (the server takes MAX_MONITORED_ITEMS of them) and a client that stops reading its
     socket, all set up before the run starts; (the run's wall time from its first block to its state finished,
     the samples read)."""
-    from asyncua import Client
-
     from gantry_twin.link.blocks import decode
+    from gantry_twin.link.client import asyncua_client
 
     logging.getLogger("asyncua").setLevel(logging.CRITICAL)  # the idle clients' complaints when serve ends
     state = {"first": None, "finished": None, "samples": 0}
@@ -242,10 +240,10 @@ async def _hostile_run(endpoint: str, hostile: bool) -> tuple[float, int]:
     idle = []
     if hostile:
         for _ in range(200):
-            client = Client(endpoint, timeout=10)
+            client = asyncua_client(endpoint, 10.0)
             await client.connect()
             idle.append(client)
-    legit = Client(endpoint, timeout=10)
+    legit = asyncua_client(endpoint, 10.0)
     await legit.connect()
     ns = await legit.get_namespace_index("urn:gantry-twin:opcua")
     block, run_state = (legit.get_node(f"ns={ns};s=GantryTwin.{n}") for n in ("SampleBlock", "RunState"))

@@ -446,6 +446,28 @@ def test_shadow_counts_a_gap_and_a_reconnect_and_invents_no_sample(tmp_path, cap
     assert t.size == 15_000 and np.all(np.diff(t) > 0)  # what came, nothing in the gap
 
 
+def test_a_machine_that_stalls_for_seconds_costs_the_shadow_no_reconnect(tmp_path, capsys):
+    """A loaded machine's server answers late; the shadow must not take 2.5 s of silence for a lost connection
+    (asyncua's own probe gives up after 1 s unless told otherwise) and must lose no sample to it."""
+    out = tmp_path / "o"
+    with FakeMachine() as machine:
+        follow = _Follow(capsys, machine.endpoint, out)
+        try:
+            machine.wait_for_subscriber()
+            machine.send(0, 5000)
+            time.sleep(0.5)
+            machine.server._loop.call_soon_threadsafe(time.sleep, 2.5)  # the server's loop answers nothing
+            time.sleep(3.0)
+            machine.send(5000, 5000)
+            machine.finish()
+            _, err = follow.communicate(timeout=WAIT_S)
+        finally:
+            _stop(follow)
+    assert "lost" not in err, err
+    live = RunSummary.read(out / "summary.json").live  # 2 s of samples: too few to judge (exit 5), all counted
+    assert (live.samples, live.gaps, live.missing_samples, live.reconnects) == (10_000, 0, 0, 0), (live, err)
+
+
 def _rss_mb(pid: int) -> float:
     for line in Path(f"/proc/{pid}/status").read_text().splitlines():
         if line.startswith("VmRSS:"):
@@ -460,9 +482,10 @@ def test_hostile_clients_do_not_cost_a_subscriber_a_sample(tmp_path):
     import asyncio
     import socket
 
-    from asyncua import Client, ua
+    from asyncua import ua
 
     from gantry_twin.link.blocks import decode
+    from gantry_twin.link.client import asyncua_client
     from gantry_twin.link.security import user_entry
 
     users = tmp_path / "users.yaml"
@@ -495,13 +518,13 @@ def test_hostile_clients_do_not_cost_a_subscriber_a_sample(tmp_path):
     async def hostile():
         idle = []
         for _ in range(200):  # sessions opened and never closed
-            c = Client(endpoint, timeout=10)
+            c = asyncua_client(endpoint, 10.0)
             await c.connect()
             idle.append(c)
             rss.append(_rss_mb(serve.pid))
         browsed = await _browse_all(idle[1], idle[1].nodes.root, depth=6)  # a browse of everything
         for i in range(10):  # a wrong password, ten times
-            bad = Client(endpoint, timeout=5)
+            bad = asyncua_client(endpoint, 5.0)
             bad.set_user("ann")
             bad.set_password(f"wrong{i}")
             with pytest.raises((ua.UaError, OSError, TimeoutError, asyncio.TimeoutError)):
@@ -511,7 +534,7 @@ def test_hostile_clients_do_not_cost_a_subscriber_a_sample(tmp_path):
         for payload in (b"\x00" * 64, b"HELF" + b"\xff" * 60, os.urandom(4096), b"MSGF\x10\x00\x00\x00garbage"):
             with socket.create_connection((host, port), timeout=5) as s:  # malformed messages
                 s.sendall(payload)
-        legit = Client(endpoint, timeout=10)
+        legit = asyncua_client(endpoint, 10.0)
         await legit.connect()
         ns = await legit.get_namespace_index("urn:gantry-twin:opcua")
         sub = await legit.create_subscription(100, Legit())
@@ -577,6 +600,7 @@ def test_an_operator_stops_and_starts_the_twin_and_nobody_else_can(tmp_path):
 
     from asyncua import Client, ua
 
+    from gantry_twin.link.client import asyncua_client
     from gantry_twin.link.security import user_entry
 
     users = tmp_path / "users.yaml"
@@ -590,7 +614,7 @@ def test_an_operator_stops_and_starts_the_twin_and_nobody_else_can(tmp_path):
     )
 
     async def session(user: str | None = None, password: str | None = None) -> Client:
-        client = Client(endpoint, timeout=10)
+        client = asyncua_client(endpoint, 10.0)
         if user:
             client.set_user(user)
             client.set_password(password)

@@ -34,6 +34,15 @@ BACKOFF_S = (0.5, 1.0, 2.0, 4.0)
 CONNECT_TIMEOUT_S = 4.0
 
 
+def asyncua_client(endpoint: str, timeout_s: float) -> Client:
+    """An asyncua client whose requests, and whose probe of the server's state, may take ``timeout_s``.
+
+    asyncua probes the server's state every ``watchdog_intervall`` s and takes a probe unanswered for as long
+    for a lost connection. Its default, 1 s, took a loaded machine's server that answered late for a lost one:
+    a gap and a reconnect where no sample was missing."""
+    return Client(endpoint, timeout=timeout_s, watchdog_intervall=timeout_s)
+
+
 class ClientError(ValueError):
     """What the machine's server said or lacks, in one line (a node that does not exist, a wrong unit)."""
 
@@ -114,7 +123,7 @@ class MachineClient:
 
     async def _session(self) -> None:
         self._connected = False
-        client = Client(self.endpoint, timeout=CONNECT_TIMEOUT_S)
+        client = asyncua_client(self.endpoint, CONNECT_TIMEOUT_S)
         await asyncio.wait_for(client.connect(auto_reconnect=False), CONNECT_TIMEOUT_S + 1)
         try:
             self._connected = True
