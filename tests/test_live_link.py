@@ -361,6 +361,15 @@ class FakeMachine:
         self.server.put(("state", "finished"))
         self.server.drain()
 
+    def wait_delivered(self, timeout_s: float = 30.0) -> None:
+        """Wait (bounded) until every subscription has published what it queued and its client acknowledged it
+        (read from asyncua's server state; a sleep here lost samples to a subscriber slowed by load)."""
+        subscriptions = self.server._server.iserver.subscription_service.subscriptions
+        deadline = time.monotonic() + timeout_s
+        while any(s._triggered_datachanges or s._not_acknowledged_results for s in list(subscriptions.values())):
+            assert time.monotonic() < deadline, f"the subscriber did not read the blocks within {timeout_s:g} s"
+            time.sleep(0.05)
+
 
 class _Follow:
     """``monitor --opcua`` run by ``main`` in a thread of this process (no interpreter start-up: the machine is in
@@ -430,7 +439,7 @@ def test_shadow_counts_a_gap_and_a_reconnect_and_invents_no_sample(tmp_path, cap
         machine.wait_for_subscriber()
         machine.send(0, 5000)
         machine.send(5000, 5000)
-        time.sleep(1.0)  # the subscriber has read them (its publishing interval is 0.1 s)
+        machine.wait_delivered()
     try:
         with FakeMachine(port) as machine:  # the machine back, 2000 samples later
             machine.wait_for_subscriber()
