@@ -601,3 +601,23 @@ def test_a_monitor_that_judged_nothing_says_so_and_exits_5(tmp_path, capsys):
     assert code == cli.EXIT_NOT_JUDGED == 5
     assert "monitor judged nothing" in capsys.readouterr().err
     assert json.loads((tmp_path / "m" / "summary.json").read_text())["health"]["judged"] == []
+
+
+def test_a_crash_in_compiled_code_prints_the_python_stacks(tmp_path):
+    """The command line turns on faulthandler: a segmentation fault after main() started (as numba's or MuJoCo's
+    compiled code could cause) names where Python was, instead of ending with a bare signal."""
+    import subprocess
+    import sys
+
+    code = (
+        "import ctypes, sys\n"
+        "from gantry_twin.cli.app import main\n"
+        "sys.argv = ['gantry-twin', 'scenarios']\n"
+        "main()\n"
+        "ctypes.string_at(0)\n"
+    )
+    child = subprocess.run(
+        [sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=120, check=False
+    )
+    assert child.returncode < 0, (child.returncode, child.stderr)
+    assert "Fatal Python error: Segmentation fault" in child.stderr and "string_at" in child.stderr, child.stderr

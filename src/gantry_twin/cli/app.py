@@ -20,6 +20,9 @@ finished run, one of them stops it (exit status of the run).
 from __future__ import annotations
 
 import argparse
+import contextlib
+import faulthandler
+import io
 import os
 import signal
 import sys
@@ -265,6 +268,9 @@ def _add_set(parser: argparse.ArgumentParser, text: str = "override one scenario
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``gantry-twin`` console script; returns the exit code."""
+    if argv is None:  # the command line: a crash in compiled code (numba, MuJoCo) prints the Python stacks
+        with contextlib.suppress(AttributeError, ValueError, io.UnsupportedOperation):
+            faulthandler.enable()
     parser = build_parser()
     try:
         args = parser.parse_args(argv)
