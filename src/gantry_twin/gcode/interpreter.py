@@ -29,7 +29,7 @@ from pathlib import Path
 from gantry_twin.gcode.blocks import Structure, StructureError, structure
 from gantry_twin.gcode.expressions import ReadError
 from gantry_twin.gcode.lexer import Line, lex
-from gantry_twin.gcode.machine import MODAL_GROUPS, SYSTEMS, Machine
+from gantry_twin.gcode.machine import CYCLES, MODAL_GROUPS, SYSTEMS, Machine
 from gantry_twin.gcode.offsets import P_SYSTEM, P_SYSTEM_X
 from gantry_twin.gcode.program import TRAVEL_HALF_M, GcodeError, Program, check_move, read_bytes, text_lines
 from gantry_twin.gcode.tools import Tool
@@ -45,6 +45,9 @@ SUB_PARAMS = 30
 NAMED_STATE = ("_x", "_y", "_metric", "_imperial", "_absolute", "_incremental", "_coord_system", "_feed",
                "_current_tool", "_selected_tool", "_line", "_call_level", "_motion_mode")  # fmt: skip
 _SUBSTITUTE = re.compile(r"#<([^<>]*)>|#(\d+)")
+#: The modal groups each G code belongs to (MODAL_GROUPS read the other way, once).
+_GROUPS_OF = {code: tuple(g for g, members in MODAL_GROUPS.items() if code in members)
+              for members in MODAL_GROUPS.values() for code in members}  # fmt: skip
 
 
 @dataclass
@@ -204,6 +207,12 @@ class Interpreter:
         """One line of words and settings; True when it ends the program."""
         if line.constant is not None:  # constant axis and feed words: read once
             return self.machine.execute(dict(line.constant[0]), line.number, line.constant[1])
+        if not line.words and not line.messages and self.machine.motion not in CYCLES:
+            # parameter settings only: nothing for the machine to do (a modal cycle goes the whole way)
+            self.machine.column, self.machine.number = {}, line.number
+            self.assign([(self.target(a.target, a.column), a.value if isinstance(a.value, float) else a.value(self))
+                         for a in line.assignments])  # fmt: skip
+            return False
         words: dict[str, float] = {}
         columns: dict[str, int] = {}
         groups: set[str] = set()
@@ -218,11 +227,10 @@ class Interpreter:
                     shown = f"{word.letter}{value:.12g}"
                     raise self.error(word.column, shown[:13] + "..." if len(shown) > 13 else shown,
                                      f"unknown {word.letter} code")  # fmt: skip
-                for group, members in MODAL_GROUPS.items():
-                    if key in members:
-                        if group in groups and group != "non-modal" and not ("G80" in words or key == "G80"):
-                            raise self.error(word.column, key, f"a second {group} code on the line")
-                        groups.add(group)
+                for group in _GROUPS_OF.get(key, ()):
+                    if group in groups and group != "non-modal" and not ("G80" in words or key == "G80"):
+                        raise self.error(word.column, key, f"a second {group} code on the line")
+                    groups.add(group)
                 if key in words:
                     raise self.error(word.column, key, "repeated on the line")
             elif key in words:
@@ -234,13 +242,17 @@ class Interpreter:
         for kind, text in line.messages:
             shown = text if kind == "msg" else _SUBSTITUTE.sub(self.substitute, text)
             self.messages.append(f"{self.unit.name}:{line.number}: {kind}: {shown}")
+        self.assign(settings)
+        self.modal_state(words, columns)
+        return self.machine.execute(words, line.number, columns)
+
+    def assign(self, settings: list[tuple[int | str, float]]) -> None:
+        """Set the line's parameters, all at once after the line was read (LinuxCNC's after-the-line rule)."""
         for target, value in settings:
             if isinstance(target, str):
                 (self.globals if target.startswith("_") else self.frames[-1].locals)[target] = value
             else:
                 self.params[target] = value
-        self.modal_state(words, columns)
-        return self.machine.execute(words, line.number, columns)
 
     def target(self, target, column: int) -> int | str:
         if isinstance(target, str):
