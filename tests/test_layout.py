@@ -184,6 +184,7 @@ TIERS: tuple[tuple[str, ...], ...] = (
     ("metrics", "sysid"),
     ("health",),
     ("outputs", "telemetry"),
+    ("cnc",),
     ("scenario",),
     ("run",),
     ("sweep", "link", "fmi"),

@@ -21,9 +21,10 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, NamedTuple
 
+from gantry_twin.cnc.reference import CNC_COMMANDS_FILE, CNC_FILE
 from gantry_twin.controllers.base import compiled_step_of
 from gantry_twin.gcode.part_error import PartErrorWatch
-from gantry_twin.gcode.sampling import Plan
+from gantry_twin.gcode.sampling import ProgramPath
 from gantry_twin.loop.events import TravelWatch
 from gantry_twin.loop.simulate import sample_count, simulate
 from gantry_twin.loop.trace import Observer, SimulationError, Trace
@@ -46,7 +47,7 @@ from gantry_twin.scenario.building import estimate_confidence
 SUMMARY_FILE = "summary.json"
 SCENARIO_FILE = "scenario.yaml"
 RUN_INFO_FILE = "run_info.json"
-RUN_FILES = (SUMMARY_FILE, SCENARIO_FILE, TRACE_FILE, RUN_INFO_FILE)
+RUN_FILES = (SUMMARY_FILE, SCENARIO_FILE, TRACE_FILE, RUN_INFO_FILE, CNC_FILE, CNC_COMMANDS_FILE)
 #: The directory of a run's figures (:mod:`gantry_twin.outputs.plots`), written before summary.json when asked for.
 PLOTS_DIR = "plots"
 
@@ -234,6 +235,10 @@ class RunWriter:
             written.append(SCENARIO_FILE)
             atomic_write_text(out / RUN_INFO_FILE, json.dumps(_run_info(wall_time_s, compile_s), indent=2) + "\n")
             written.append(RUN_INFO_FILE)
+            run_files = getattr(built.path, "run_files", None)  # a CNC's side of the run (docs/linuxcnc.md)
+            for name, text in (run_files() if callable(run_files) else {}).items():
+                atomic_write_text(out / name, text)
+                written.append(name)
             if self.plots and self._plot(data, TRACE_FILE in written):
                 written.append(PLOTS_DIR)
             for name in RUN_FILES:  # an earlier run's files that this run does not write
@@ -263,7 +268,7 @@ class RunWriter:
             self.plots_skipped = "no trace.parquet to draw from (outputs.trace: false)"
             return False
         try:
-            plan = self.built.path if isinstance(self.built.path, Plan) else None
+            plan = self.built.path if isinstance(self.built.path, ProgramPath) else None
             write_plots(self.out, self.out / PLOTS_DIR, data, self.plot_format, self.plot_dpi, plan)
         except Exception as exc:  # a figure is not worth the run
             self.plots_skipped = f"drawing them raised {type(exc).__name__}: {exc}"
@@ -354,14 +359,14 @@ def run_metrics(built: BuiltRun) -> RunMetrics:
     """What summary.json judges a run by: its scenario's windows; a part program's rapid (G0) moves left out of
     the contour figures (the part error leaves them out too; docs/gcode.md)."""
     confidence = estimate_confidence(built)
-    if isinstance(built.path, Plan):
+    if isinstance(built.path, ProgramPath):
         return RunMetrics.for_program(built.scenario, built.path.rapid_spans(), confidence)
     return RunMetrics.for_scenario(built.scenario, confidence)
 
 
 def part_watch(built: BuiltRun) -> PartErrorWatch | None:
     """The part-error observer of a run of a G-code program (its contour is a planned program)."""
-    return PartErrorWatch(built.path) if isinstance(built.path, Plan) else None
+    return PartErrorWatch(built.path) if isinstance(built.path, ProgramPath) else None
 
 
 class ScenarioRun(NamedTuple):

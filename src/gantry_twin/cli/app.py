@@ -37,6 +37,7 @@ from gantry_twin.cli import excite as excite_command
 from gantry_twin.cli import export as export_command
 from gantry_twin.cli import fmu as fmu_command
 from gantry_twin.cli import identify as identify_command
+from gantry_twin.cli import linuxcnc as linuxcnc_command
 from gantry_twin.cli import program as program_command
 from gantry_twin.cli import report as report_command
 from gantry_twin.cli import runs as runs_command
@@ -65,6 +66,7 @@ from gantry_twin.cli.common import (  # noqa: F401 -- the exit codes: tests and 
 from gantry_twin.cli.printing import format_health, format_summary, touched_end_stop, travel_warnings
 from gantry_twin.cli.progress import ProgressBar, add_progress_arguments, progress_bar, progress_wanted  # noqa: F401 -- ProgressBar: tests
 from gantry_twin.cli.telemetry import add_telemetry_arguments, telemetry_observers
+from gantry_twin.cnc.session import LinuxCncError
 from gantry_twin.controllers import available
 from gantry_twin.loop.compiling import compile_notice
 from gantry_twin.numerics.jit import CacheDirError, check_cache_dir
@@ -123,7 +125,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(
         dest="command",
         required=True,
-        metavar="{run,monitor,validate,report,sweep,calibrate,tune,scenarios,sweeps,runs,export,compare,identify,excite,compile,serve,fmu}",
+        metavar="{run,monitor,validate,report,sweep,calibrate,tune,scenarios,sweeps,runs,export,compare,identify,excite,compile,serve,fmu,linuxcnc}",
         parser_class=_Parser,
     )
 
@@ -190,6 +192,7 @@ def build_parser() -> argparse.ArgumentParser:
     calibrate_command.add_arguments(calibrate)
     calibrate.set_defaults(func=calibrate_command.command)
     tune_command.register(sub)
+    linuxcnc_command.register(sub)
 
     scenarios = sub.add_parser("scenarios", help="list the shipped scenarios, one line each")
     scenarios.set_defaults(func=_scenarios)
@@ -293,7 +296,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 #: The commands that call no compiled kernel (every other one may compile, or load, the loops: the cache is
 #: checked before it starts). ``excite --no-run`` runs nothing either.
-COMPILES_NOTHING = ("validate", "scenarios", "sweeps", "runs", "export", "compare")
+COMPILES_NOTHING = ("validate", "scenarios", "sweeps", "runs", "export", "compare", "linuxcnc")
 
 
 def _check_kernel_cache() -> None:
@@ -428,6 +431,9 @@ def _run(args: argparse.Namespace) -> int:
         if program is not None and exc.field == "contour.file":
             raise BadInput(exc.message) from None  # FILE:LINE: WORD: what is wrong
         raise
+    except LinuxCncError as exc:  # LinuxCNC could not run the program: not the user's input
+        print(f"{PROG}: run failed: {exc}", file=sys.stderr)
+        return EXIT_RUN_FAILED
     out = out_dir(args.out, scenario)
     with _writer(out, built, args) as writer:
         telemetry = telemetry_observers(args)  # checks every option before anything runs

@@ -37,6 +37,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="a directory searched for a part program's NAME.ngc subroutines before the program's own (repeatable)",
     )
     parser.add_argument(
+        "--cnc",
+        choices=("twin", "linuxcnc"),
+        help="who reads and plans a part program: the twin (default) or LinuxCNC, run headless, whose recorded "
+        "commands the twin tracks (docs/linuxcnc.md)",
+    )
+    parser.add_argument(
+        "--cnc-ini",
+        metavar="FILE",
+        help="with --cnc linuxcnc: a LinuxCNC INI whose [TRAJ], [AXIS_X], [AXIS_Y] and joint limits LinuxCNC plans "
+        "with (default: the twin's machine, gantry-twin linuxcnc config)",
+    )
+    parser.add_argument(
         "--tool-table",
         metavar="FILE",
         help="a LinuxCNC tool table: the diameters (mm) that cutter radius compensation (G41 / G42) uses",
@@ -50,6 +62,10 @@ def overrides(args: argparse.Namespace, program: Path | None) -> list[str]:
         out += [f"contour={{type: gcode, file: {json.dumps(str(program))}}}", f"name={label_from(program.stem)}"]
     if getattr(args, "drop_unsupported", False):
         out.append("contour.drop_unsupported=true")
+    if getattr(args, "cnc", None):
+        out.append(f"contour.cnc={args.cnc}")
+    if getattr(args, "cnc_ini", None):
+        out.append(f"contour.cnc_ini={json.dumps(str(Path(args.cnc_ini).resolve()))}")
     if getattr(args, "tool_table", None):
         out.append(f"contour.tool_table={json.dumps(str(Path(args.tool_table).resolve()))}")
     if getattr(args, "subroutine_path", None):

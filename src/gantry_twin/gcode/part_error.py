@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gantry_twin.gcode.sampling import Plan
+from gantry_twin.gcode.sampling import ProgramPath
 
 
 @dataclass(frozen=True)
@@ -63,13 +63,15 @@ class PartError:
     feed_achieved_m_s: float
 
 
-def distance_to_program(plan: Plan, move: np.ndarray, q_m: np.ndarray, neighbours: int = 2, rapids: bool = False):
+def distance_to_program(
+    plan: ProgramPath, move: np.ndarray, q_m: np.ndarray, neighbours: int = 2, rapids: bool = False
+):
     """Distance of q[i] to the programmed moves move[i] - neighbours .. move[i] + neighbours (feed moves only
     unless ``rapids``), m; NaN during a rapid (unless ``rapids``)."""
     return _nearest_moves(plan, move, q_m, neighbours, rapids)[0]
 
 
-def nearest_on_program(plan: Plan, move: np.ndarray, q_m: np.ndarray, neighbours: int = 2, rapids: bool = False):
+def nearest_on_program(plan: ProgramPath, move: np.ndarray, q_m: np.ndarray, neighbours: int = 2, rapids: bool = False):
     """(distance m (n,), nearest programmed point m (n, 2)) of q[i] among the moves :func:`distance_to_program`
     measures against; NaN where it measures nothing (a rapid)."""
     distance, k = _nearest_moves(plan, move, q_m, neighbours, rapids)
@@ -81,7 +83,7 @@ def nearest_on_program(plan: Plan, move: np.ndarray, q_m: np.ndarray, neighbours
     return distance, point
 
 
-def _nearest_moves(plan: Plan, move: np.ndarray, q_m: np.ndarray, neighbours: int, rapids: bool):
+def _nearest_moves(plan: ProgramPath, move: np.ndarray, q_m: np.ndarray, neighbours: int, rapids: bool):
     """The distance of each q[i] to its nearest counted move and that move's index (-1 and NaN: none)."""
     table = plan.table
     counted = np.ones(len(plan.moves), dtype=bool) if rapids else ~plan.rapid
@@ -103,7 +105,7 @@ def _nearest_moves(plan: Plan, move: np.ndarray, q_m: np.ndarray, neighbours: in
 
 
 def part_error(
-    plan: Plan,
+    plan: ProgramPath,
     t_s: np.ndarray,
     q_m: np.ndarray,
     neighbours: int = 2,
@@ -179,7 +181,7 @@ class PartErrorWatch:
     """An Observer that keeps a run's true positions and gives its :func:`part_error` as summary.json's
     ``part_error`` section (:meth:`summary`): totals in um, the worst blocks and corners."""
 
-    def __init__(self, plan: Plan) -> None:
+    def __init__(self, plan: ProgramPath) -> None:
         self.plan = plan
         self._t: list[np.ndarray] = []
         self._q: list[np.ndarray] = []

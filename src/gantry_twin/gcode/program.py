@@ -20,6 +20,8 @@ MAX_FILE_BYTES = 32 * 1024 * 1024
 MAX_LINE_CHARS = 256
 #: Half the travel of each axis about the centre, m (the joints' range in models/gantry.xml).
 TRAVEL_HALF_M = (0.255, 0.255)
+#: Clearance kept between a contour and the end of travel, metres (a run's path stays within the half travel less it).
+TRAVEL_MARGIN_M = 0.005
 
 
 class GcodeError(ValueError):

@@ -15,6 +15,7 @@ distance to the planned path, which is what
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
@@ -36,6 +37,33 @@ class Samples:
     dalpha_rad_s: np.ndarray
     ddalpha_rad_s2: np.ndarray
     move: np.ndarray  # index of the latest move started (0 before the first)
+
+
+@runtime_checkable
+class ProgramPath(Protocol):
+    """A part program's path in time (phi = t): the twin's own :class:`Plan`, or a CNC's recorded commands
+    (:class:`gantry_twin.cnc.reference.CncPath`). The loop runs it as a
+    :class:`~gantry_twin.paths.contours.TimedContour`; the part error, the part figure and the summary read the
+    programmed moves and when each ran: ``program`` (its :class:`~gantry_twin.gcode.program.Program`), ``moves``
+    and ``table`` (:class:`MoveTable`), ``rapid`` (moves the part error leaves out), ``t0_s`` / ``end_s`` (when each
+    move starts and ends), ``kind`` (each junction: STOP, PASS, BLEND of :mod:`gantry_twin.gcode.planner`),
+    ``alpha_start`` / ``alpha_end`` (each move's tangent angles), ``duration_s``, ``sample(t)`` (with ``move``:
+    the move run at t) and ``rapid_spans()``."""
+
+    program: object
+    moves: list
+    table: MoveTable
+    rapid: np.ndarray
+    t0_s: np.ndarray
+    end_s: np.ndarray
+    kind: np.ndarray
+    alpha_start: np.ndarray
+    alpha_end: np.ndarray
+    duration_s: float
+
+    def sample(self, t_s: np.ndarray) -> Samples: ...
+
+    def rapid_spans(self) -> list[tuple[float, float]]: ...
 
 
 class Plan:
@@ -89,33 +117,9 @@ class Plan:
         coarse_s: float = 2e-3,
         fine_s: float = 2e-4,
     ) -> tuple[np.ndarray, np.ndarray]:
-        """eps_c against the planned path: the distance to its nearest chord, signed along the normal
-        [-sin alpha, cos alpha] there. The path is searched every ``coarse_s`` within ``window_s`` of the
-        desired time, then every ``fine_s`` about the nearest coarse chord. Returns (eps_c m, time s of the
-        closest point)."""
-        q = np.asarray(q_m, dtype=float).reshape(-1, 2)
-        guess = np.asarray(phi_guess, dtype=float).reshape(-1)
-        centre = self._nearest_chord(q, guess, round(window_s / coarse_s), coarse_s)[2]
-        dist, nearest, t_best = self._nearest_chord(q, centre, round(coarse_s / fine_s), fine_s)
-        alpha = self.sample(t_best).alpha_rad
-        d = q - nearest
-        sign = np.where(d[:, 0] * -libm.sin(alpha) + d[:, 1] * libm.cos(alpha) >= 0.0, 1.0, -1.0)
-        return sign * dist, t_best
-
-    def _nearest_chord(self, q: np.ndarray, centre: np.ndarray, half: int, step_s: float):
-        """Distance, point and time of the nearest point of the chords between path samples centre + i step."""
-        offsets = np.arange(-half, half + 1) * step_s
-        times = np.clip(centre[:, None] + offsets[None, :], 0.0, self.duration_s)
-        points = self.sample(times.reshape(-1)).q_m.reshape(len(q), len(offsets), 2)
-        a, chord = points[:, :-1], np.diff(points, axis=1)
-        length2 = np.einsum("nkj,nkj->nk", chord, chord)
-        w = np.clip(np.einsum("nkj,nkj->nk", q[:, None] - a, chord) / np.where(length2 > 0, length2, 1.0), 0, 1)
-        nearest = a + w[..., None] * chord
-        dist = np.linalg.norm(q[:, None] - nearest, axis=2)
-        best = np.argmin(dist, axis=1)
-        rows = np.arange(len(q))
-        t_best = times[rows, best] + w[rows, best] * (times[rows, best + 1] - times[rows, best])
-        return dist[rows, best], nearest[rows, best], t_best
+        """eps_c against the planned path (:func:`timed_contour_error`). Returns (eps_c m, time s of the closest
+        point)."""
+        return timed_contour_error(self.sample, self.duration_s, q_m, phi_guess, window_s, coarse_s, fine_s)
 
     # ------------------------------------------------------------------ sampling
     def _profile(self, k: np.ndarray, tau: np.ndarray):
@@ -177,3 +181,42 @@ class Plan:
             dalpha[turning] = turn * (30 * x**2 - 60 * x**3 + 30 * x**4) / tp
             ddalpha[turning] = turn * (60 * x - 180 * x**2 + 120 * x**3) / tp**2
         return Samples(t, q, v, a, j, alpha, dalpha, ddalpha, k)
+
+
+def timed_contour_error(
+    sample,
+    duration_s: float,
+    q_m: np.ndarray,
+    phi_guess: np.ndarray,
+    window_s: float = 0.02,
+    coarse_s: float = 2e-3,
+    fine_s: float = 2e-4,
+) -> tuple[np.ndarray, np.ndarray]:
+    """eps_c against a path sampled in time (``sample(t)`` gives :class:`Samples`; t in [0, ``duration_s``]): the
+    distance to its nearest chord, signed along the normal [-sin alpha, cos alpha] there. The path is searched every
+    ``coarse_s`` within ``window_s`` of the desired time, then every ``fine_s`` about the nearest coarse chord.
+    Returns (eps_c m, time s of the closest point)."""  # fmt: skip
+    q = np.asarray(q_m, dtype=float).reshape(-1, 2)
+    guess = np.asarray(phi_guess, dtype=float).reshape(-1)
+    centre = _nearest_chord(sample, duration_s, q, guess, round(window_s / coarse_s), coarse_s)[2]
+    dist, nearest, t_best = _nearest_chord(sample, duration_s, q, centre, round(coarse_s / fine_s), fine_s)
+    alpha = sample(t_best).alpha_rad
+    d = q - nearest
+    sign = np.where(d[:, 0] * -libm.sin(alpha) + d[:, 1] * libm.cos(alpha) >= 0.0, 1.0, -1.0)
+    return sign * dist, t_best
+
+
+def _nearest_chord(sample, duration_s: float, q: np.ndarray, centre: np.ndarray, half: int, step_s: float):
+    """Distance, point and time of the nearest point of the chords between path samples centre + i step."""
+    offsets = np.arange(-half, half + 1) * step_s
+    times = np.clip(centre[:, None] + offsets[None, :], 0.0, duration_s)
+    points = sample(times.reshape(-1)).q_m.reshape(len(q), len(offsets), 2)
+    a, chord = points[:, :-1], np.diff(points, axis=1)
+    length2 = np.einsum("nkj,nkj->nk", chord, chord)
+    w = np.clip(np.einsum("nkj,nkj->nk", q[:, None] - a, chord) / np.where(length2 > 0, length2, 1.0), 0, 1)
+    nearest = a + w[..., None] * chord
+    dist = np.linalg.norm(q[:, None] - nearest, axis=2)
+    best = np.argmin(dist, axis=1)
+    rows = np.arange(len(q))
+    t_best = times[rows, best] + w[rows, best] * (times[rows, best + 1] - times[rows, best])
+    return dist[rows, best], nearest[rows, best], t_best

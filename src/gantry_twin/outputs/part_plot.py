@@ -32,7 +32,7 @@ import numpy as np
 
 from gantry_twin.gcode.geometry import MoveTable
 from gantry_twin.gcode.part_error import nearest_on_program
-from gantry_twin.gcode.sampling import Plan
+from gantry_twin.gcode.sampling import ProgramPath
 
 #: The XY panels drawn side by side at most (runs beyond are in the time panel only).
 MAX_PANELS = 3
@@ -48,7 +48,7 @@ COLOURS = "plasma"
 class PartSeries:
     """One run's part error binned for drawing: times s, actual and nearest programmed points m, error m."""
 
-    plan: Plan
+    plan: ProgramPath
     t_s: np.ndarray
     q_m: np.ndarray
     nearest_m: np.ndarray
@@ -59,7 +59,7 @@ class PartBins:
     """Gathers, per bin of ``bin_size`` trace rows, the sample of largest part error (the bin's first sample if
     none is measured)."""
 
-    def __init__(self, plan: Plan, bin_size: int) -> None:
+    def __init__(self, plan: ProgramPath, bin_size: int) -> None:
         self.plan, self.bin_size = plan, bin_size
         self.parts: list[tuple[np.ndarray, ...]] = []
 
@@ -91,11 +91,11 @@ def magnification(parts: Sequence[PartSeries]) -> float:
     return max(f * decade for f in (1.0, 2.0, 5.0) if f * decade <= raw)
 
 
-def _geometry_points(plan: Plan) -> np.ndarray:
+def _geometry_points(plan: ProgramPath) -> np.ndarray:
     return np.vstack([plan.table.polyline(k) for k in range(plan.table.count)])
 
 
-def _draw_program(ax: Any, plan: Plan) -> None:
+def _draw_program(ax: Any, plan: ProgramPath) -> None:
     """The programmed lines and arcs, mm: feed moves solid, rapids dotted; under cutter radius compensation
     (G41 / G42) these are the tool centre's, and the part's outline as programmed is drawn thin and dashed."""
     programmed = [m for m in getattr(plan.program, "programmed_moves", ()) if not m.rapid]
@@ -115,7 +115,7 @@ def _draw_program(ax: Any, plan: Plan) -> None:
             feed = False
 
 
-def _mark_worst(ax: Any, summary: Any, plan: Plan) -> None:
+def _mark_worst(ax: Any, summary: Any, plan: ProgramPath) -> None:
     """summary.json's worst blocks (a band under the program) and worst corners (circled, labelled)."""
     part = summary.part_error
     if part is None:

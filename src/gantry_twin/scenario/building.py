@@ -15,7 +15,12 @@ from pathlib import Path
 
 import numpy as np
 
+from gantry_twin.cnc.config import CncConfigError, machine_from_ini, twin_machine
+from gantry_twin.cnc.offline import run_program
+from gantry_twin.cnc.reference import CncPath
+from gantry_twin.cnc.session import missing as linuxcnc_missing
 from gantry_twin.controllers import Controller, EstimatorSettings, PluginError, create
+from gantry_twin.gcode.program import TRAVEL_MARGIN_M
 from gantry_twin.gcode.reader import GcodeError
 from gantry_twin.health.confidence import EstimateConfidence
 from gantry_twin.health.monitor import Baseline, ExcitationSettings, HealthSettings, MachineMonitor
@@ -31,9 +36,6 @@ from gantry_twin.scenario.errors import ScenarioError
 from gantry_twin.scenario.loading import controller_options
 from gantry_twin.scenario.schema import GcodeSpec, Scenario
 from gantry_twin.settings import quote, shorten
-
-#: Clearance kept between a contour and the end of travel, metres.
-TRAVEL_MARGIN_M = 0.005
 
 
 @dataclass(frozen=True)
@@ -105,9 +107,13 @@ def _follow_the_plan(scenario: Scenario, path: Contour, timestep_s: float, sourc
         return scenario
     d = max(math.ceil(float(path.duration_s) / timestep_s), 2) * timestep_s
     update: dict[str, object] = {"duration_s": d}
-    file = Path(scenario.contour.file)
-    if not file.is_absolute() and Path(source).is_file():
-        update["contour"] = scenario.contour.model_copy(update={"file": str((Path(source).parent / file).resolve())})
+    if Path(source).is_file():  # its files by their absolute paths
+        named = {"file": scenario.contour.file, "cnc_ini": scenario.contour.cnc_ini}
+        files = {
+            k: str((Path(source).parent / v).resolve()) for k, v in named.items() if v and not Path(v).is_absolute()
+        }
+        if files:
+            update["contour"] = scenario.contour.model_copy(update=files)
     if scenario.window_s is None:
         update["window_s"] = (0.0, d)
     if scenario.estimates_window_s is None:
@@ -122,9 +128,25 @@ def _contour_path(scenario: Scenario, source: str) -> Contour:
         return contour.path()
     base = Path(source).parent if Path(source).is_file() else None
     try:
+        if contour.cnc == "linuxcnc":
+            return _linuxcnc_path(contour, base, source)
         return contour.plan(base)
     except GcodeError as exc:
         raise ScenarioError(source, "contour.file", str(exc)) from None
+
+
+def _linuxcnc_path(contour: GcodeSpec, base: Path | None, source: str) -> CncPath:
+    """The program run by LinuxCNC (docs/linuxcnc.md): its recorded commands as the reference. LinuxCNC's own
+    failures (:class:`~gantry_twin.cnc.session.LinuxCncError`) are raised as they are: not the scenario's."""
+    why = linuxcnc_missing()
+    if why is not None:
+        raise ScenarioError(source, "contour.cnc", f"linuxcnc: {why}")
+    try:
+        machine = twin_machine() if contour.cnc_ini is None else machine_from_ini(contour.here(contour.cnc_ini, base))
+    except CncConfigError as exc:
+        raise ScenarioError(source, "contour.cnc_ini", str(exc)) from None
+    table = contour.here(contour.tool_table, base) if contour.tool_table is not None else None
+    return CncPath(run_program(contour.here(contour.file, base), machine, table))
 
 
 def scenario_plant(scenario: Scenario, payload_body: bool, source: str) -> Plant:

@@ -131,7 +131,11 @@ class GcodeSpec(Model):
     each system's origin); tool_table: a LinuxCNC tool table (relative to
     the scenario file; docs/gcode.md, "Cutter radius compensation") and
     tools: tool number -> diameter mm, beside or instead of it (an entry
-    here replaces the table's), for G41 / G42.
+    here replaces the table's), for G41 / G42. cnc: who reads and plans the
+    program: ``twin`` (the twin's reader and planner) or ``linuxcnc``
+    (LinuxCNC runs it and the twin tracks its recorded commands;
+    docs/linuxcnc.md); cnc_ini: a LinuxCNC INI (relative to the scenario
+    file) whose limits LinuxCNC plans with (default: the twin's machine).
     """
 
     type: Literal["gcode"] = "gcode"
@@ -146,6 +150,8 @@ class GcodeSpec(Model):
     limits: LimitsSpec | None = None
     rapid_limits: LimitsSpec | None = None
     pivot_s: Range(0.0, 1.0, "s", lo_open=True) = 0.02
+    cnc: Literal["twin", "linuxcnc"] = "twin"
+    cnc_ini: str | None = None
     timing: GcodeTimingSpec = GcodeTimingSpec()
 
     default_rate_rad_s: ClassVar[float] = 1.0
@@ -163,8 +169,7 @@ class GcodeSpec(Model):
         """Read the program (raises :class:`~gantry_twin.gcode.GcodeError`)."""
 
         def here(name: str) -> Path:
-            path = Path(name)
-            return base_dir / path if base_dir is not None and not path.is_absolute() else path
+            return self.here(name, base_dir)
 
         tools = read_tool_table(here(self.tool_table)) if self.tool_table is not None else {}
         for number, diameter_mm in self.tools.items():
@@ -178,6 +183,12 @@ class GcodeSpec(Model):
 
     def path(self) -> Plan:
         return self.plan()
+
+    @staticmethod
+    def here(name: str, base_dir: Path | None) -> Path:
+        """A file named in the spec: relative to the scenario file's directory ``base_dir`` (if any)."""
+        path = Path(name)
+        return base_dir / path if base_dir is not None and not path.is_absolute() else path
 
 
 ContourSpec = Annotated[CircleSpec | EllipseSpec | GcodeSpec, Field(discriminator="type")]

@@ -23,7 +23,7 @@ import numpy as np
 import rerun as rr
 
 from gantry_twin.gcode.part_error import distance_to_program
-from gantry_twin.gcode.sampling import Plan
+from gantry_twin.gcode.sampling import ProgramPath
 from gantry_twin.loop.trace import RunInfo, Trace
 from gantry_twin.paths.contours import reference
 from gantry_twin.plant.model import THETA_NAMES, THETA_UNITS
@@ -171,7 +171,7 @@ class RerunObserver:
         step = max(1, samples // 4000)
         times_s = np.append(np.arange(0, samples, step), samples - 1) * ts
         self._desired_mm = reference(run.path, run.timing, times_s).q_d * 1e3
-        self._plan = run.path if isinstance(run.path, Plan) else None  # a part program: its part error too
+        self._plan = run.path if isinstance(run.path, ProgramPath) else None  # a part program: its part error too
         if self._plan is not None and self._magnification_given is None:
             self.error_magnification = PROGRAM_ERROR_MAGNIFICATION
         self.recording.send_recording_name(f"{run.controller_name}, {run.duration_s:g} s")

@@ -1,0 +1,229 @@
+"""LinuxCNC's recorded commands as the loop's reference (a part program's path in time, phi = t).
+
+LinuxCNC's X and Y joint commands, recorded at every servo period T
+(:class:`~gantry_twin.cnc.offline.CncRecord`), are interpolated to the
+twin's 0.2 ms samples by the cubic spline through them with zero velocity
+at both ends (the machine starts and ends at rest; ``scipy.interpolate.CubicSpline``,
+``bc_type="clamped"``): it passes through every recorded command exactly,
+and q_d', q_d'' and q_d''' are its derivatives, so the reference's velocity
+and acceleration are those of the position the loop tracks (C2: the
+acceleration is continuous, the jerk piecewise constant). On a straight
+line the spline stays on it (a spline reproduces every affine function).
+
+The task frame's angle alpha (eq. 1) is the direction of q_d' where the
+reference moves at ``DIRECTION_SPEED_M_S`` or faster, with alpha' =
+(v x a) / |v|^2 and alpha'' its derivative (v x j / |v|^2 - 2 (v x a)(v . a)
+/ |v|^4); slower, near a stop or a start, the direction of a velocity that
+turns a corner within a millisecond says little, and alpha is the tangent
+of the canonical move the sample is on, at its nearest point (alpha' = c v . T,
+alpha'' = c a . T, c the move's curvature): at a corner where LinuxCNC
+stops, alpha turns at once, at rest. alpha is unwrapped along the run.
+
+The programmed path is the program as LinuxCNC's interpreter reads it
+(:mod:`gantry_twin.cnc.canon`); each servo sample is attributed to the
+canonical move it is on (:func:`attribute`), so that the part error
+(:mod:`gantry_twin.gcode.part_error`) measures each sample against the
+moves around its own, as it does for the twin's own plan. Docs: docs/linuxcnc.md.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import replace
+
+import numpy as np
+from scipy.interpolate import CubicSpline
+
+from gantry_twin.cnc.offline import CncRecord
+from gantry_twin.gcode.geometry import Move, MoveTable
+from gantry_twin.gcode.program import Program
+from gantry_twin.gcode.sampling import Samples, timed_contour_error
+from gantry_twin.numerics import libm
+from gantry_twin.paths.contours import Reference
+
+#: LinuxCNC's side of a run directory: what it did (program time, messages, limits) and its recorded commands.
+CNC_FILE, CNC_COMMANDS_FILE = "linuxcnc.json", "linuxcnc_commands.csv"
+#: From this speed on, alpha is the direction of the reference's velocity; below it, the tangent of its move (m/s).
+DIRECTION_SPEED_M_S = 0.05
+#: A junction is a stop when the command's speed nearest the corner is below this (m/s).
+STOP_SPEED_M_S = 1e-3
+
+
+class CncPath:
+    """A program's path as LinuxCNC commanded it: the loop's :class:`~gantry_twin.paths.contours.TimedContour`
+    and, for the part error, the canonical moves with the time each one ran (the attributes of
+    :class:`~gantry_twin.gcode.sampling.ProgramPath`). ``rapid`` marks the moves the part error leaves out: rapids,
+    and the stretches whose geometry rs274 does not print (splines)."""
+
+    def __init__(self, record: CncRecord) -> None:
+        self.record = record
+        canon = record.canon
+        self.servo_t_s = record.t_s
+        self.duration_s = float(record.t_s[-1])
+        self._spline = CubicSpline(record.t_s, record.q_m, bc_type="clamped")
+        moves = canon.moves or [Move("line", tuple(record.q_m[0]), tuple(record.q_m[0]), math.inf, True, 0)]
+        self.table = MoveTable(moves)
+        self.servo_move = attribute(self.table, record.q_m)
+        self.moves = moves = [_with_line(m, record.line[self.servo_move == k]) for k, m in enumerate(moves)]
+        move_index = [i for i, item in enumerate(canon.items) if isinstance(item, Move)]
+        unjudged = {k for k, i in enumerate(move_index) if i in canon.unjudged}
+        self.true_rapid = np.array([m.rapid for m in moves], dtype=bool)
+        self.rapid = self.true_rapid | np.array([k in unjudged for k in range(len(moves))], dtype=bool)
+        self.program = Program(
+            name=canon.name, items=canon.items, start_m=(float(record.q_m[0, 0]), float(record.q_m[0, 1])),
+            dropped={"spline or other-plane moves not judged": len(unjudged)} if unjudged else {},
+            messages=(*canon.messages, *record.messages), programmed_moves=tuple(moves),
+        )  # fmt: skip
+        self._alpha_servo = self._servo_alpha()
+        n = self.table.count
+        first = np.searchsorted(self.servo_move, np.arange(n), side="left")
+        last = np.searchsorted(self.servo_move, np.arange(n), side="right") - 1
+        self.t0_s = record.t_s[np.clip(first, 0, len(record.t_s) - 1)]
+        self.end_s = record.t_s[np.clip(np.maximum(last, first), 0, len(record.t_s) - 1)]
+        speed = np.linalg.norm(self._spline(record.t_s, 1), axis=1)
+        self.kind = np.full(n, 2, dtype=int)  # a junction after move k - 1: blend unless LinuxCNC stopped there
+        for k in range(1, n):
+            rows = slice(max(last[k - 1], 0), max(first[k], 0) + 1)
+            if speed[rows].size and speed[rows].min() < STOP_SPEED_M_S:
+                self.kind[k] = 0
+        self.alpha_start = np.array([m.tangent_angle(0.0) for m in moves])
+        self.alpha_end = np.array([m.tangent_angle(m.length_m) for m in moves])
+
+    def run_files(self) -> dict[str, str]:
+        """LinuxCNC's side of the run directory (:data:`CNC_FILE`, :data:`CNC_COMMANDS_FILE`): name -> text."""
+        record, machine = self.record, self.record.machine
+        info = {
+            "cnc": "linuxcnc",
+            "program": self.program.name,
+            "program_time_s": record.program_time_s,
+            "servo_period_s": record.servo_period_s,
+            "samples": len(record.t_s),
+            "messages": list(record.messages),
+            "canonical_moves": len(self.moves),
+            "moves_not_judged": int(np.count_nonzero(self.rapid & ~self.true_rapid)),
+            "splines": record.canon.splines,
+            "machine": {
+                "source": machine.source,
+                "travel_mm": [list(machine.travel_mm[0]), list(machine.travel_mm[1])],
+                "velocity_mm_s": list(machine.velocity_mm_s),
+                "acceleration_mm_s2": list(machine.acceleration_mm_s2),
+                "traj_velocity_mm_s": machine.traj_velocity_mm_s,
+                "traj_acceleration_mm_s2": machine.traj_acceleration_mm_s2,
+                "following_error_mm": list(machine.following_error_mm),
+            },
+        }
+        rows = "\n".join(f"{t:.6f},{x:.9f},{y:.9f}" for t, (x, y) in zip(record.t_s, record.q_m, strict=True))
+        return {CNC_FILE: json.dumps(info, indent=2) + "\n", CNC_COMMANDS_FILE: "t_s,x_m,y_m\n" + rows + "\n"}
+
+    # ------------------------------------------------------------------ the loop's reference (phi = t)
+    @property
+    def period_rad(self) -> float:
+        return self.duration_s
+
+    def derivatives(self, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        t = np.clip(np.asarray(phi, dtype=float), 0.0, self.duration_s)
+        return tuple(self._spline(t, order) for order in range(4))  # type: ignore[return-value]
+
+    def reference(self, t_s: np.ndarray) -> Reference:
+        s = self.sample(t_s)
+        return Reference(
+            t_s=s.t_s, phi=s.t_s.copy(), dphi=np.ones_like(s.t_s), q_d=s.q_m, dq_d=s.v_m_s, ddq_d=s.a_m_s2,
+            alpha=s.alpha_rad, dalpha=s.dalpha_rad_s, ddalpha=s.ddalpha_rad_s2,
+        )  # fmt: skip
+
+    def contour_error(self, q_m: np.ndarray, phi_guess: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """eps_c against the commanded path (:func:`~gantry_twin.gcode.sampling.timed_contour_error`)."""
+        return timed_contour_error(self.sample, self.duration_s, q_m, phi_guess)
+
+    def rapid_spans(self) -> list[tuple[float, float]]:
+        """(start, end) s of each rapid (G0) move: left out of the contour figures, as for the twin's plan."""
+        return [(float(self.t0_s[k]), float(self.end_s[k])) for k in np.flatnonzero(self.true_rapid)]
+
+    def sample(self, t_s: np.ndarray) -> Samples:
+        """The reference at times t_s (s; held at the ends outside [0, duration])."""
+        t = np.asarray(t_s, dtype=float).reshape(-1)
+        tc = np.clip(t, 0.0, self.duration_s)
+        q, v, a, j = (self._spline(tc, order) for order in range(4))
+        outside = (t < 0.0) | (t > self.duration_s)
+        v[outside], a[outside], j[outside] = 0.0, 0.0, 0.0
+        servo = np.clip(np.rint(tc / self.record.servo_period_s).astype(int), 0, len(self.servo_t_s) - 1)
+        alpha, dalpha, ddalpha = self._alpha(q, v, a, j, self.servo_move[servo], self._alpha_servo[servo])
+        return Samples(t, q, v, a, j, alpha, dalpha, ddalpha, self.servo_move[servo])
+
+    def _servo_alpha(self) -> np.ndarray:
+        """alpha at the servo instants, unwrapped along the run."""
+        t = self.servo_t_s
+        q, v, a, j = (self._spline(t, order) for order in range(4))
+        raw = self._alpha(q, v, a, j, self.servo_move, np.zeros(len(t)))[0]
+        return np.unwrap(raw)
+
+    def _alpha(self, q, v, a, j, k, near):
+        """alpha (continued from ``near``, its value at the nearest servo instant) and its two rates: from the
+        velocity where the reference moves at DIRECTION_SPEED_M_S or more, else from the tangent of its move at
+        the nearest point (alpha' = c (v . T), alpha'' = c (a . T), c the move's signed curvature)."""
+        table = self.table
+        arc = table.is_arc[k]
+        rel = q - table.centre[k]
+        along_arc = libm.atan2(rel[:, 1], rel[:, 0]) + table.sign[k] * 0.5 * np.pi
+        along_line = libm.atan2(table.direction[k, 1], table.direction[k, 0])
+        geometric = np.where(arc, along_arc, along_line)
+        tangent = np.stack([libm.cos(geometric), libm.sin(geometric)], axis=-1)
+        c = table.curvature[k]
+        speed2 = np.einsum("ij,ij->i", v, v)
+        moving = speed2 >= DIRECTION_SPEED_M_S**2
+        raw = np.where(moving, libm.atan2(v[:, 1], v[:, 0]), geometric)
+        alpha = near + np.mod(raw - near + np.pi, 2 * np.pi) - np.pi
+        cross_a = v[:, 0] * a[:, 1] - v[:, 1] * a[:, 0]
+        cross_j = v[:, 0] * j[:, 1] - v[:, 1] * j[:, 0]
+        safe = np.where(moving, speed2, 1.0)
+        dot = np.einsum("ij,ij->i", v, a)
+        dalpha = np.where(moving, cross_a / safe, c * np.einsum("ij,ij->i", v, tangent))
+        ddalpha = np.where(
+            moving, (cross_j * safe - 2.0 * cross_a * dot) / safe**2, c * np.einsum("ij,ij->i", a, tangent)
+        )
+        return alpha, dalpha, ddalpha
+
+
+def _with_line(move: Move, lines: np.ndarray) -> Move:
+    """``move`` with the source line LinuxCNC's motion reported most while running it (rs274 prints none)."""
+    lines = lines[lines > 0]
+    if lines.size == 0:
+        return replace(move, line=0)
+    values, counts = np.unique(lines, return_counts=True)
+    return replace(move, line=int(values[np.argmax(counts)]))
+
+
+def attribute(table: MoveTable, q_m: np.ndarray) -> np.ndarray:
+    """The canonical move each command sample q_m[i] is on (n,), in order.
+
+    The command runs the moves in order. A sample stays on move k until it
+    has covered at least half of k's length (LinuxCNC blends within half a
+    move) and is nearer move k + 1 than k; a stop at a junction stays on k
+    until the command moves on. The covered length is the command's own
+    path length since k began, so that a full circle (it starts and ends at
+    the same point) is told from the move after it.
+    """
+    q = np.asarray(q_m, dtype=float).reshape(-1, 2)
+    n, count = len(q), table.count
+    out = np.full(n, count - 1, dtype=np.int64)
+    if count == 1:
+        out[:] = 0
+        return out
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(q, axis=0), axis=1))])
+    i = 0
+    for k in range(count - 1):
+        if i >= n:
+            break
+        length = float(table.length[k])
+        stop = int(np.searchsorted(s, s[i] + 1.5 * length + 2e-3, side="right")) + 1
+        stop = min(max(stop, i + 2), n)
+        rows = np.arange(i, stop)
+        covered = s[rows] - s[i] >= 0.5 * length - 1e-9
+        d_here = table.distance(np.full(len(rows), k), q[rows])
+        d_next = table.distance(np.full(len(rows), k + 1), q[rows])
+        switch = np.flatnonzero(covered & (d_next < d_here))
+        j = int(rows[switch[0]]) if switch.size else stop
+        out[i:j] = k
+        i = j
+    return out
