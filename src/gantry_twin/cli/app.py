@@ -425,6 +425,7 @@ def _run(args: argparse.Namespace) -> int:
     scenario = fmu_command.with_logged_variables(
         load_scenario(path, overrides, args.controller), args.log_fmu_variables
     )
+    linuxcnc_command.announce(scenario, progress_wanted(args))
     try:
         built = build(scenario, str(path))
     except ScenarioError as exc:

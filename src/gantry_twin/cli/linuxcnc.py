@@ -4,9 +4,10 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
-from gantry_twin.cli.common import EXIT_OK, BadInput, checked_out
+from gantry_twin.cli.common import EXIT_OK, PROG, BadInput, checked_out
 from gantry_twin.cnc.config import config_files, machine_for
 from gantry_twin.outputs.files import atomic_write_text
 from gantry_twin.scenario import load_scenario
@@ -47,3 +48,10 @@ def command(args: argparse.Namespace) -> int:
           f"`linuxcnc {out / 'gantry-twin.ini'}`, or give the INI to `gantry-twin run PROGRAM --cnc linuxcnc "
           "--cnc-ini FILE`")  # fmt: skip
     return EXIT_OK
+
+
+def announce(scenario: object, wanted: bool) -> None:
+    """With progress wanted: one line before LinuxCNC runs a part program (it runs at the wall clock's pace)."""
+    contour = getattr(scenario, "contour", None)
+    if wanted and isinstance(contour, GcodeSpec) and contour.cnc == "linuxcnc":
+        print(f"{PROG}: LinuxCNC runs {contour.file} headless, in real time (docs/linuxcnc.md) ...", file=sys.stderr)

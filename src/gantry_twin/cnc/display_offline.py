@@ -48,8 +48,8 @@ def main(argv):
     root = ini.find("GANTRY_TWIN", "ROOT")
     events = open(events_path, "a", encoding="utf-8")
 
-    def say(kind, **fields):
-        events.write(json.dumps({"event": kind, "wall_s": time.monotonic(), **fields}) + "\n")
+    def say(event, **fields):
+        events.write(json.dumps({"event": event, "wall_s": time.monotonic(), **fields}) + "\n")
         events.flush()
 
     stat, command, errors = linuxcnc.stat(), linuxcnc.command(), linuxcnc.error_channel()

@@ -1,0 +1,367 @@
+"""LinuxCNC drives the twin (docs/linuxcnc.md): the configuration, the program as rs274 reads it, the offline mode.
+
+The tests that run LinuxCNC need Debian's ``linuxcnc-uspace`` (``.ci/run``
+installs it where apt exists); without it they are skipped, saying so. They
+are all in this file, so that pytest-xdist's ``--dist loadfile`` runs them on
+one worker, one LinuxCNC at a time (LinuxCNC's shared memory is the
+machine's), and each checks that nothing of LinuxCNC is left after it.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+
+from gantry_twin.cnc import session as cnc_session
+from gantry_twin.cnc.canon import read_canon
+from gantry_twin.cnc.config import (
+    INI_NAME,
+    CncConfigError,
+    config_files,
+    followable,
+    machine_from_ini,
+    twin_machine,
+)
+from gantry_twin.cnc.offline import CncRecord
+from gantry_twin.cnc.reference import CncPath, attribute
+from gantry_twin.gcode.geometry import Move, MoveTable
+from gantry_twin.gcode.planner import default_limits
+from gantry_twin.gcode.program import TRAVEL_HALF_M, TRAVEL_MARGIN_M
+from gantry_twin.gcode.reader import read_program
+
+ROOT = Path(__file__).resolve().parents[1]
+DATA = ROOT / "tests" / "data" / "linuxcnc"
+SPLINE_PROGRAM = DATA / "inverse_time_spline.ngc"
+MISSING = cnc_session.missing()
+needs_linuxcnc = pytest.mark.skipif(MISSING is not None, reason=f"LinuxCNC is not installed here: {MISSING}")
+needs_rs274 = pytest.mark.skipif(
+    cnc_session.shutil.which("rs274") is None, reason="LinuxCNC's rs274 is not installed (linuxcnc-uspace)"
+)
+#: LinuxCNC's processes (their command names) and its shared-memory keys (HAL, RTAPI, NML: as its launcher makes them).
+PROCESSES = {"linuxcnc", "rtapi_app", "milltask", "linuxcncsvr", "io", "halsampler", "display_offline"}
+SHM_KEYS = {0x48414C32, 0x48484C34, 0x48534130, 0x64, *range(0x3E9, 0x3EE)}
+
+
+def leftovers() -> list[str]:
+    """What of LinuxCNC is on the machine: its processes (zombies aside), shared memory, lock, temporaries."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                stat = (entry / "stat").read_text()
+            except OSError:
+                continue
+            name, state = stat[stat.index("(") + 1 : stat.rindex(")")], stat[stat.rindex(")") + 2 :][:1]
+            if name in PROCESSES and state != "Z":
+                found.append(f"process {entry.name} {name}")
+    found += [f"shared memory key {key:#x}" for key in cnc_session.shm_segments() if key in SHM_KEYS]
+    for pattern in ("linuxcnc.lock", "linuxcnc.debug.*", "linuxcnc.print.*", "gantry-twin-linuxcnc-*"):
+        found += [f"file {p}" for p in Path("/tmp").glob(pattern)]
+    return found
+
+
+def wait_until_clean(limit_s: float = 30.0) -> list[str]:
+    """Leftovers after up to ``limit_s`` (LinuxCNC's own shutdown takes a few seconds)."""
+    deadline = time.monotonic() + limit_s
+    while (left := leftovers()) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    return left
+
+
+def twin(*args: str, **kwargs) -> subprocess.Popen:
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    return subprocess.Popen(
+        [sys.executable, "-m", "gantry_twin", *args], cwd=ROOT, env=env, stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE, text=True, **kwargs,
+    )  # fmt: skip
+
+
+def stop(process: subprocess.Popen) -> None:
+    """The test's end, passed or failed: the twin killed (LinuxCNC then ends by itself) and nothing left."""
+    if process.poll() is None:
+        process.kill()
+        process.wait(30)
+    assert wait_until_clean() == [], "LinuxCNC left behind"
+
+
+# ---------------------------------------------------------------------------------------------- configuration
+
+
+def test_the_config_holds_the_twin_machine_limits_and_reads_back(tmp_path):
+    for name, text in config_files(twin_machine()).items():
+        (tmp_path / name).write_text(text)
+    machine = machine_from_ini(tmp_path / INI_NAME)
+    limits = default_limits()
+    assert machine.acceleration_mm_s2 == pytest.approx(tuple(1e3 * a for a in limits.acceleration_m_s2), rel=1e-5)
+    assert machine.velocity_mm_s == pytest.approx(tuple(1e3 * v for v in limits.velocity_m_s), rel=1e-5)
+    half_mm = 1e3 * (TRAVEL_HALF_M[0] - TRAVEL_MARGIN_M)
+    assert machine.travel_mm == ((-half_mm, half_mm), (-half_mm, half_mm))
+    assert machine.servo_period_ns == 1_000_000
+    ini = (tmp_path / INI_NAME).read_text()
+    assert "KINEMATICS = trivkins coordinates=XYZ" in ini and "COORDINATES = X Y Z" in ini
+    assert "HOME_SEARCH_VEL = 0" in ini  # the twin's machine homes where it stands: the travel's centre
+
+
+@pytest.mark.parametrize(
+    ("section", "key", "value", "named"),
+    [
+        ("AXIS_X", "MAX_ACCELERATION", "90000", "[AXIS_X] MAX_ACCELERATION"),
+        ("JOINT_1", "MAX_ACCELERATION", "25000", "[JOINT_1] MAX_ACCELERATION"),
+        ("AXIS_Y", "MAX_LIMIT", "300", "[AXIS_Y] MAX_LIMIT"),
+        ("AXIS_X", "MIN_LIMIT", "-260", "[AXIS_X] MIN_LIMIT"),
+        ("EMCMOT", "SERVO_PERIOD", "250000", "[EMCMOT] SERVO_PERIOD"),
+        ("KINS", "KINEMATICS", "corexykins", "[KINS] KINEMATICS"),
+        ("TRAJ", "LINEAR_UNITS", "furlong", "[TRAJ] LINEAR_UNITS"),
+        ("AXIS_X", "MAX_VELOCITY", "fast", "[AXIS_X] MAX_VELOCITY"),
+    ],
+)
+def test_a_users_ini_with_limits_the_twin_cannot_follow_is_refused_naming_the_key(tmp_path, section, key, value, named):
+    ini = tmp_path / "machine.ini"
+    ini.write_text(f"[{section}]\n{key} = {value}\n")
+    with pytest.raises(CncConfigError) as caught:
+        machine_from_ini(ini)
+    message = str(caught.value)
+    assert named in message and str(ini) in message and "\n" not in message
+
+
+def test_the_followable_acceleration_is_the_peak_force_over_the_mass():
+    # The plant in volts (docs/equations.md): M x'' + B x' + Af sgn(x') = u; at rest, 10 V gives (10 - Af) / M.
+    speed, accel = followable(0)
+    assert accel == pytest.approx(1e3 * (10.0 - 0.1) / 0.12)
+    assert speed == pytest.approx(1e3 * (10.0 - 0.1) / 0.5)
+
+
+def test_an_inch_ini_is_read_in_mm(tmp_path):
+    ini = tmp_path / "inch.ini"
+    ini.write_text("[TRAJ]\nLINEAR_UNITS = inch\n[AXIS_X]\nMAX_ACCELERATION = 100\nMAX_LIMIT = 5\n")
+    machine = machine_from_ini(ini)
+    assert machine.acceleration_mm_s2[0] == pytest.approx(2540.0)
+    assert machine.travel_mm[0][1] == pytest.approx(127.0)
+
+
+# ---------------------------------------------------------------------------------------------- the reference
+
+
+def _corner_record() -> CncRecord:
+    """A synthetic record: rest, a line along X with a trapezoidal speed, a stop, a full circle, rest."""
+    period = 1e-3
+    line = [Move("line", (0.0, 0.0), (0.02, 0.0), 0.1, False, 1)]
+    circle = [Move("arc", (0.02, 0.0), (0.02, 0.0), 0.1, False, 2, centre_m=(0.02, 0.01), sweep_rad=2 * math.pi)]
+    u_line = 0.02 * (1 - np.cos(np.linspace(0, np.pi, 400))) / 2  # from rest to rest
+    theta = -np.pi / 2 + 2 * np.pi * (1 - np.cos(np.linspace(0, np.pi, 800))) / 2
+    q = np.vstack([
+        np.zeros((5, 2)), np.column_stack([u_line, np.zeros_like(u_line)]),
+        np.column_stack([0.02 + 0.01 * np.cos(theta), 0.01 + 0.01 * np.sin(theta)]), np.tile([0.02, 0.0], (5, 1)),
+    ])  # fmt: skip
+    canon = type("Canon", (), {"moves": line + circle, "items": tuple(line + circle), "messages": (),
+                               "unjudged": frozenset(), "splines": 0, "name": "synthetic"})()  # fmt: skip
+    t = np.arange(len(q)) * period
+    return CncRecord(t, q, np.zeros(len(q), dtype=np.int64), period, float(t[-1]), (), canon, twin_machine())
+
+
+def test_each_sample_is_attributed_to_its_move_and_a_full_circle_to_itself():
+    record = _corner_record()
+    move = attribute(MoveTable(list(record.canon.moves)), record.q_m)
+    assert np.all(np.diff(move) >= 0)
+    assert np.all(move[: 5 + 400] == 0)  # the line, and the rest before it
+    assert np.all(move[5 + 400 + 1 :] == 1)  # the circle starts (on the line's end point) and ends where it began
+
+
+def test_the_reference_passes_through_every_command_and_its_rates_are_its_derivatives():
+    record = _corner_record()
+    path = CncPath(record)
+    s = path.sample(record.t_s)
+    assert np.max(np.abs(s.q_m - record.q_m)) <= 1e-15
+    t = np.arange(3.7e-4, path.duration_s, 2e-4)  # never within 1 us of a command (the jerk steps there)
+    fine = path.sample(t)
+    # Independent: central differences of the interpolated position give its velocity and acceleration.
+    h = 1e-6
+    ahead, behind = path.sample(t[1:-1] + h), path.sample(t[1:-1] - h)
+    v_fd = (ahead.q_m - behind.q_m) / (2 * h)
+    a_fd = (ahead.v_m_s - behind.v_m_s) / (2 * h)
+    assert np.max(np.abs(v_fd - fine.v_m_s[1:-1])) < 1e-6
+    assert np.max(np.abs(a_fd - fine.a_m_s2[1:-1])) < 1e-5
+    # alpha on the circle is the tangent's direction, continuous; its rate is the curvature times the speed.
+    on_circle = (t > 0.45) & (t < 1.15)
+    speed = np.linalg.norm(fine.v_m_s[on_circle], axis=1)
+    assert np.max(np.abs(np.diff(fine.alpha_rad[on_circle]))) < 0.05
+    assert fine.dalpha_rad_s[on_circle] == pytest.approx(speed / 0.01, rel=2e-2, abs=1e-2)
+
+
+# ---------------------------------------------------------------------------------------------- rs274
+
+
+@needs_rs274
+def test_rs274_reads_the_bracket_as_the_twins_reader_does():
+    canon = read_canon(ROOT / "programs" / "bracket.ngc")
+    own = read_program(ROOT / "programs" / "bracket.ngc").moves
+    theirs = canon.moves[1:]  # LinuxCNC starts at the origin: its first move is the rapid to the start
+    assert len(theirs) == len(own)
+    for a, b in zip(theirs, own, strict=True):
+        assert a.kind == b.kind and a.rapid == b.rapid
+        # rs274 prints 4 decimals of the program's unit: 0.05 um in mm, 1.27 um in inches (the last hole).
+        assert np.allclose(a.end_m, b.end_m, atol=1.3e-6)
+        if a.kind == "arc":
+            assert np.allclose(a.centre_m, b.centre_m, atol=1.3e-6)
+            assert a.sweep_rad == pytest.approx(b.sweep_rad, abs=1e-4)
+
+
+@needs_rs274
+def test_concurrent_rs274_do_not_share_their_tool_table_map():
+    # rs274 maps $HOME/.tool.mmap: a dozen at once crashed some with SIGBUS before each got a HOME of its own.
+    code = "from gantry_twin.cnc.canon import read_canon; read_canon('programs/bracket.ngc')"
+    runs = [subprocess.Popen([sys.executable, "-c", code], cwd=ROOT) for _ in range(8)]
+    assert [p.wait(120) for p in runs] == [0] * 8
+
+
+# ---------------------------------------------------------------------------------------------- LinuxCNC runs
+
+
+@pytest.fixture(scope="module")
+def spline_run(tmp_path_factory):
+    """A program the twin's reader refuses (G93, G5.1) run by LinuxCNC and the twin, once for the module."""
+    if MISSING is not None:
+        pytest.skip(f"LinuxCNC is not installed here: {MISSING}")
+    out = tmp_path_factory.mktemp("linuxcnc") / "run"
+    process = twin("run", str(SPLINE_PROGRAM), "--cnc", "linuxcnc", "--out", str(out), "--progress")
+    try:
+        stdout, stderr = process.communicate(timeout=240)
+    finally:
+        stop(process)
+    return process.returncode, stdout, stderr, out
+
+
+@needs_linuxcnc
+def test_the_twins_reader_refuses_the_program_that_linuxcnc_runs(spline_run):
+    done = subprocess.run([sys.executable, "-m", "gantry_twin", "validate", str(SPLINE_PROGRAM)], capture_output=True,
+                          text=True, cwd=ROOT, timeout=120)  # fmt: skip
+    assert done.returncode == 2 and "G93" in done.stderr
+    code, stdout, stderr, out = spline_run
+    assert code == 0, stderr
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"] == "ok"
+    assert summary["part_error"]["dropped"] == {"spline or other-plane moves not judged": 1}
+    info = json.loads((out / "linuxcnc.json").read_text())
+    assert info["cnc"] == "linuxcnc" and info["splines"] == 1 and info["program_time_s"] > 2.0
+
+
+@needs_linuxcnc
+def test_the_twins_reference_is_linuxcncs_command_at_every_servo_instant(spline_run):
+    _, _, _, out = spline_run
+    commands = np.loadtxt(out / "linuxcnc_commands.csv", delimiter=",", skiprows=1)
+    table = pq.read_table(out / "trace.parquet", columns=["t_s", "x_d_m", "y_d_m"])
+    trace = np.column_stack([table.column(name).to_numpy() for name in ("t_s", "x_d_m", "y_d_m")])
+    steps = round(1e-3 / 2e-4)
+    at_servo = trace[::steps]
+    assert len(at_servo) >= len(commands) - 1  # the run's samples end one 0.2 ms step before the last command
+    commands = commands[: len(at_servo)]
+    assert np.allclose(at_servo[:, 0], commands[:, 0], atol=1e-9)
+    assert np.max(np.abs(at_servo[:, 1:] - commands[:, 1:])) <= 1e-9
+
+
+@needs_linuxcnc
+def test_linuxcnc_moves_as_the_program_says(spline_run):
+    """Independent of the twin: the program's own numbers. The G93 line (F30: 1/30 min) takes 2 s; the G5.1
+    spline is the quadratic B-spline with control points (30, 0), (40, 0), (50, 20) mm, followed within the
+    program's blending tolerance (G64 P0.01) on each side; the program ends at the origin."""
+    _, _, _, out = spline_run
+    commands = np.loadtxt(out / "linuxcnc_commands.csv", delimiter=",", skiprows=1)
+    t, q = commands[:, 0], commands[:, 1:] * 1e3
+    on_g93 = (np.abs(q[:, 0] - (q[:, 1] + 20.0)) < 1e-3) & (q[:, 0] > 0.5) & (q[:, 0] < 19.5)
+    span = t[on_g93][-1] - t[on_g93][0]
+    assert span == pytest.approx(2.0 * 19.0 / 20.0, abs=0.01)  # 95 % of the line's length at its constant speed
+    p0, p1, p2 = np.array([30.0, 0.0]), np.array([40.0, 0.0]), np.array([50.0, 20.0])
+    u = np.linspace(0.0, 1.0, 20001)[:, None]
+    spline = (1 - u) ** 2 * p0 + 2 * u * (1 - u) * p1 + u**2 * p2
+    first, last = np.argmin(np.linalg.norm(q - p0, axis=1)), np.argmin(np.linalg.norm(q - p2, axis=1))
+    assert last - first > 100
+    off = np.min(np.linalg.norm(q[first : last + 1, None, :] - spline[None], axis=2), axis=1)
+    assert off.max() < 2 * 0.01
+    assert np.allclose(q[-1], 0.0, atol=1e-6)
+
+
+@needs_linuxcnc
+def test_a_program_linuxcnc_refuses_exits_2_with_its_message_and_line(tmp_path):
+    bad = tmp_path / "limit.ngc"
+    bad.write_text("G21 G90\nG1 X10 Y10 F3000\nG1 X300 Y10\nM2\n")
+    process = twin("run", str(bad), "--cnc", "linuxcnc", "--out", str(tmp_path / "run"))
+    try:
+        _, stderr = process.communicate(timeout=120)
+    finally:
+        stop(process)
+    assert process.returncode == 2
+    assert f"{bad}:3: LinuxCNC:" in stderr and "limit" in stderr and len(stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "run").exists()
+
+
+LONG_PROGRAM = "G21 G90\nG1 X20 F120\nG1 X0\nG1 X20\nM2\n"  # 30 s
+
+
+def _started(process: subprocess.Popen, limit_s: float = 60.0) -> None:
+    """Wait until LinuxCNC's motion runs (its rtapi_app exists) for this test's twin."""
+    deadline = time.monotonic() + limit_s
+    while time.monotonic() < deadline:
+        assert process.poll() is None, process.communicate()[1]
+        if any(line.endswith("rtapi_app") for line in leftovers()):
+            time.sleep(2.0)  # homing done, the program running
+            return
+        time.sleep(0.1)
+    raise AssertionError("LinuxCNC did not start")
+
+
+@needs_linuxcnc
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_a_stop_signal_stops_linuxcnc_and_leaves_nothing(tmp_path, signum):
+    program = tmp_path / "long.ngc"
+    program.write_text(LONG_PROGRAM)
+    process = twin("run", str(program), "--cnc", "linuxcnc", "--out", str(tmp_path / "run"))
+    try:
+        _started(process)
+        process.send_signal(signum)
+        _, stderr = process.communicate(timeout=30)
+        assert process.returncode == 128 + signum, stderr
+        assert wait_until_clean(5.0) == []
+        assert not (tmp_path / "run").exists()
+    finally:
+        stop(process)
+
+
+@needs_linuxcnc
+@pytest.mark.parametrize("victim", ["rtapi_app", "linuxcnc"])
+def test_a_killed_linuxcnc_fails_the_run_in_one_line_and_leaves_nothing(tmp_path, victim):
+    program = tmp_path / "long.ngc"
+    program.write_text(LONG_PROGRAM)
+    process = twin("run", str(program), "--cnc", "linuxcnc", "--out", str(tmp_path / "run"))
+    try:
+        _started(process)
+        subprocess.run(["pkill", "-KILL", "-x", victim], check=True, timeout=10)
+        _, stderr = process.communicate(timeout=60)
+        assert process.returncode == 1, stderr
+        assert stderr.startswith("gantry-twin: run failed:") and len(stderr.strip().splitlines()) == 1
+        assert wait_until_clean(5.0) == []
+    finally:
+        stop(process)
+
+
+@needs_linuxcnc
+def test_a_killed_twin_leaves_nothing_of_linuxcnc(tmp_path):
+    program = tmp_path / "long.ngc"
+    program.write_text(LONG_PROGRAM)
+    process = twin("run", str(program), "--cnc", "linuxcnc", "--out", str(tmp_path / "run"))
+    try:
+        _started(process)
+        process.kill()  # SIGKILL: the twin cleans nothing; LinuxCNC's display sees it and LinuxCNC ends
+        process.wait(10)
+        assert wait_until_clean(30.0) == []
+    finally:
+        stop(process)
