@@ -376,11 +376,11 @@ class _Follow:
     this process too); its output is capsys's. Quacks like the Popen that ``_stop`` stops: it ends by itself
     (``--duration 60`` bounds it)."""
 
-    def __init__(self, capsys, endpoint: str, out: Path) -> None:
+    def __init__(self, capsys, endpoint: str, out: Path, *extra: str) -> None:
         import threading
 
         self.capsys, self.returncode = capsys, None
-        args = ["monitor", "--opcua", endpoint, "--out", str(out), "--duration", "60"]
+        args = ["monitor", "--opcua", endpoint, "--out", str(out), "--duration", "60", *extra]
         self.thread = threading.Thread(target=self._run, args=(args,), daemon=True)
         self.thread.start()
 
