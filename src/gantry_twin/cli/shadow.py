@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import threading
 from pathlib import Path
 
 from gantry_twin.cli.common import (
@@ -53,7 +54,7 @@ def command(args: argparse.Namespace, format_health) -> int:
     from gantry_twin.loop.trace import RunInfo
     from gantry_twin.outputs.files import atomic_write_text
     from gantry_twin.outputs.rundirs import new_run_dir, point_latest
-    from gantry_twin.outputs.signals import Interrupted
+    from gantry_twin.outputs.signals import stop_signals_request
     from gantry_twin.outputs.summary import log_summary, summary_json
     from gantry_twin.scenario import ScenarioError, build, scenario_plant
 
@@ -98,19 +99,18 @@ def command(args: argparse.Namespace, format_health) -> int:
             *(args.residual_every, list(telemetry), run_info),
         )
         print(f"following {endpoint} ({nodes.mode}); Ctrl-C stops", file=sys.stderr, flush=True)
-        ended = None
+        stop = threading.Event()
         try:
-            shadow.run(args.duration, args.connect_timeout)
+            with stop_signals_request(stop):  # the first stop signal ends the stream between two chunks
+                shadow.run(args.duration, args.connect_timeout, stop)
         except ShadowError as exc:
             raise BadInput(str(exc)) from None
-        except Interrupted:
-            ended = "an interrupt (Ctrl-C or SIGTERM)"
     if shadow.s.samples < 2 or shadow.estimator is None:
         raise BadInput(
             f"--opcua {endpoint}: {shadow.s.samples} valid samples came ({shadow.s.invalid} with NaN); nothing to judge"
         )
     tally = shadow.finish()
-    summary = log_summary(shadow.info(), tally, shadow.live_section(ended))
+    summary = log_summary(shadow.info(), tally, shadow.live_section())
     atomic_write_text(out / "summary.json", summary_json(summary))
     if args.out is None:
         point_latest(out)

@@ -24,6 +24,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import sys
+import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -52,6 +53,8 @@ FEED_PERIOD_S = 0.2
 PART_SAMPLES = 5000
 #: After the machine says ``finished``, how long to wait for what it sent before it, s.
 FINISH_GRACE_S = 1.0
+#: What ``live.ended_by`` says of a stop signal.
+INTERRUPTED = "an interrupt (Ctrl-C or SIGTERM)"
 #: The residual of each window, a CSV line each as they come (t_start_s, rms and max per axis, um).
 RESIDUAL_FILE = "residual.csv"
 COLUMNS = ("t_s", "x_m", "y_m", "u_x_v", "u_y_v", "x_d_m", "y_d_m")
@@ -123,9 +126,10 @@ class Shadow:
         self._view: Trace | None = None  # the last chunk as the observers saw it
         self._duration_s: float | None = None
 
-    def run(self, duration_s: float | None, first_connect_s: float) -> None:
-        """Follow the machine until ``duration_s`` of wall time, its run state ``finished`` or ``failed``, or an
-        interrupt (the caller's; what came is kept). ShadowError when the stream cannot go on."""
+    def run(self, duration_s: float | None, first_connect_s: float, stop: threading.Event | None = None) -> None:
+        """Follow the machine until ``duration_s`` of wall time, its run state ``finished`` or ``failed``, or
+        ``stop`` (set by a stop signal: read between two chunks, so that the estimator and the monitor stop with
+        their state whole; what came is kept). ShadowError when the stream cannot go on."""
         client = MachineClient(self.endpoint, self.nodes, first_connect_s).start()
         self._duration_s = duration_s
         end = math.inf if duration_s is None else time.monotonic() + duration_s
@@ -135,6 +139,9 @@ class Shadow:
         try:
             while True:
                 now = time.monotonic()
+                if stop is not None and stop.is_set():
+                    self.s.ended_by = self.s.ended_by or INTERRUPTED
+                    break
                 if now >= end or now >= finishing_at:
                     self.s.ended_by = self.s.ended_by or "--duration"
                     break
@@ -341,7 +348,7 @@ class Shadow:
                 fh.write("t_start_s,rms_x_um,rms_y_um,max_x_um,max_y_um\n")
             fh.write(",".join(f"{v:.6g}" for v in (rows[0, 0], *(rms * 1e6), *(peak * 1e6))) + "\n")
 
-    def live_section(self, ended_by: str | None = None) -> dict:
+    def live_section(self) -> dict:
         s = self.s
         ts = s.period_s
         out = {
@@ -356,7 +363,7 @@ class Shadow:
             "missing_samples": s.missing,
             "invalid_samples": s.invalid,
             "reconnects": max(0, self.connections - 1),
-            "ended_by": ended_by or s.ended_by or "--duration",
+            "ended_by": s.ended_by or "--duration",
             "residual_windows": len(self.residuals),
             "backlog_max_items": self.backlog_max,
             "backlog_items_per_s": self.backlog,
