@@ -145,3 +145,24 @@ def test_a_shadow_whose_duration_ends_before_its_baseline_window_says_so_at_the_
     assert "monitor judged nothing" in last and "it followed 1 s of the machine's time" in last
     assert "baseline window 20-30 s (monitor.baseline_window_s)" in last and "--baseline SUMMARY" in last
     assert RunSummary.read(out / "summary.json").live.first_t_s == pytest.approx(10.0)
+
+
+def test_the_first_stop_signal_is_a_request_the_second_stops_at_once():
+    """A shadow follows until a stop signal, read between two chunks (a SIGTERM raised inside a chunk's bookkeeping
+    once left the monitor's history half-written); a second signal raises as any command's does."""
+    import os
+    import threading
+
+    from gantry_twin.outputs.signals import Interrupted, stop_signals_request
+
+    before = signal.getsignal(signal.SIGTERM)
+    stop, went_on = threading.Event(), False
+    with pytest.raises(Interrupted), stop_signals_request(stop):
+        os.kill(os.getpid(), signal.SIGTERM)
+        deadline = time.monotonic() + 10.0
+        while not stop.is_set() and time.monotonic() < deadline:
+            time.sleep(0.01)
+        went_on = stop.is_set()  # the first one only asked
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(10.0)  # the second one raises within this
+    assert went_on and signal.getsignal(signal.SIGTERM) is before
