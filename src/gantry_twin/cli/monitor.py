@@ -87,8 +87,7 @@ def monitor_log_command(args: argparse.Namespace, scenario_path: Path | None, ou
         raise ValueError(
             f"--log {args.log}: the log ends at {end:.4g} s{late}, inside the monitor's baseline window "
             f"[{lo:g}, {hi:g}] s, so nothing would be judged; give a longer log, --set monitor.baseline_window_s=[a,b] "
-            "inside it, "
-            "or --baseline SUMMARY (a healthy run's summary.json)"
+            "inside it, or --baseline SUMMARY (a healthy run's summary.json)"
         )
     replay_compile_notice(PROG)  # a line if the estimator's replay compiles first
     tally = monitor_log(log, log_chunks(args.log), controller, monitor)

@@ -100,8 +100,8 @@ class HealthSettings:
         return self.judge_start_s if baseline_given else max(self.judge_start_s, self.baseline_window_s[1])
 
     def not_reached(self, covered_s: float, baseline_given: bool) -> str:
-        """ "" when ``covered_s`` seconds from the first sample reach the first judgement; else what they do not
-        reach, in words naming the setting (for a one-line message)."""
+        """What ``covered_s`` seconds from the first sample do not reach, in words naming the setting (for a
+        one-line message); empty when they reach the first judgement."""
         need = self.first_judgement_s(baseline_given)
         if covered_s + 1e-9 >= need:
             return ""

@@ -35,6 +35,7 @@ import numpy as np
 import pyarrow as pa
 
 from gantry_twin.health.log_monitor import StreamMonitor, estimate_window_s
+from gantry_twin.health.monitor import MachineMonitor
 from gantry_twin.health.tally import MonitorTally
 from gantry_twin.link.blocks import SIGNAL_NAMES, Block
 from gantry_twin.link.client import MachineClient, Received
@@ -393,9 +394,9 @@ class Shadow:
         return tally
 
 
-def short_of_judging(monitor, covered_s: float) -> str:
-    """ "" when ``covered_s`` seconds from the first sample followed reach the health ``monitor``'s first judgement;
-    else which window they end before and what to do, for a one-line message."""
+def short_of_judging(monitor: MachineMonitor, covered_s: float) -> str:
+    """Which window ``covered_s`` seconds from the first sample followed end before, and what to do, for a one-line
+    message; empty when they reach the health ``monitor``'s first judgement."""
     given = monitor.given_baseline is not None
     what = monitor.health.not_reached(covered_s, given)
     if not what:
