@@ -376,11 +376,11 @@ class _Follow:
     this process too); its output is capsys's. Quacks like the Popen that ``_stop`` stops: it ends by itself
     (``--duration 60`` bounds it)."""
 
-    def __init__(self, capsys, endpoint: str, out: Path) -> None:
+    def __init__(self, capsys, endpoint: str, out: Path, *extra: str) -> None:
         import threading
 
         self.capsys, self.returncode = capsys, None
-        args = ["monitor", "--opcua", endpoint, "--out", str(out), "--duration", "60"]
+        args = ["monitor", "--opcua", endpoint, "--out", str(out), "--duration", "60", *extra]
         self.thread = threading.Thread(target=self._run, args=(args,), daemon=True)
         self.thread.start()
 
@@ -428,29 +428,35 @@ def test_shadow_refuses_a_stream_it_cannot_judge(tmp_path, capsys, script, expec
 
 
 def test_shadow_counts_a_gap_and_a_reconnect_and_invents_no_sample(tmp_path, capsys):
+    """A machine already 10 s into its run, lost for 0.4 s and back: the gap is counted, and the monitor's windows
+    go on counting from the first sample followed (its baseline window, 1-3 s of that clock, spans the reconnect;
+    counted again from the reconnect it would end after the stream)."""
     import socket
 
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
-    out = tmp_path / "o"
+    out, k0 = tmp_path / "o", 50_000
     with FakeMachine(port) as machine:
-        follow = _Follow(capsys, machine.endpoint, out)
+        follow = _Follow(capsys, machine.endpoint, out, "--set", "monitor.baseline_window_s=[1,3]")
         machine.wait_for_subscriber()
-        machine.send(0, 5000)
-        machine.send(5000, 5000)
+        machine.send(k0, 5000)
+        machine.send(k0 + 5000, 5000)
         machine.wait_delivered()
     try:
         with FakeMachine(port) as machine:  # the machine back, 2000 samples later
             machine.wait_for_subscriber()
-            machine.send(12_000, 5000)
+            machine.send(k0 + 12_000, 5000)
             machine.finish()
             out_text, err = follow.communicate(timeout=WAIT_S)
     finally:
         _stop(follow)
-    live = RunSummary.read(out / "summary.json").live
+    summary = RunSummary.read(out / "summary.json")
+    live = summary.live
     assert "connection to" in err and "lost" in err
     assert (live.samples, live.gaps, live.missing_samples, live.reconnects) == (15_000, 1, 2000, 1), live
+    assert live.first_t_s == 10.0 and live.first_index == k0
+    assert summary.health.baseline["source"] == "this run, mean over 1-3 s from its first sample (t = 11-13 s)"
     t = np.concatenate([pq.read_table(p).column("t_s").to_numpy() for p in sorted((out / "trace").glob("*.parquet"))])
     assert t.size == 15_000 and np.all(np.diff(t) > 0)  # what came, nothing in the gap
 

@@ -69,6 +69,33 @@ def test_monitor_log_with_a_baseline_from_an_earlier_log(tmp_path, capsys):
     assert "baseline: commissioning run" in capsys.readouterr().out
 
 
+def test_a_log_that_starts_late_is_judged_from_its_first_sample(tmp_path, capsys):
+    """A recording cut out of a machine's day (t_s from 100 s): its windows count from its first sample, so it is
+    judged as the same samples from t = 0 are; the alarms and status are the same, the times 100 s later."""
+    _, built = _built("no_load_circle", "duration_s=2", "window_s=[0.5, 1.5]", "estimates_window_s=[1, 2]")
+    trace = execute(built)
+    logs = {0.0: tmp_path / "at-zero.parquet", 100.0: tmp_path / "late.parquet"}
+    for t0, path in logs.items():
+        write_log(path, trace.t_s + t0, trace.u_v, trace.q_meas_m, trace.q_d_m)
+    late = str(logs[100.0])
+    # The default baseline window, 20-30 s from the first sample, lies beyond a 2 s log wherever it starts.
+    assert main(["monitor", "--log", late, "--out", str(tmp_path / "refused")]) == 2
+    assert "ends at 2 s after its first sample (t = 100 s), inside the monitor's baseline window [20, 30] s" in (
+        capsys.readouterr().err
+    )
+    window = ["--set", "monitor.baseline_window_s=[0.5, 1]", "--set", "monitor.tolerance_pct=1"]
+    health = {}
+    for t0, path in logs.items():
+        assert main(["monitor", "--log", str(path), "--out", str(tmp_path / f"o{t0:g}"), *window]) == 0
+        health[t0] = json.loads((tmp_path / f"o{t0:g}" / "summary.json").read_text())["health"]
+    assert health[100.0]["judged"] and health[100.0]["status"] == health[0.0]["status"]
+    assert health[100.0]["baseline"]["source"] == "this run, mean over 0.5-1 s from its first sample (t = 100.5-101 s)"
+    assert health[100.0]["alarms"], "a 1 % tolerance raises alarms: the comparison means something"
+    for a, b in zip(health[100.0]["alarms"], health[0.0]["alarms"], strict=True):
+        assert (a["parameter"], a["since_start_s"]) == (b["parameter"], pytest.approx(b["time_s"], abs=1e-9))
+        assert a["time_s"] == pytest.approx(b["time_s"] + 100.0, abs=1e-9)
+
+
 def test_monitor_log_without_diarc_is_bad_input(tmp_path, capsys):
     t = np.arange(100) * 2e-4
     write_log(tmp_path / "log.csv", t, np.zeros((100, 2)), np.zeros((100, 2)), None)

@@ -28,8 +28,11 @@ BASE = (0.12, 0.50, 0.50, 0.70, 0.10, 0.15, 0.0, 0.0)
 PERIOD = 0.01
 
 
-def synthetic_trace(duration_s: float, theta_of_t, moving: bool = True, rate_rad_s: float = 2.0) -> Trace:
-    """A trace whose positions follow the paper circle (or stand still) and whose theta_hat is given."""
+def synthetic_trace(
+    duration_s: float, theta_of_t, moving: bool = True, rate_rad_s: float = 2.0, t0_s: float = 0.0
+) -> Trace:
+    """A trace whose positions follow the paper circle (or stand still) and whose theta_hat is given, both as
+    functions of the time since its first sample; that first sample at ``t0_s``."""
     t = np.arange(int(round(duration_s / TS))) * TS
     if moving:
         q = 0.2 * np.column_stack([np.sin(rate_rad_s * t), -np.cos(rate_rad_s * t)])
@@ -38,7 +41,7 @@ def synthetic_trace(duration_s: float, theta_of_t, moving: bool = True, rate_rad
     q = np.round(q / 0.5e-6) * 0.5e-6  # the encoder
     nan = np.full((t.size, 2), np.nan)
     return Trace(
-        t_s=t,
+        t_s=t + t0_s,
         q_m=q,
         q_meas_m=q,
         q_d_m=q,
@@ -50,6 +53,7 @@ def synthetic_trace(duration_s: float, theta_of_t, moving: bool = True, rate_rad
         true_theta=np.array(BASE),
         controller_state={"theta_hat": theta_of_t(t)},
         filled=t.size,
+        timestep_s=TS,  # as a log's or a stream's trace gives it: t_s[1] - t_s[0] at t0_s = 100 s is not TS
     )
 
 
@@ -259,6 +263,33 @@ def test_ramp_alarm_time_is_the_crossing_plus_the_cusum_delay():
     assert alarm.direction == "up"
     assert alarm.change_pct == pytest.approx(100 * slope * (alarm.time_s - 5.0), abs=0.01)
     assert alarm.change == pytest.approx(0.7 * slope * (alarm.time_s - 5.0), rel=1e-3)
+
+
+def test_windows_count_from_the_first_sample_of_a_trace_that_starts_late():
+    """A log cut out of a machine's day, or a shadow that joined a running machine: the same samples 100 s later
+    are judged the same (the baseline window and the judging start count from the first sample), and the alarm
+    keeps the trace's time and gives the time since the first sample: the ramp's crossing at 25 s plus the CUSUM
+    delay, computed by hand as in the test above."""
+    slope = 0.005
+
+    def theta(t):
+        out = np.tile(BASE, (t.size, 1))
+        out[:, 3] = 0.7 * (1 + slope * np.clip(t - 5.0, 0.0, None))
+        return out
+
+    health = HealthSettings(decision_interval_s=0.2, baseline_window_s=(1.0, 2.5))  # the baseline: BASE
+    at_zero = monitor_trace(synthetic_trace(30.0, theta), health=health)
+    late = monitor_trace(synthetic_trace(30.0, theta, t0_s=100.0), health=health)
+    delay = math.sqrt(2 * health.decision_interval_s / (slope / 0.1))
+    assert [a.parameter for a in late.alarms] == ["B2"] and late.baseline.theta == at_zero.baseline.theta
+    assert late.alarms[0].since_start_s == pytest.approx(25.0 + delay, abs=2 * PERIOD)
+    assert late.alarms[0].time_s == pytest.approx(late.alarms[0].since_start_s + 100.0, abs=1e-9)
+    assert late.alarms[0].since_start_s == pytest.approx(at_zero.alarms[0].time_s, abs=1e-9)
+    assert at_zero.alarms[0].since_start_s == at_zero.alarms[0].time_s  # a run from t = 0: the two clocks agree
+    np.testing.assert_array_equal(late.status, at_zero.status)
+    np.testing.assert_array_equal(late.cusum, at_zero.cusum)
+    assert late.baseline.source == "this run, mean over 1-2.5 s from its first sample (t = 101-102.5 s)"
+    assert "t = 127.83 s (27.83 s after the first sample): B2 up" in late.alarms[0].describe()
 
 
 def test_step_on_nominal_disturbance_is_judged_in_volts():

@@ -152,7 +152,9 @@ def build_parser() -> argparse.ArgumentParser:
         "scenario", nargs="?", help=f"scenario YAML file or shipped scenario name ({PROG} scenarios lists them)"
     )
     monitor.add_argument("--log", metavar="LOG", help="monitor a recorded log instead of a run (docs/logs.md)")
-    monitor.add_argument("--baseline", metavar="SUMMARY", help="with --log: a healthy run's summary.json")
+    monitor.add_argument(
+        "--baseline", metavar="SUMMARY", help="with --log or --opcua: a healthy run's summary.json (no baseline window)"
+    )
     _add_controller(monitor)
     _add_set(monitor)
     _add_out(monitor)
@@ -413,7 +415,9 @@ def _run(args: argparse.Namespace) -> int:
     if args.scenario is None and args.command == "monitor":
         raise BadInput("monitor: give a SCENARIO to run, or --log LOG")
     if getattr(args, "baseline", None) is not None:
-        raise BadInput("--baseline: only with --log (a scenario names its baseline in monitor.baseline_summary)")
+        raise BadInput(
+            "--baseline: only with --log or --opcua (a scenario names its baseline in monitor.baseline_summary)"
+        )
     path = scenario_path(args.scenario)
     overrides = list(args.overrides)
     program = None

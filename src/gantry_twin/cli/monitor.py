@@ -80,13 +80,14 @@ def monitor_log_command(args: argparse.Namespace, scenario_path: Path | None, ou
     scenario, controller, monitor = monitor_settings(args, scenario_path, "--log")
     log = scan_log(args.log)  # checked whole before the replay, a chunk at a time; then read again, likewise
     check_sample_period(f"--log {args.log}", log.sample_period_s, Plant().timestep_s)
-    end = log.t_last_s
+    end = log.t_last_s - log.t_first_s  # the monitor's windows count from the log's first sample
     lo, hi = scenario.monitor.baseline_window_s
     if scenario.monitor.baseline_summary is None and hi > end + 1e-9:
+        late = "" if log.t_first_s == 0.0 else f" after its first sample (t = {log.t_first_s:.6g} s)"
         raise ValueError(
-            f"--log {args.log}: the log ends at {end:.4g} s, inside the monitor's baseline window [{lo:g}, {hi:g}] s, "
-            "so nothing would be judged; give a longer log, --set monitor.baseline_window_s=[a,b] inside it, "
-            "or --baseline SUMMARY (a healthy run's summary.json)"
+            f"--log {args.log}: the log ends at {end:.4g} s{late}, inside the monitor's baseline window "
+            f"[{lo:g}, {hi:g}] s, so nothing would be judged; give a longer log, --set monitor.baseline_window_s=[a,b] "
+            "inside it, or --baseline SUMMARY (a healthy run's summary.json)"
         )
     replay_compile_notice(PROG)  # a line if the estimator's replay compiles first
     tally = monitor_log(log, log_chunks(args.log), controller, monitor)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import threading
 from pathlib import Path
 
 from gantry_twin.cli.common import (
@@ -49,11 +50,11 @@ def command(args: argparse.Namespace, format_health) -> int:
     from gantry_twin.cli.monitor import monitor_settings
     from gantry_twin.cli.telemetry import telemetry_observers
     from gantry_twin.link.nodemap import NodeMapError, default_node_map, read_node_map
-    from gantry_twin.link.shadow import Shadow, ShadowError
+    from gantry_twin.link.shadow import Shadow, ShadowError, short_of_judging
     from gantry_twin.loop.trace import RunInfo
     from gantry_twin.outputs.files import atomic_write_text
     from gantry_twin.outputs.rundirs import new_run_dir, point_latest
-    from gantry_twin.outputs.signals import Interrupted
+    from gantry_twin.outputs.signals import stop_signals_request
     from gantry_twin.outputs.summary import log_summary, summary_json
     from gantry_twin.scenario import ScenarioError, build, scenario_plant
 
@@ -62,8 +63,6 @@ def command(args: argparse.Namespace, format_health) -> int:
         raise BadInput(f"--opcua {endpoint}: an endpoint like opc.tcp://127.0.0.1:4840")
     if getattr(args, "realtime", None) is not None:
         raise BadInput("--realtime: not with --opcua (the machine sets the pace)")
-    if getattr(args, "baseline", None) is not None:
-        raise BadInput("--baseline: only with --log (a scenario names its baseline in monitor.baseline_summary)")
     try:
         nodes = read_node_map(args.nodes) if args.nodes is not None else default_node_map()
     except NodeMapError as exc:
@@ -100,19 +99,18 @@ def command(args: argparse.Namespace, format_health) -> int:
             *(args.residual_every, list(telemetry), run_info),
         )
         print(f"following {endpoint} ({nodes.mode}); Ctrl-C stops", file=sys.stderr, flush=True)
-        ended = None
+        stop = threading.Event()
         try:
-            shadow.run(args.duration, args.connect_timeout)
+            with stop_signals_request(stop):  # the first stop signal ends the stream between two chunks
+                shadow.run(args.duration, args.connect_timeout, stop)
         except ShadowError as exc:
             raise BadInput(str(exc)) from None
-        except Interrupted:
-            ended = "an interrupt (Ctrl-C or SIGTERM)"
     if shadow.s.samples < 2 or shadow.estimator is None:
         raise BadInput(
             f"--opcua {endpoint}: {shadow.s.samples} valid samples came ({shadow.s.invalid} with NaN); nothing to judge"
         )
     tally = shadow.finish()
-    summary = log_summary(shadow.info(), tally, shadow.live_section(ended))
+    summary = log_summary(shadow.info(), tally, shadow.live_section())
     atomic_write_text(out / "summary.json", summary_json(summary))
     if args.out is None:
         point_latest(out)
@@ -131,7 +129,9 @@ def command(args: argparse.Namespace, format_health) -> int:
     )
     print("\n".join([*format_health(summary.health), f"results in {out}/ (summary.json, trace/)"]), flush=True)
     if not summary.health.judged:
-        print(f"{PROG}: monitor judged nothing (health.judged is empty in {out}/summary.json)", file=sys.stderr)
+        short = short_of_judging(monitor, live.covered_s)
+        why = f": it followed {live.covered_s:.3g} s of the machine's time; {short}" if short else ""
+        print(f"{PROG}: monitor judged nothing (health.judged is empty in {out}/summary.json){why}", file=sys.stderr)
         return EXIT_NOT_JUDGED
     return EXIT_ALARM if args.fail_on_alarm and summary.health.alarms else EXIT_OK
 

@@ -3,6 +3,12 @@
 :class:`MachineMonitor` (a simulate ``Observer``: chunk by chunk, bounded memory) and :func:`monitor_trace` (offline)
 give the same numbers bit for bit. A parameter not excited or untrustworthy (:mod:`gantry_twin.health.excitation`)
 is not judged: its CUSUM is frozen. h is in tolerance-seconds, not samples. (docs/health.md, "Health monitor")
+
+The windows given in seconds (``baseline_window_s``, ``judge_from_s``) count from the first sample the monitor
+sees: a run's t = 0, a log's first row, the first sample a shadow followed of a machine that was already running
+(DIARC's estimator starts there from its initial estimates and needs the same settling time wherever that is;
+docs/live-link.md, "Joining a running machine"). Alarms keep the trace's own time and also give the time since
+that first sample.
 """
 
 from __future__ import annotations
@@ -76,6 +82,7 @@ class HealthSettings:
     that transient, which then reads as a drift (docs/health.md, "Tunings").
     judge_from_s: first time a parameter is judged (None: the end of
     ``baseline_window_s``).
+    Both count from the monitor's first sample (module docstring).
     """
 
     tolerance: Vector(Positive, THETA_NAMES) = (0.10, 0.10, 0.10, 0.10, 0.10, 0.10, 0.10, 0.10)
@@ -86,6 +93,22 @@ class HealthSettings:
     @property
     def judge_start_s(self) -> float:
         return self.baseline_window_s[1] if self.judge_from_s is None else self.judge_from_s
+
+    def first_judgement_s(self, baseline_given: bool) -> float:
+        """Seconds after the first sample before anything can be judged: the judging start, and without a given
+        baseline also the end of the baseline window (the baseline is taken there)."""
+        return self.judge_start_s if baseline_given else max(self.judge_start_s, self.baseline_window_s[1])
+
+    def not_reached(self, covered_s: float, baseline_given: bool) -> str:
+        """What ``covered_s`` seconds from the first sample do not reach, in words naming the setting (for a
+        one-line message); empty when they reach the first judgement."""
+        need = self.first_judgement_s(baseline_given)
+        if covered_s + 1e-9 >= need:
+            return ""
+        a, b = self.baseline_window_s
+        if not baseline_given and need == b:
+            return f"the monitor's baseline window {a:g}-{b:g} s (monitor.baseline_window_s)"
+        return f"the monitor's judging start, {need:g} s (monitor.judge_from_s)"
 
 
 @dataclass(frozen=True)
@@ -132,11 +155,16 @@ class Alarm:
     change_pct: float | None  # 100 change / baseline (None for dN1, dN2)
     unit: str
     cleared_s: float | None = None
+    #: Seconds since the monitor's first sample (the clock of its windows; module docstring): ``time_s`` for a run
+    #: from t = 0, less for a log cut from later or a shadow that joined a running machine.
+    since_start_s: float | None = None
 
     def describe(self) -> str:
         pct = "" if self.change_pct is None else f" ({signed_pct(self.change_pct)})"
+        since = self.since_start_s
+        late = "" if since is None or abs(since - self.time_s) < 5e-3 else f" ({since:.2f} s after the first sample)"
         return (
-            f"t = {self.time_s:.2f} s: {self.parameter} {self.direction} {self.change:+.4g} {self.unit}{pct}: "
+            f"t = {self.time_s:.2f} s{late}: {self.parameter} {self.direction} {self.change:+.4g} {self.unit}{pct}: "
             f"estimate {self.estimate:.4g}, baseline {self.baseline:.4g}"
         )
 
@@ -330,6 +358,7 @@ class MachineMonitor:
         self._moment_ring = np.zeros((self._n_window, 2, 2, 4))
         self._closed = 0
         self._next = 0
+        self._origin_s = float(trace.t_s[0])  # the first sample's time: the windows count from it
         self._baseline = self.given_baseline
         self._baseline_sum = np.zeros(8)
         self._baseline_count = 0
@@ -384,19 +413,22 @@ class MachineMonitor:
     def _judge(self, t: float, theta: np.ndarray, excited: np.ndarray, trusted: np.ndarray) -> None:
         hs = self.health
         half = 0.5 * self._ts
+        since = t - self._origin_s  # the windows' clock
         if self._baseline is None:
             a, b = hs.baseline_window_s
-            if a - half <= t < b - half:
+            if a - half <= since < b - half:
                 self._baseline_sum += theta
                 self._baseline_count += 1
-            elif t >= b - half and self._baseline_count:
+            elif since >= b - half and self._baseline_count:
+                o = self._origin_s
+                at = "" if o == 0.0 else f" from its first sample (t = {o + a:.6g}-{o + b:.6g} s)"
                 self._baseline = Baseline(
                     tuple(float(x) for x in self._baseline_sum / self._baseline_count),
-                    f"this run, mean over {a:g}-{b:g} s",
+                    f"this run, mean over {a:g}-{b:g} s{at}",
                 )
         status = np.full(8, BASELINE, dtype=np.int8)
         deviation = np.zeros(8)
-        judging = self._baseline is not None and t >= hs.judge_start_s - half
+        judging = self._baseline is not None and since >= hs.judge_start_s - half
         if self._baseline is not None:
             deviation = self._deviation(theta, np.asarray(self._baseline.theta))
         if judging:
@@ -442,9 +474,9 @@ class MachineMonitor:
         change = float(estimate - base)
         pct = None if j in ABSOLUTE_PARAMETERS else 100.0 * change / base
         self._open_alarm[j] = len(self._alarms)
-        self._alarms.append(
-            Alarm(THETA_NAMES[j], t, "up" if side == 0 else "down", float(estimate), base, change, pct, THETA_UNITS[j])
-        )
+        direction = "up" if side == 0 else "down"
+        unit, since = THETA_UNITS[j], t - self._origin_s
+        self._alarms.append(Alarm(THETA_NAMES[j], t, direction, float(estimate), base, change, pct, unit, None, since))
 
 
 def monitor_trace(

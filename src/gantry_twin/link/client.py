@@ -12,6 +12,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import math
 import queue
 import threading
 import time
@@ -50,7 +51,8 @@ class ClientError(ValueError):
 @dataclass(frozen=True)
 class Received:
     """One thing from the machine: ``kind`` block (value: a Block), scalar (name, value, SourceTimestamp in s),
-    state (value: the run state), connected (value: the sample period the server says, or None), lost (value:
+    state (value: the run state), connected (value: the sample period the server says, or None), pace (after
+    each connected; value: the machine's time per wall-clock second, or None where not known), lost (value:
     why), error (value: the one-line message: the stream cannot go on)."""
 
     kind: str
@@ -130,6 +132,7 @@ class MachineClient:
             nodes = await self._resolve(client)
             period = await self._period(client)
             self.items.put(Received("connected", period))
+            self.items.put(Received("pace", await self._pace(client)))
             handler = _Handler(self)
             subscription = await client.create_subscription(PUBLISHING_INTERVAL_MS, handler)
             handler.by_node = {node.nodeid: name for name, node in nodes.items()}
@@ -191,6 +194,19 @@ class MachineClient:
             return float(await client.get_node(await _node_id(client, twin_node(f"{TWIN}.SamplePeriod"))).read_value())
         except (ua.UaError, ValueError, TypeError):
             return None
+
+    async def _pace(self, client: Client) -> float | None:
+        """The machine's time per wall-clock second: a gantry-twin serve's ``RealtimeFactor`` (None where it is 0:
+        as fast as it runs, or no pass started yet); 1 for a server without it (a machine runs in real time)."""
+        from gantry_twin.link.address_space import TWIN
+        from gantry_twin.link.nodemap import twin_node
+
+        try:
+            node = client.get_node(await _node_id(client, twin_node(f"{TWIN}.RealtimeFactor")))
+            factor = float(await node.read_value())
+        except (ValueError, TypeError, ua.UaError):  # no twin namespace, or no such node: a machine
+            return 1.0
+        return factor if 0.0 < factor < math.inf else None
 
 
 class _Handler:

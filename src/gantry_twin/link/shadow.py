@@ -12,6 +12,11 @@ the samples on either side of a gap are estimated as if they were consecutive. A
 or command is dropped and counted. The trace is written as it comes, a part file every
 :data:`PART_SAMPLES` samples (``trace/part-NNNNNN.parquet``, each complete on its own), so that a kill leaves a
 readable trace of what came.
+
+The monitor's windows (``baseline_window_s``, ``judge_from_s``) count from the first sample followed, not from the
+machine's t = 0: the estimator starts there from its initial estimates (:mod:`gantry_twin.health.monitor`). A
+reconnect goes on with the same estimator and windows; indices that go back (a machine's restart) end the stream.
+Where ``--duration`` at the machine's pace cannot reach the first judgement, one line says so on connecting.
 """
 
 from __future__ import annotations
@@ -19,6 +24,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import sys
+import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -29,6 +35,7 @@ import numpy as np
 import pyarrow as pa
 
 from gantry_twin.health.log_monitor import StreamMonitor, estimate_window_s
+from gantry_twin.health.monitor import MachineMonitor
 from gantry_twin.health.tally import MonitorTally
 from gantry_twin.link.blocks import SIGNAL_NAMES, Block
 from gantry_twin.link.client import MachineClient, Received
@@ -47,6 +54,8 @@ FEED_PERIOD_S = 0.2
 PART_SAMPLES = 5000
 #: After the machine says ``finished``, how long to wait for what it sent before it, s.
 FINISH_GRACE_S = 1.0
+#: What ``live.ended_by`` says of a stop signal.
+INTERRUPTED = "an interrupt (Ctrl-C or SIGTERM)"
 #: The residual of each window, a CSV line each as they come (t_start_s, rms and max per axis, um).
 RESIDUAL_FILE = "residual.csv"
 COLUMNS = ("t_s", "x_m", "y_m", "u_x_v", "u_y_v", "x_d_m", "y_d_m")
@@ -116,11 +125,14 @@ class Shadow:
         self.backlog: list[int] = []  # items waiting, read once a second
         self.observers, self.run_info = list(observers), run_info  # a dashboard: fed each chunk as a run's would be
         self._view: Trace | None = None  # the last chunk as the observers saw it
+        self._duration_s: float | None = None
 
-    def run(self, duration_s: float | None, first_connect_s: float) -> None:
-        """Follow the machine until ``duration_s`` of wall time, its run state ``finished`` or ``failed``, or an
-        interrupt (the caller's; what came is kept). ShadowError when the stream cannot go on."""
+    def run(self, duration_s: float | None, first_connect_s: float, stop: threading.Event | None = None) -> None:
+        """Follow the machine until ``duration_s`` of wall time, its run state ``finished`` or ``failed``, or
+        ``stop`` (set by a stop signal: read between two chunks, so that the estimator and the monitor stop with
+        their state whole; what came is kept). ShadowError when the stream cannot go on."""
         client = MachineClient(self.endpoint, self.nodes, first_connect_s).start()
+        self._duration_s = duration_s
         end = math.inf if duration_s is None else time.monotonic() + duration_s
         finishing_at = math.inf
         next_feed = time.monotonic() + FEED_PERIOD_S
@@ -128,6 +140,9 @@ class Shadow:
         try:
             while True:
                 now = time.monotonic()
+                if stop is not None and stop.is_set():
+                    self.s.ended_by = self.s.ended_by or INTERRUPTED
+                    break
                 if now >= end or now >= finishing_at:
                     self.s.ended_by = self.s.ended_by or "--duration"
                     break
@@ -160,6 +175,8 @@ class Shadow:
             self.connections += 1
             self._period(item.value)
             self._previous = None  # a new subscription starts with the node's current value
+        elif item.kind == "pace" and self.connections == 1:
+            self._warn_short(item.value)
         elif item.kind == "lost":
             print(f"monitor: connection to {self.endpoint} lost ({item.value}); reconnecting", file=self.text)
         elif item.kind == "state":
@@ -181,6 +198,21 @@ class Shadow:
                 f"{self.machine_period_s:g} s that the estimator runs at"
             )
         self.s.period_s = period
+
+    def _warn_short(self, pace: float | None) -> None:
+        """One line, on the first connection, when ``--duration`` at the machine's ``pace`` (its seconds per
+        wall-clock second; None: not known) ends before the monitor's first judgement."""
+        if self._duration_s is None or pace is None:
+            return
+        covered = self._duration_s * pace
+        note = short_of_judging(self.monitor, covered)
+        if note:
+            print(
+                f"monitor: --duration {self._duration_s:g} s follows about {covered:.3g} s of the machine's time "
+                f"(it runs at {pace:g}x real time): {note}; nothing will be judged",
+                file=self.text,
+                flush=True,
+            )
 
     def _block(self, block: Block) -> None:
         s = self.s
@@ -317,7 +349,7 @@ class Shadow:
                 fh.write("t_start_s,rms_x_um,rms_y_um,max_x_um,max_y_um\n")
             fh.write(",".join(f"{v:.6g}" for v in (rows[0, 0], *(rms * 1e6), *(peak * 1e6))) + "\n")
 
-    def live_section(self, ended_by: str | None = None) -> dict:
+    def live_section(self) -> dict:
         s = self.s
         ts = s.period_s
         out = {
@@ -326,12 +358,13 @@ class Shadow:
             "sample_period_s": ts,
             "samples": s.samples,
             "first_index": s.first_index,
-            "covered_s": float(s.last_t - s.first_t + ts) if s.first_t is not None and ts else 0.0,
+            "first_t_s": s.first_t,
+            "covered_s": self.covered_s(),
             "gaps": s.gaps,
             "missing_samples": s.missing,
             "invalid_samples": s.invalid,
             "reconnects": max(0, self.connections - 1),
-            "ended_by": ended_by or s.ended_by or "--duration",
+            "ended_by": s.ended_by or "--duration",
             "residual_windows": len(self.residuals),
             "backlog_max_items": self.backlog_max,
             "backlog_items_per_s": self.backlog,
@@ -342,6 +375,11 @@ class Shadow:
             out["residual_rms_um"] = {a: float(v) for a, v in zip(AXES, rms, strict=True)}
             out["residual_max_um"] = {a: float(v) for a, v in zip(AXES, peak, strict=True)}
         return out
+
+    def covered_s(self) -> float:
+        """The machine's time from the first sample followed to the last: the clock of the monitor's windows."""
+        s = self.s
+        return float(s.last_t - s.first_t + s.period_s) if s.first_t is not None and s.period_s else 0.0
 
     def info(self) -> LogInfo:
         """The stream as a log's :class:`LogInfo` (for the estimate window and the summary)."""
@@ -354,3 +392,16 @@ class Shadow:
         tally = self.estimator.finish()
         tally.close_window(estimate_window_s(self.info()))
         return tally
+
+
+def short_of_judging(monitor: MachineMonitor, covered_s: float) -> str:
+    """Which window ``covered_s`` seconds from the first sample followed end before, and what to do, for a one-line
+    message; empty when they reach the health ``monitor``'s first judgement."""
+    given = monitor.given_baseline is not None
+    what = monitor.health.not_reached(covered_s, given)
+    if not what:
+        return ""
+    need = monitor.health.first_judgement_s(given)
+    longer = f"a --duration that covers {need:g} s of the machine's time"
+    fix = longer if given else f"--baseline SUMMARY (a healthy run's or shadow's summary.json), or {longer}"
+    return f"that ends before {what}, counted from the first sample followed; give {fix}"

@@ -1,4 +1,5 @@
-"""Stop signals: SIGINT, SIGTERM and SIGHUP held while a temporary file is named, or raised as an exception.
+"""Stop signals: SIGINT, SIGTERM and SIGHUP held while a temporary file is named, raised as an exception, or (a
+stream followed until stopped) set as a request that its loop reads.
 
 The command line turns the first stop signal into :class:`Interrupted`, which
 unwinds like Ctrl-C so that every ``except BaseException`` clean-up runs.
@@ -68,6 +69,32 @@ def stop_signals_interrupt() -> Iterator[None]:
     finally:
         sys.unraisablehook = unraisable
         _SWALLOWED.clear()
+        for stop, handler in previous.items():
+            signal.signal(stop, handler)
+
+
+@contextlib.contextmanager
+def stop_signals_request(requested: threading.Event) -> Iterator[None]:
+    """In the block, the first SIGINT, SIGTERM or SIGHUP sets ``requested``, for a loop that checks it between two
+    steps and stops where its state is whole (a stream followed a chunk at a time: an exception raised inside a
+    chunk's bookkeeping would leave it half-done); a second one raises :class:`Interrupted`. The previous handlers
+    come back after the block."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def request(signum: int, frame: object) -> None:
+        if not requested.is_set():
+            requested.set()
+            return
+        for stop in STOP_SIGNALS:
+            signal.signal(stop, signal.SIG_IGN)
+        raise Interrupted(signum)
+
+    previous = {stop: signal.signal(stop, request) for stop in STOP_SIGNALS}
+    try:
+        yield
+    finally:
         for stop, handler in previous.items():
             signal.signal(stop, handler)
 

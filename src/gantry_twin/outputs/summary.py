@@ -101,6 +101,8 @@ class AlarmRecord(Model):
     estimate: float
     baseline: float
     cleared_s: float | None
+    #: Seconds since the monitor's first sample (a shadow's: since it started following); absent in older files.
+    since_start_s: float | None = None
 
 
 class AxisExcitation(Model):
@@ -186,6 +188,8 @@ class LiveLink(Model):
     sample_period_s: float | None
     samples: int
     first_index: int | None
+    #: The machine's time of the first sample followed: the zero of the monitor's windows (docs/live-link.md).
+    first_t_s: float | None = None
     covered_s: float
     gaps: int
     missing_samples: int
@@ -402,6 +406,7 @@ def health_summary(report: Any) -> dict[str, Any]:
             "estimate": a.estimate,
             "baseline": a.baseline,
             "cleared_s": a.cleared_s,
+            "since_start_s": a.since_start_s,
         }
         for a in tally.alarms
     ]
