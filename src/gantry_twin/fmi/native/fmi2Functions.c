@@ -227,26 +227,22 @@ fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t 
 fmi2Status fmi2DoStep(fmi2Component component, fmi2Real t, fmi2Real h, fmi2Boolean no_set_prior) {
     (void)no_set_prior;
     Instance *c = component;
-    char at[40], step[40], period[40], why[1024], where[64];
+    char at[40], step[40], period[40], why[1024];
     if (refuse(c, "fmi2DoStep", STEPPING, STEPPING)) return fmi2Error;
-    model_repr(t, at, sizeof at);
-    snprintf(where, sizeof where, "doStep at t = %s s", at);
-    int samples = model_whole_samples(h);
-    if (samples == 0) {
-        /* refused before anything moved: the instance may go on (fmi2Error all the same: FMI 2.0 has no
-         * status for a step size the slave cannot take but fmi2Error) */
+    int samples = model_whole_samples(h), status = MODEL_REFUSED;
+    if (samples > 0 && (status = model_step(&c->plant, samples, why, sizeof why)) == 0) return fmi2OK;
+    if (samples == 0) {  /* FMI 2.0 has no status for a step size the slave cannot take but fmi2Error */
         model_repr(h, step, sizeof step);
         model_repr(GP_SAMPLE_PERIOD_S, period, sizeof period);
-        say(c, fmi2Error, "%s: communication step %s s is not a whole multiple of the plant's sample period %s s",
-            where, step, period);
-        return fmi2Error;
+        snprintf(why, sizeof why, "communication step %s s is not a whole multiple of the plant's sample period %s s",
+                 step, period);
     }
-    int status = model_step(&c->plant, samples, why, sizeof why);
-    if (status == MODEL_REFUSED) {  /* nothing moved: the instance may go on with other inputs */
-        say(c, fmi2Error, "%s: %s", where, why);
-        return fmi2Error;
-    }
-    return status == MODEL_FAILED ? fail(c, where, why) : fmi2OK;
+    model_repr(t, at, sizeof at);
+    if (status == MODEL_FAILED) {  /* the plant moved: the instance is in its error state */
+        c->phase = FAILED;
+    }  /* else nothing moved: the instance may go on with other inputs */
+    say(c, fmi2Error, "doStep at t = %s s: %s", at, why);
+    return fmi2Error;
 }
 
 fmi2Status fmi2CancelStep(fmi2Component c) {
