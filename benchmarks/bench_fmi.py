@@ -11,13 +11,16 @@ bar is 1.3 (the FMU's loop at most 1.3 times pd's). Also, for the record: the sa
 pythonfmu (examples/fmu-pd/pypd.py), which runs on the Python loop, one run, over ``pd``'s compiled loop.
 
 ``plant``: the exported plant FMUs (``gantry-twin fmu export``, the rig plant: the native one, and the pythonfmu one
-of ``--python``) stepped by fmpy's FMU2Slave, against the twin's own compiled loop on the same plant, side by side
-in one run. Each is the no-load circle with the built-in ``pd`` (the master computes pd's law in Python at every
-communication point and holds it over the step); the twin's loop runs ``simulate`` with ``pd``. Timed interleaved,
-``--repeats`` times each, ``--seconds`` simulated per run, per 0.2 ms sample: fmi2DoStep's CPU (the master's whole
-CPU, ``time.process_time``: every thread, less the CPU of the same master loop without the fmi2DoStep calls) over
-the twin's loop's CPU, best of each and the spread of the runs, the load average beside them. The bar: 1.2 for the
-native FMU at 0.2 ms steps.
+of ``--python``) against the twin's own compiled loop on the same plant (``simulate`` with ``pd``), side by side in
+one run. Each master closes the built-in ``pd`` around the FMU on the no-load circle, its law computed at every
+communication point and held over the step. First the native FMU from a C master (benchmarks/fmi_plant_master.c:
+``fmi2GetReal``, pd in C, ``fmi2SetReal``, ``fmi2DoStep`` at 0.2 ms, its loop's CPU read by itself, every
+thread): the FMU's own cost with nothing around it, held to the bar, 1.2x the twin's loop per sample. Then both
+FMUs from fmpy's FMU2Slave (pd in Python): fmi2DoStep's CPU per sample as a Python master sees it, ctypes and
+fmpy's wrapper included (the master's whole CPU, ``time.process_time``, less that of the same loop without the
+fmi2DoStep calls), the native one at 0.2 ms and 1 ms steps, the pythonfmu one at 0.2 ms. Timed interleaved,
+``--repeats`` times each, ``--seconds`` simulated per run: best of each over the twin's best, the spread of the
+runs and the load average beside them.
 """
 
 from __future__ import annotations
@@ -172,6 +175,39 @@ def _spread(values: list[float]) -> str:
     return f"{min(values):.2f} to {max(values):.2f}"
 
 
+def _c_master(where: Path) -> Path | None:
+    """benchmarks/fmi_plant_master.c compiled against fmpy's FMI 2.0 headers (None without a C compiler)."""
+    import fmpy
+
+    compiler = shutil.which("cc")
+    if compiler is None:
+        return None
+    master = where / "fmi_plant_master"
+    headers = Path(fmpy.__file__).parent / "c-code"
+    source = ROOT / "benchmarks" / "fmi_plant_master.c"
+    subprocess.run([compiler, "-O2", f"-I{headers}", str(source), "-ldl", "-o", str(master)], check=True)
+    return master
+
+
+def _c_loop(master: Path, fmu: Path, unpacked: str, seconds: float, where: Path) -> tuple[float, float, int]:
+    """(0, CPU s of the C master's loop, samples): pd in C closed around the native FMU at 0.2 ms steps."""
+    md = read_model_description(str(fmu))
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    n = int(round(seconds / TS))
+    ref = ReferenceStream(circle(), TimingLaw(CIRCLE_RATE_RAD_S, "on_path")).next(np.arange(n) * TS)
+    pd = PD()
+    gains = [pd.kp_v_m[0], pd.kd_v_s_m[0], *pd.kv_v_s_m, *pd.ka_v_s2_m]
+    assert pd.kp_v_m[0] == pd.kp_v_m[1] and pd.kd_v_s_m[0] == pd.kd_v_s_m[1]  # one kp, one kd in the C
+    rows = np.vstack([np.column_stack([ref.q_d, ref.dq_d, ref.ddq_d]), np.asarray(gains, dtype=float)])
+    reference = where / "reference.bin"
+    reference.write_bytes(np.ascontiguousarray(rows, dtype=np.float64).tobytes())
+    names = ("start.x_m", "start.y_m", "start.dx_m_s", "start.dy_m_s", *OUTPUTS[:4], "u_x_v", "u_y_v")
+    command = [str(master), unpacked, md.guid, str(reference), *(str(vr[name]) for name in names)]
+    done = subprocess.run(command, capture_output=True, text=True, check=True, timeout=600)
+    samples, cpu = done.stdout.split()
+    return 0.0, float(cpu), int(samples)
+
+
 def plant_cost(seconds: float, repeats: int) -> None:
     """The plant FMUs' fmi2DoStep over the twin's own loop, per sample: the native FMU at 0.2 ms and 1 ms steps and
     the pythonfmu FMU at 0.2 ms, side by side in one run. fmi2DoStep's CPU per sample is the master's CPU
@@ -183,8 +219,10 @@ def plant_cost(seconds: float, repeats: int) -> None:
             kind: export_plant(Path(tmp) / f"{kind}.fmu", python=kind == "python").path for kind in ("native", "python")
         }
         unpacked = {kind: extract(str(fmu), str(Path(tmp) / kind)) for kind, fmu in fmus.items()}
+        master = _c_master(Path(tmp))
         runs = {
             "twin": lambda s: _twin_loop(s),
+            "native, C master": lambda s: _c_loop(master, fmus["native"], unpacked["native"], s, Path(tmp)),
             "native 0.2 ms": lambda s: _fmu_loop(fmus["native"], unpacked["native"], s, TS),
             "master 0.2 ms": lambda s: _fmu_loop(fmus["native"], unpacked["native"], s, TS, step=False),
             "native 1 ms": lambda s: _fmu_loop(fmus["native"], unpacked["native"], s, 5 * TS),
@@ -204,6 +242,13 @@ def plant_cost(seconds: float, repeats: int) -> None:
             load.append(os.getloadavg()[0])
         twin = min(cpu["twin"])
         print(f"twin's loop (compiled, pd, rig plant): {twin:.2f} us CPU per sample (runs {_spread(cpu['twin'])})")
+        ours = min(cpu["native, C master"])
+        verdict = "within" if ours / twin <= PLANT_BAR else "OVER"
+        print(
+            f"native plant FMU, 0.2 ms steps, pd in a C master (fmi2GetReal, fmi2SetReal, fmi2DoStep, the law): "
+            f"{ours:.2f} us CPU per sample, {ours / twin:.2f}x the twin's loop ({verdict} the {PLANT_BAR}x bar; "
+            f"runs {_spread(cpu['native, C master'])} us)"
+        )
         for name, master in (
             ("native 0.2 ms", "master 0.2 ms"),
             ("native 1 ms", "master 1 ms"),
@@ -212,13 +257,9 @@ def plant_cost(seconds: float, repeats: int) -> None:
             step = [c - m for c, m in zip(cpu[name], cpu[master], strict=True)]
             best = min(cpu[name]) - min(cpu[master])
             ratio = best / twin
-            bar = (
-                f" ({'within' if ratio <= PLANT_BAR else 'OVER'} the {PLANT_BAR}x bar)"
-                if name == "native 0.2 ms"
-                else ""
-            )
             print(
-                f"plant FMU, {name}: fmi2DoStep {best:.2f} us CPU per sample, {ratio:.2f}x the twin's loop{bar} "
+                f"plant FMU, {name}, fmpy master: fmi2DoStep {best:.2f} us CPU per sample, {ratio:.2f}x the twin's "
+                f"loop "
                 f"(runs {_spread(step)} us; {min(wall[name]):.2f} us wall inside fmi2DoStep)"
             )
         print(
