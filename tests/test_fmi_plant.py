@@ -202,7 +202,9 @@ def test_a_step_that_is_not_whole_samples_is_refused_by_the_python_fmu_naming_it
     assert f"[ERROR] doStep at t = 0.0 s: {why}" in printed
 
 
-@pytest.mark.parametrize(("name", "what"), [("u_x_v", "non-finite command"), ("d_y_v", "disturbance")])
+@pytest.mark.parametrize(
+    ("name", "what"), [("u_x_v", "non-finite command after 0 samples"), ("d_y_v", "disturbance (0.0, nan) V")]
+)
 def test_a_non_finite_input_is_refused_by_the_python_fmu_naming_it(rig_fmu, unpacked, name, what, capsys):
     master = Master(rig_fmu, unpacked, {})
     try:

@@ -192,7 +192,8 @@ class CoSimPlant:
         self.sample.command[:] = u_v
         self.recording.disturbance_v[0] = d_v
         if not np.all(np.isfinite(self.recording.disturbance_v)):
-            return f"disturbance {self.recording.disturbance_v[0]!r} V is not finite"
+            x, y = (float(v) for v in self.recording.disturbance_v[0])
+            return f"disturbance ({x!r}, {y!r}) V is not finite"
         status, done = self._advance(samples, self.io, self.encoder, self.recording, self.sample, self.changes)
         self.time_s += done * self.sample_period_s
         self._true()
