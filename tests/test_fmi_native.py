@@ -8,6 +8,7 @@ import argparse
 import re
 import shutil
 import subprocess
+import sys
 import zipfile
 from pathlib import Path
 
@@ -330,3 +331,52 @@ def test_without_a_c_compiler_the_export_says_so_and_names_python(tmp_path, monk
     with pytest.raises(BadInput, match=re.escape("no C compiler found") + ".*--python builds the pythonfmu one"):
         run_export("--out", str(out))
     assert list(tmp_path.iterdir()) == []
+
+
+def test_after_a_refused_initialisation_a_reset_instance_starts_with_good_parameters(fmus):
+    """fmi2Reset after fmi2Error: back to the defaults, and the next initialisation builds the plant."""
+    fmu, unpacked = fmus["paper"]
+    md = read_model_description(str(fmu))
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    slave = FMU2Slave(guid=md.guid, unzipDirectory=str(unpacked), modelIdentifier="GantryPlant", instanceName="p")
+    slave.instantiate()
+    try:
+        slave.enterInitializationMode()
+        slave.setReal([vr["payload.mass_kg"]], [30.0])
+        with pytest.raises(FMICallException, match=r"status 3 \(error\)"):
+            slave.exitInitializationMode()
+        slave.reset()
+        assert slave.getReal([vr["payload.mass_kg"]]) == [0.0]
+        slave.enterInitializationMode()
+        slave.exitInitializationMode()
+        slave.setReal([vr["u_x_v"]], [3.0])
+        slave.doStep(0.0, 10 * TS)
+        assert slave.getReal([vr["x_true_m"]])[0] > 0.0
+        slave.terminate()
+    finally:
+        slave.freeInstance()
+
+
+#: A Python that cannot import gantry_twin nor mujoco runs the FMU with fmpy alone.
+WITHOUT_THE_TWIN = """
+import sys
+sys.modules["gantry_twin"] = None
+sys.modules["mujoco"] = None
+from fmpy import simulate_fmu
+result = simulate_fmu(sys.argv[1], stop_time=0.01, start_values={"u_x_v": 2.0}, output=["x_true_m"])
+print(len(result), result["x_true_m"][-1])
+"""
+
+
+def test_the_fmu_runs_where_neither_gantry_twin_nor_mujoco_can_be_imported(fmus):
+    """fmpy's simulate_fmu in a Python where importing gantry_twin or mujoco fails: the FMU's own libmujoco runs
+    it, and it moves as the twin's plant (a fresh virtual environment with fmpy alone was checked by hand:
+    docs/fmi.md)."""
+    fmu, unpacked = fmus["paper"]
+    done = subprocess.run(
+        [sys.executable, "-c", WITHOUT_THE_TWIN, str(fmu)], capture_output=True, text=True, timeout=120, check=False
+    )
+    assert done.returncode == 0, done.stderr
+    rows, x = done.stdout.split()
+    counts, inputs = np.full(50, 1), np.tile([2.0, 0.0, 0.0, 0.0], (50, 1))
+    assert int(rows) == 51 and float(x) == twin_outputs("paper", {}, counts, inputs)[-1, 4]
