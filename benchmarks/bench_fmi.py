@@ -44,6 +44,7 @@ from gantry_twin.controllers import PD
 from gantry_twin.fmi import fmu_controller
 from gantry_twin.fmi.plant import OUTPUTS
 from gantry_twin.fmi.plant_export import export_plant
+from gantry_twin.fmi.plant_native import c_compiler
 from gantry_twin.paths.contours import ReferenceStream
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -175,13 +176,11 @@ def _spread(values: list[float]) -> str:
     return f"{min(values):.2f} to {max(values):.2f}"
 
 
-def _c_master(where: Path) -> Path | None:
-    """benchmarks/fmi_plant_master.c compiled against fmpy's FMI 2.0 headers (None without a C compiler)."""
+def _c_master(where: Path) -> Path:
+    """benchmarks/fmi_plant_master.c compiled against fmpy's FMI 2.0 headers, with the compiler the export used."""
     import fmpy
 
-    compiler = shutil.which("cc")
-    if compiler is None:
-        return None
+    compiler = c_compiler()
     master = where / "fmi_plant_master"
     headers = Path(fmpy.__file__).parent / "c-code"
     source = ROOT / "benchmarks" / "fmi_plant_master.c"
