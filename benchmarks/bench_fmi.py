@@ -10,19 +10,24 @@ simulated per run, best of each. CPU is the process's (``time.process_time``: ev
 bar is 1.3 (the FMU's loop at most 1.3 times pd's). Also, for the record: the same law as an FMU built with
 pythonfmu (examples/fmu-pd/pypd.py), which runs on the Python loop, one run, over ``pd``'s compiled loop.
 
-``plant``: the exported plant FMU (``gantry-twin fmu export``, the rig plant) stepped by fmpy's FMU2Slave at 0.2 ms
-and at 1 ms communication steps, against the twin's own compiled loop on the same plant, side by side in one run.
-Each is the no-load circle with the built-in ``pd`` (the master computes pd's law in Python at every communication
-point and holds it over the step); the twin's loop runs ``simulate`` with ``pd``. Timed interleaved, ``--repeats``
-times each, ``--seconds`` simulated per run, best of each, per 0.2 ms sample: the wall time inside ``fmi2DoStep``
-alone over the twin's loop's wall time, and the master's whole CPU (``time.process_time``: every thread; the Python
-pd and fmi2Get/SetReal included) over the twin's loop's CPU.
+``plant``: the exported plant FMUs (``gantry-twin fmu export``, the rig plant: the native one, and the pythonfmu one
+of ``--python``) against the twin's own compiled loop on the same plant (``simulate`` with ``pd``), side by side in
+one run. Each master closes the built-in ``pd`` around the FMU on the no-load circle, its law computed at every
+communication point and held over the step. First the native FMU from a C master (benchmarks/fmi_plant_master.c:
+``fmi2GetReal``, pd in C, ``fmi2SetReal``, ``fmi2DoStep`` at 0.2 ms, its loop's CPU read by itself, every
+thread): the FMU's own cost with nothing around it, held to the bar, 1.2x the twin's loop per sample. Then both
+FMUs from fmpy's FMU2Slave (pd in Python): fmi2DoStep's CPU per sample as a Python master sees it, ctypes and
+fmpy's wrapper included (the master's whole CPU, ``time.process_time``, less that of the same loop without the
+fmi2DoStep calls), the native one at 0.2 ms and 1 ms steps, the pythonfmu one at 0.2 ms. Timed interleaved,
+``--repeats`` times each, ``--seconds`` simulated per run: best of each over the twin's best, the spread of the
+runs and the load average beside them.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib.util
+import os
 import shutil
 import subprocess
 import sys
@@ -39,11 +44,14 @@ from gantry_twin.controllers import PD
 from gantry_twin.fmi import fmu_controller
 from gantry_twin.fmi.plant import OUTPUTS
 from gantry_twin.fmi.plant_export import export_plant
+from gantry_twin.fmi.plant_native import c_compiler
 from gantry_twin.paths.contours import ReferenceStream
 
 ROOT = Path(__file__).resolve().parents[1]
 #: The FMU's loop over pd's, per-sample CPU: the bar it must stay within.
 BAR = 1.3
+#: The native plant FMU's fmi2DoStep at 0.2 ms over the twin's own loop, per-sample CPU: its bar.
+PLANT_BAR = 1.2
 #: The no-load circle's rate (scenarios/no_load_circle.yaml).
 CIRCLE_RATE_RAD_S = 2.0
 
@@ -127,8 +135,9 @@ def _twin_loop(seconds: float) -> tuple[float, float, int]:
     return time.perf_counter() - w0, time.process_time() - c0, trace.filled
 
 
-def _fmu_loop(fmu: Path, unpacked: str, seconds: float, step_s: float) -> tuple[float, float, int]:
-    """(wall s inside fmi2DoStep, the master's CPU s, samples) of pd closed around the plant FMU by fmpy."""
+def _fmu_loop(fmu: Path, unpacked: str, seconds: float, step_s: float, step: bool = True) -> tuple[float, float, int]:
+    """(wall s inside fmi2DoStep, the master's CPU s, samples) of pd closed around the plant FMU by fmpy; with
+    ``step`` False the same loop without the fmi2DoStep calls (the master's own CPU, subtracted)."""
     md = read_model_description(str(fmu))
     vr = {v.name: v.valueReference for v in md.modelVariables}
     n = int(round(seconds / step_s))
@@ -138,7 +147,6 @@ def _fmu_loop(fmu: Path, unpacked: str, seconds: float, step_s: float) -> tuple[
     kp, kd, kv, ka = (np.asarray(g, dtype=float) for g in (pd.kp_v_m, pd.kd_v_s_m, pd.kv_v_s_m, pd.ka_v_s2_m))
     slave = FMU2Slave(guid=md.guid, unzipDirectory=unpacked, modelIdentifier="GantryPlant", instanceName="plant")
     slave.instantiate()
-    c0 = time.process_time()
     in_step = 0.0
     try:
         slave.setupExperiment(startTime=0.0)
@@ -147,13 +155,15 @@ def _fmu_loop(fmu: Path, unpacked: str, seconds: float, step_s: float) -> tuple[
         slave.setReal([vr[s] for s in start], [*ref.q_d[0], *ref.dq_d[0]])
         slave.exitInitializationMode()
         measured, commands = [vr[s] for s in OUTPUTS[:4]], [vr["u_x_v"], vr["u_y_v"]]
+        c0 = time.process_time()
         for k in range(n):
             x, y, dx, dy = slave.getReal(measured)
             e, de = np.array([x, y]) - ref.q_d[k], np.array([dx, dy]) - ref.dq_d[k]
             u = np.clip(-kp * e - kd * de + kv * ref.dq_d[k] + ka * ref.ddq_d[k], -10.0, 10.0)
             slave.setReal(commands, list(u))
             w = time.perf_counter()
-            slave.doStep(k * step_s, step_s)
+            if step:
+                slave.doStep(k * step_s, step_s)
             in_step += time.perf_counter() - w
         cpu = time.process_time() - c0
         slave.terminate()
@@ -162,36 +172,101 @@ def _fmu_loop(fmu: Path, unpacked: str, seconds: float, step_s: float) -> tuple[
     return in_step, cpu, n * per
 
 
+def _spread(values: list[float]) -> str:
+    return f"{min(values):.2f} to {max(values):.2f}"
+
+
+def _c_master(where: Path) -> Path:
+    """benchmarks/fmi_plant_master.c compiled against fmpy's FMI 2.0 headers, with the compiler the export used."""
+    import fmpy
+
+    compiler = c_compiler()
+    master = where / "fmi_plant_master"
+    headers = Path(fmpy.__file__).parent / "c-code"
+    source = ROOT / "benchmarks" / "fmi_plant_master.c"
+    subprocess.run([compiler, "-O2", f"-I{headers}", str(source), "-ldl", "-o", str(master)], check=True)
+    return master
+
+
+def _c_loop(master: Path, fmu: Path, unpacked: str, seconds: float, where: Path) -> tuple[float, float, int]:
+    """(0, CPU s of the C master's loop, samples): pd in C closed around the native FMU at 0.2 ms steps."""
+    md = read_model_description(str(fmu))
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    n = int(round(seconds / TS))
+    ref = ReferenceStream(circle(), TimingLaw(CIRCLE_RATE_RAD_S, "on_path")).next(np.arange(n) * TS)
+    pd = PD()
+    gains = [pd.kp_v_m[0], pd.kd_v_s_m[0], *pd.kv_v_s_m, *pd.ka_v_s2_m]
+    assert pd.kp_v_m[0] == pd.kp_v_m[1] and pd.kd_v_s_m[0] == pd.kd_v_s_m[1]  # one kp, one kd in the C
+    rows = np.vstack([np.column_stack([ref.q_d, ref.dq_d, ref.ddq_d]), np.asarray(gains, dtype=float)])
+    reference = where / "reference.bin"
+    reference.write_bytes(np.ascontiguousarray(rows, dtype=np.float64).tobytes())
+    names = ("start.x_m", "start.y_m", "start.dx_m_s", "start.dy_m_s", *OUTPUTS[:4], "u_x_v", "u_y_v")
+    command = [str(master), unpacked, md.guid, str(reference), *(str(vr[name]) for name in names)]
+    done = subprocess.run(command, capture_output=True, text=True, check=True, timeout=600)
+    samples, cpu = done.stdout.split()
+    return 0.0, float(cpu), int(samples)
+
+
 def plant_cost(seconds: float, repeats: int) -> None:
-    """The second line: the plant FMU's doStep at 0.2 ms and 1 ms steps over the twin's own loop, per sample."""
+    """The plant FMUs' fmi2DoStep over the twin's own loop, per sample: the native FMU at 0.2 ms and 1 ms steps and
+    the pythonfmu FMU at 0.2 ms, side by side in one run. fmi2DoStep's CPU per sample is the master's CPU
+    (time.process_time: every thread) less that of the same master loop without the fmi2DoStep calls, run
+    interleaved with it; the twin's loop is ``simulate`` with pd on the rig plant. The bar: the native FMU's at
+    0.2 ms at most 1.2x the twin's loop."""
     with tempfile.TemporaryDirectory() as tmp:
-        fmu = export_plant(Path(tmp) / "rig.fmu").path
-        unpacked = extract(str(fmu), str(Path(tmp) / "unpacked"))
+        fmus = {
+            kind: export_plant(Path(tmp) / f"{kind}.fmu", python=kind == "python").path for kind in ("native", "python")
+        }
+        unpacked = {kind: extract(str(fmu), str(Path(tmp) / kind)) for kind, fmu in fmus.items()}
+        master = _c_master(Path(tmp))
         runs = {
             "twin": lambda s: _twin_loop(s),
-            "fmu 0.2 ms": lambda s: _fmu_loop(fmu, unpacked, s, TS),
-            "fmu 1 ms": lambda s: _fmu_loop(fmu, unpacked, s, 5 * TS),
+            "native, C master": lambda s: _c_loop(master, fmus["native"], unpacked["native"], s, Path(tmp)),
+            "native 0.2 ms": lambda s: _fmu_loop(fmus["native"], unpacked["native"], s, TS),
+            "master 0.2 ms": lambda s: _fmu_loop(fmus["native"], unpacked["native"], s, TS, step=False),
+            "native 1 ms": lambda s: _fmu_loop(fmus["native"], unpacked["native"], s, 5 * TS),
+            "master 1 ms": lambda s: _fmu_loop(fmus["native"], unpacked["native"], s, 5 * TS, step=False),
+            "python 0.2 ms": lambda s: _fmu_loop(fmus["python"], unpacked["python"], s, TS),
         }
         for run in runs.values():  # compile or load the kernels, warm up
             run(0.1)
-        best = {name: (np.inf, np.inf) for name in runs}
-        samples = {}
+        cpu = {name: [] for name in runs}
+        wall = {name: [] for name in runs}
+        load = [os.getloadavg()[0]]
         for _ in range(repeats):
             for name, run in runs.items():
-                wall, cpu, samples[name] = run(seconds)
-                best[name] = (min(best[name][0], wall), min(best[name][1], cpu))
-        per = {name: (w / samples[name] * 1e6, c / samples[name] * 1e6) for name, (w, c) in best.items()}
-        twin_wall, twin_cpu = per["twin"]
-        print(f"twin's loop (compiled, pd, rig plant): {twin_cpu:.2f} us CPU ({twin_wall:.2f} us wall) per sample")
-        for name in ("fmu 0.2 ms", "fmu 1 ms"):
-            step_us, cpu_us = per[name]
+                w, c, samples = run(seconds)
+                cpu[name].append(c / samples * 1e6)
+                wall[name].append(w / samples * 1e6)
+            load.append(os.getloadavg()[0])
+        twin = min(cpu["twin"])
+        print(f"twin's loop (compiled, pd, rig plant): {twin:.2f} us CPU per sample (runs {_spread(cpu['twin'])})")
+        ours = min(cpu["native, C master"])
+        verdict = "within" if ours / twin <= PLANT_BAR else "OVER"
+        print(
+            f"native plant FMU, 0.2 ms steps, pd in a C master (fmi2GetReal, fmi2SetReal, fmi2DoStep, the law): "
+            f"{ours:.2f} us CPU per sample, {ours / twin:.2f}x the twin's loop ({verdict} the {PLANT_BAR}x bar; "
+            f"runs {_spread(cpu['native, C master'])} us)"
+        )
+        for name, master in (
+            ("native 0.2 ms", "master 0.2 ms"),
+            ("native 1 ms", "master 1 ms"),
+            ("python 0.2 ms", "master 0.2 ms"),
+        ):
+            step = [c - m for c, m in zip(cpu[name], cpu[master], strict=True)]
+            best = min(cpu[name]) - min(cpu[master])
+            ratio = best / twin
             print(
-                f"plant FMU, {name[4:]} steps: fmi2DoStep {step_us:.1f} us wall per sample ({step_us / twin_wall:.1f}x "
-                f"the twin's loop, wall); the master's whole loop {cpu_us:.1f} us CPU per sample "
-                f"({cpu_us / twin_cpu:.1f}x the twin's loop, CPU)"
+                f"plant FMU, {name}, fmpy master: fmi2DoStep {best:.2f} us CPU per sample, {ratio:.2f}x the twin's "
+                f"loop "
+                f"(runs {_spread(step)} us; {min(wall[name]):.2f} us wall inside fmi2DoStep)"
             )
-        print(f"best of {repeats} runs of {seconds:g} s simulated each, interleaved")
-        shutil.rmtree(unpacked, ignore_errors=True)
+        print(
+            f"best of {repeats} runs of {seconds:g} s simulated each, interleaved; load average "
+            f"{min(load):.1f} to {max(load):.1f}"
+        )
+        for where in unpacked.values():
+            shutil.rmtree(where, ignore_errors=True)
 
 
 PARTS = {"controller": controller_cost, "plant": plant_cost}

@@ -1,5 +1,6 @@
-"""The plant as an FMU (docs/fmi.md, "The plant as an FMU"): ``gantry-twin fmu export``, validated by fmpy and
-driven by a short Python master with fmpy's FMU2Slave around the built-in ``pd`` law, against ``gantry-twin run``."""
+"""The plant as an FMU (docs/fmi.md, "The plant as an FMU"): ``gantry-twin fmu export``, native (the default) and
+with ``--python`` (pythonfmu), validated by fmpy and driven by a short Python master with fmpy's FMU2Slave around the
+built-in ``pd`` law, against ``gantry-twin run``. What only the native FMU does: tests/test_fmi_native.py."""
 
 from __future__ import annotations
 
@@ -30,14 +31,15 @@ from gantry_twin.scenario import build, load_scenario, shipped
 
 from .helpers import pushed_from_rest_m
 
-FMI2_FATAL = 4
+FMI2_ERROR, FMI2_FATAL = 3, 4
 DURATION_S = 2.0
 TS = 2e-4
 
 
 @pytest.fixture(scope="module")
 def rig_fmu(tmp_path_factory) -> Path:
-    return export_plant(tmp_path_factory.mktemp("fmu") / "rig.fmu").path
+    """The pythonfmu FMU (``--python``)."""
+    return export_plant(tmp_path_factory.mktemp("fmu") / "rig.fmu", python=True).path
 
 
 @pytest.fixture(scope="module")
@@ -46,6 +48,21 @@ def unpacked(rig_fmu, tmp_path_factory) -> Path:
     where = Path(extract(str(rig_fmu), str(tmp_path_factory.mktemp("unpacked"))))
     yield where
     shutil.rmtree(where, ignore_errors=True)
+
+
+@pytest.fixture(scope="module")
+def native_rig(tmp_path_factory) -> tuple[Path, Path]:
+    """The native FMU (the default) and where it is unpacked."""
+    fmu = export_plant(tmp_path_factory.mktemp("native") / "rig.fmu").path
+    where = Path(extract(str(fmu), str(tmp_path_factory.mktemp("native-unpacked"))))
+    yield fmu, where
+    shutil.rmtree(where, ignore_errors=True)
+
+
+@pytest.fixture(params=["native", "python"])
+def either(request, native_rig, rig_fmu, unpacked) -> tuple[Path, Path]:
+    """Each kind of the rig's plant FMU, (fmu, unpacked)."""
+    return native_rig if request.param == "native" else (rig_fmu, unpacked)
 
 
 class Master:
@@ -67,7 +84,9 @@ class Master:
             self.set(parameters)
             self.slave.exitInitializationMode()
         except FMICallException as exc:
-            if exc.status != FMI2_FATAL:  # after fmi2Fatal the standard allows no call, not even fmi2FreeInstance
+            if exc.status == FMI2_ERROR:  # FMI 2.0 allows fmi2FreeInstance after fmi2Error, not fmi2Terminate
+                self.slave.freeInstance()
+            elif exc.status != FMI2_FATAL:  # after fmi2Fatal the standard allows no call, not even fmi2FreeInstance
                 self.close()
             raise
 
@@ -84,8 +103,21 @@ class Master:
             self.slave.freeInstance()
 
 
-def test_the_export_is_a_valid_co_simulation_fmu_that_names_its_python(rig_fmu):
-    assert validate_fmu(str(rig_fmu)) == []
+def test_either_export_is_a_valid_co_simulation_fmu_with_the_same_variables(native_rig, rig_fmu):
+    """The native FMU and the pythonfmu one: valid, and the same variables in the same order with the same value
+    references, so that a master that used one needs no change for the other."""
+    described = []
+    for fmu in (native_rig[0], rig_fmu):
+        assert validate_fmu(str(fmu)) == []
+        md = read_model_description(str(fmu), validate=True)
+        assert md.fmiVersion == "2.0" and md.coSimulation is not None and md.modelExchange is None
+        assert md.coSimulation.modelIdentifier == "GantryPlant"
+        start = [None if v.start is None else float(v.start) for v in md.modelVariables]
+        described.append([(v.name, v.valueReference, v.causality, v.variability) for v in md.modelVariables] + start)
+    assert described[0] == described[1]
+
+
+def test_the_python_export_names_its_python(rig_fmu):
     md = read_model_description(str(rig_fmu), validate=True)
     assert md.fmiVersion == "2.0" and md.coSimulation is not None and md.modelExchange is None
     by_causality = {}
@@ -114,8 +146,9 @@ def pd_volts(q, dq, q_d, dq_d, ddq_d, gains: PD) -> np.ndarray:
     return u
 
 
-def test_a_python_master_closing_pd_around_the_fmu_follows_gantry_twin_run(rig_fmu, unpacked):
-    """2 s of the no-load circle on the rig plant: the FMU's true positions equal the run's to 1e-9 m."""
+def test_a_python_master_closing_pd_around_the_fmu_follows_gantry_twin_run(either):
+    """2 s of the no-load circle on the rig plant: either FMU's true positions equal the run's to 1e-9 m."""
+    rig_fmu, unpacked = either
     overrides = [f"duration_s={DURATION_S}"]
     run = run_scenario("no_load_circle", overrides, controller="pd")
     built = build(load_scenario(shipped("no_load_circle"), overrides, "pd"))
@@ -138,8 +171,9 @@ def test_a_python_master_closing_pd_around_the_fmu_follows_gantry_twin_run(rig_f
     assert np.abs(q_true - ref.q_d).max() > 1e-6  # the loop has a tracking error: the comparison sees dynamics
 
 
-def test_a_step_of_five_samples_is_five_steps_of_one(rig_fmu, unpacked):
+def test_a_step_of_five_samples_is_five_steps_of_one(either):
     """The inputs held over a 1 ms step give the state that five 0.2 ms steps with the same inputs give."""
+    rig_fmu, unpacked = either
     finals = []
     for step, count in ((TS, 50), (5 * TS, 10)):
         master = Master(rig_fmu, unpacked, {"start.dx_m_s": 0.1})
@@ -155,7 +189,7 @@ def test_a_step_of_five_samples_is_five_steps_of_one(rig_fmu, unpacked):
 
 
 @pytest.mark.parametrize("step_s", [1e-4, 3e-4, 2.5e-4, 0.0, -2e-4])
-def test_a_step_that_is_not_whole_samples_is_refused_naming_it(rig_fmu, unpacked, step_s, capsys):
+def test_a_step_that_is_not_whole_samples_is_refused_by_the_python_fmu_naming_it(rig_fmu, unpacked, step_s, capsys):
     """Refused with a line logged at fmi2Error; pythonfmu 0.7.0 returns a refused step as fmi2Discard (docs/fmi.md)."""
     master = Master(rig_fmu, unpacked, {})
     try:
@@ -168,8 +202,10 @@ def test_a_step_that_is_not_whole_samples_is_refused_naming_it(rig_fmu, unpacked
     assert f"[ERROR] doStep at t = 0.0 s: {why}" in printed
 
 
-@pytest.mark.parametrize(("name", "what"), [("u_x_v", "non-finite command"), ("d_y_v", "disturbance")])
-def test_a_non_finite_input_is_refused_naming_it(rig_fmu, unpacked, name, what, capsys):
+@pytest.mark.parametrize(
+    ("name", "what"), [("u_x_v", "non-finite command after 0 samples"), ("d_y_v", "disturbance (0.0, nan) V")]
+)
+def test_a_non_finite_input_is_refused_by_the_python_fmu_naming_it(rig_fmu, unpacked, name, what, capsys):
     master = Master(rig_fmu, unpacked, {})
     try:
         master.set({name: float("nan")})
@@ -187,8 +223,9 @@ def test_whole_samples():
     assert [whole_samples(s, TS) for s in (1e-4, 3e-4, 0.0, -2e-4, float("nan"), float("inf"))] == [None] * 6
 
 
-def test_a_heavier_payload_set_on_the_fmu_moves_less(rig_fmu, unpacked):
+def test_a_heavier_payload_set_on_the_fmu_moves_less(either):
     """The payload parameter reaches the plant: the same push from rest moves 5 kg more by less."""
+    rig_fmu, unpacked = either
     moved = []
     for mass in (0.0, 5.0):
         master = Master(rig_fmu, unpacked, {"payload.mass_kg": mass})
@@ -202,10 +239,11 @@ def test_a_heavier_payload_set_on_the_fmu_moves_less(rig_fmu, unpacked):
 
 
 @pytest.mark.parametrize(("payload_kg", "coulomb_n"), [(0.0, None), (5.0, None), (0.0, 20.0)])
-def test_the_paper_plant_fmu_moves_as_the_reference_machine_computes(tmp_path, payload_kg, coulomb_n):
+@pytest.mark.parametrize("python", [False, True])
+def test_the_paper_plant_fmu_moves_as_the_reference_machine_computes(tmp_path, payload_kg, coulomb_n, python):
     """The paper's plant pushed from rest by 3 V on X, at 1 ms steps, its payload and Coulomb level set as FMU
     parameters: the closed form of m x'' = kf u - B x' - Fc (tests/helpers.py) to 1 um over 0.1 s."""
-    fmu = export_plant(tmp_path / "paper.fmu", "paper").path
+    fmu = export_plant(tmp_path / "paper.fmu", "paper", python=python).path
     parameters = {"payload.mass_kg": payload_kg}
     if coulomb_n is not None:
         parameters["friction.x.fc_n"] = coulomb_n
@@ -229,11 +267,15 @@ def run_export(*argv: str) -> int:
     return args.func(args)
 
 
-def test_fmu_export_writes_the_paper_plant_and_says_what_it_needs(tmp_path, capsys):
+@pytest.mark.parametrize("python", [False, True])
+def test_fmu_export_writes_the_paper_plant_and_says_what_it_needs(tmp_path, capsys, python):
     out = tmp_path / "paper.fmu"
-    assert run_export("--plant", "paper", "--out", str(out), "--payload-kg", "5", "--set", "friction.x.fc_n=7") == 0
+    argv = ["--plant", "paper", "--out", str(out), "--payload-kg", "5", "--set", "friction.x.fc_n=7"]
+    assert run_export(*argv, *(["--python"] if python else [])) == 0
     printed = capsys.readouterr().out
-    assert str(out) in printed and f"gantry-twin {package_version()} installed" in printed
+    needs = f"gantry-twin {package_version()} installed" if python else "needs Linux x86-64 and its C library"
+    assert str(out) in printed and needs in printed
+    assert ("pythonfmu FMI 2.0" if python else "native FMI 2.0") in printed
     assert validate_fmu(str(out)) == []
     start = {v.name: float(v.start) for v in read_model_description(str(out)).modelVariables if v.start is not None}
     assert start["payload.mass_kg"] == 5.0 and start["friction.x.fc_n"] == 7.0

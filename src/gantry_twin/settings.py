@@ -137,6 +137,11 @@ class Allowed:
     generated scenario reference (:mod:`gantry_twin.scenario.reference`); pydantic ignores it."""
 
     text: str
+    #: A :func:`Range`'s bounds (None: unbounded or not a range), for code that checks the range elsewhere (the
+    #: native plant FMU's C, :mod:`gantry_twin.fmi.plant_native`).
+    lo: float | None = None
+    hi: float | None = None
+    lo_open: bool = False
 
 
 def Range(lo: float | None, hi: float | None, unit: str = "", *, lo_open: bool = False) -> Any:  # noqa: N802
@@ -158,7 +163,7 @@ def Range(lo: float | None, hi: float | None, unit: str = "", *, lo_open: bool =
             )
         return x
 
-    return Annotated[float, BeforeValidator(check), Allowed(allowed)]
+    return Annotated[float, BeforeValidator(check), Allowed(allowed, lo, hi, lo_open)]
 
 
 def _as_float(value: Any) -> float:

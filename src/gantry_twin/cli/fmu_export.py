@@ -1,5 +1,6 @@
-"""``gantry-twin fmu export [--plant rig|paper] [--out FILE] [--payload-kg KG] [--set NAME=VALUE ...]``: the twin's
-plant as an FMI 2.0 co-simulation FMU (docs/fmi.md, "The plant as an FMU"; docs/cli.md).
+"""``gantry-twin fmu export [--plant rig|paper] [--out FILE] [--payload-kg KG] [--set NAME=VALUE ...] [--python]``:
+the twin's plant as an FMI 2.0 co-simulation FMU, native (C, MuJoCo's library inside) or with ``--python``
+pythonfmu's (docs/fmi.md, "The plant as an FMU"; docs/cli.md).
 
 :func:`add_parser` adds ``export`` to the ``fmu`` group; :func:`command` runs it (exit 0, or
 :class:`~gantry_twin.cli.common.BadInput`: exit 2, one line, nothing written).
@@ -14,6 +15,7 @@ from pathlib import Path
 
 from gantry_twin.cli.common import EXIT_OK, PROG, BadInput, number_type
 from gantry_twin.fmi.plant_export import export_plant
+from gantry_twin.fmi.plant_native import NoCompilerError
 from gantry_twin.outputs.files import NotRegularFileError
 from gantry_twin.plant.model import DEFAULT_PLANT_MODEL, PAYLOAD_MAX_KG, PLANT_MODELS, PLANT_WORDS
 
@@ -25,10 +27,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     """Add ``export`` to the ``fmu`` group's subparsers; its ``func`` is :func:`command`."""
     parser = subparsers.add_parser(
         "export",
-        help="write the twin's plant as an FMI 2.0 co-simulation FMU (pythonfmu; needs a Python with gantry-twin)",
+        help="write the twin's plant as an FMI 2.0 co-simulation FMU (native: compiled here with cc, MuJoCo inside)",
         description="Write the twin's plant as an FMI 2.0 co-simulation FMU: inputs u_x_v, u_y_v, d_x_v, d_y_v (V), "
         "outputs the encoder (x_m, y_m, dx_m_s, dy_m_s) and the true state (x_true_m, ...), communication steps of "
-        "whole 0.2 ms samples (docs/fmi.md).",
+        "whole 0.2 ms samples (docs/fmi.md). Native by default: C compiled here with the machine's C compiler ($CC "
+        "or cc), MuJoCo's library inside; it needs nothing but Linux x86-64 where it runs.",
     )
     parser.add_argument(
         "--plant",
@@ -58,6 +61,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
         help="another parameter's default: friction.<x|y>.<fc_n|sigma2_ns_m|fs_n|vs_m_s|sigma0_n_m|sigma1_ns_m> "
         "(the last four on the rig's LuGre plant only), start.<x_m|y_m|dx_m_s|dy_m_s>; repeatable",
     )
+    parser.add_argument(
+        "--python",
+        action="store_true",
+        help="build with pythonfmu instead (no C compiler needed here; the FMU needs a Python with this gantry-twin "
+        "where it runs)",
+    )
     parser.set_defaults(func=command)
     return parser
 
@@ -82,7 +91,9 @@ def command(args: argparse.Namespace) -> int:
     out = args.out if args.out is not None else Path(DEFAULT_OUT.format(plant=args.plant))
     parameters = parameter_values(args.parameters)
     try:
-        exported = export_plant(out, args.plant, args.payload_kg, parameters)
+        exported = export_plant(out, args.plant, args.payload_kg, parameters, python=args.python)
+    except NoCompilerError as exc:
+        raise BadInput(f"{exc}: the native plant FMU is compiled here; --python builds the pythonfmu one") from None
     except NotRegularFileError as exc:
         raise BadInput(f"--out {out}: {exc.strerror} (give the .fmu file's name)") from None
     except OSError as exc:
@@ -91,7 +102,10 @@ def command(args: argparse.Namespace) -> int:
         raise BadInput(f"--set {str(exc).splitlines()[0]}") from None
     machine = f"{PLANT_WORDS[args.plant]} plant (models/{PLANT_MODELS[args.plant]})"
     step_ms = exported.sample_period_s * 1e3
-    print(f"wrote {exported.path}: FMI 2.0 co-simulation FMU of the {machine}; steps: whole {step_ms:g} ms samples")
+    kind = "pythonfmu" if args.python else "native"
+    print(
+        f"wrote {exported.path}: {kind} FMI 2.0 co-simulation FMU of the {machine}; steps: whole {step_ms:g} ms samples"
+    )
     print(f"parameters: {', '.join(f'{k}={v:g}' for k, v in exported.parameters.items())}")
     print(f"the FMU {exported.requirement}")
     return EXIT_OK

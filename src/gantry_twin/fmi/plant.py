@@ -17,6 +17,7 @@ state ``start.x_m``, ``start.y_m``, ``start.dx_m_s``, ``start.dy_m_s``; per axis
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
@@ -41,6 +42,52 @@ START = ("start.x_m", "start.y_m", "start.dx_m_s", "start.dy_m_s")
 FRICTION_COMMON = ("fc_n", "sigma2_ns_m")
 FRICTION_LUGRE = ("fs_n", "vs_m_s", "sigma0_n_m", "sigma1_ns_m")
 PAYLOAD = "payload.mass_kg"
+
+
+#: The friction parameters in words, with their units.
+FRICTION_WORDS = {
+    "fc_n": "Coulomb level, N",
+    "sigma2_ns_m": "viscous coefficient, N s/m",
+    "fs_n": "LuGre static (break-away) level, N",
+    "vs_m_s": "LuGre Stribeck velocity, m/s",
+    "sigma0_n_m": "LuGre bristle stiffness, N/m",
+    "sigma1_ns_m": "LuGre bristle damping, N s/m",
+}
+
+
+def descriptions(parameters: Mapping[str, float]) -> dict[str, dict[str, str]]:
+    """Every variable's description, by kind, in the FMU's order (parameters, inputs, outputs)."""
+    params = {PAYLOAD: "payload on the X carriage, kg (0 to 20)"}
+    params.update(zip(START, ("start position X, m", "start position Y, m", "start velocity X, m/s",
+                              "start velocity Y, m/s"), strict=True))  # fmt: skip
+    for name in parameters:
+        if name.startswith("friction."):
+            _, axis, field = name.split(".")
+            what, unit = FRICTION_WORDS[field].split(", ")
+            params[name] = f"{what} of axis {axis.upper()}, {unit}"
+    inputs = {
+        "u_x_v": "motor command X, V (clipped to the DAC's +-10 V, held over the step)",
+        "u_y_v": "motor command Y, V (clipped to the DAC's +-10 V, held over the step)",
+        "d_x_v": "input disturbance X, V (added at the motor, held over the step)",
+        "d_y_v": "input disturbance Y, V (added at the motor, held over the step)",
+    }
+    outputs = dict(
+        zip(
+            (*MEASURED, *TRUE),
+            (
+                "encoder position X, m (0.5 um counts)",
+                "encoder position Y, m (0.5 um counts)",
+                "velocity X by backward difference of the encoder, m/s",
+                "velocity Y by backward difference of the encoder, m/s",
+                "true position X, m",
+                "true position Y, m",
+                "true velocity X, m/s",
+                "true velocity Y, m/s",
+            ),
+            strict=True,
+        )
+    )
+    return {"parameter_descriptions": params, "input_descriptions": inputs, "output_descriptions": outputs}
 
 
 def parameter_names(lugre: bool) -> tuple[str, ...]:
@@ -145,7 +192,8 @@ class CoSimPlant:
         self.sample.command[:] = u_v
         self.recording.disturbance_v[0] = d_v
         if not np.all(np.isfinite(self.recording.disturbance_v)):
-            return f"disturbance {self.recording.disturbance_v[0]!r} V is not finite"
+            x, y = (float(v) for v in self.recording.disturbance_v[0])
+            return f"disturbance ({x!r}, {y!r}) V is not finite"
         status, done = self._advance(samples, self.io, self.encoder, self.recording, self.sample, self.changes)
         self.time_s += done * self.sample_period_s
         self._true()

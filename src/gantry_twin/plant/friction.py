@@ -203,8 +203,16 @@ def steady_force_n(p: LuGreParameters, v_m_s: np.ndarray | float) -> np.ndarray:
 
 
 def steady_bristle_m(p: LuGreParameters, v_m_s: float) -> float:
-    """The bristle deflection of steady sliding at v, m: sign(v) g(v) / sigma0 (0 at rest)."""
-    return float(np.sign(v_m_s) * stribeck_n(p, v_m_s) / p.sigma0_n_m)
+    """The bristle deflection of steady sliding at v, m: sign(v) g(v) / sigma0 (0 at rest).
+
+    With the C library's ``exp`` (``math``'s, not numpy's, whose last bits depend on the CPU): the same start on
+    every machine, and in the native plant FMU's C (src/gantry_twin/fmi/native/model.c)."""
+    v = float(v_m_s)
+    if v == 0.0:
+        return 0.0
+    r = v / p.vs_m_s
+    g = p.fc_n + (p.fs_n - p.fc_n) * math.exp(-(r * r))
+    return (g if v > 0.0 else -g) / p.sigma0_n_m
 
 
 #: The axis speed amplitude of the paper's identification, m/s: the circle's 0.4 m/s (5.1), the

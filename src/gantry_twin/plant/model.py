@@ -63,6 +63,9 @@ MODEL_MAX_BYTES = 1 << 20
 #: Payload offsets from the mount site are limited to the X slider's top plate
 #: (metres, per component); the offset does not change a slide joint's mass.
 PAYLOAD_OFFSET_MAX_M = (0.10, 0.10, 0.20)
+#: The payload body: a steel block (kg/m^3) of this side (m), at least this high (m) (:func:`build_spec`; the native
+#: plant FMU's C builds the same block, src/gantry_twin/fmi/native/model.c).
+PAYLOAD_DENSITY_KG_M3, PAYLOAD_SIDE_M, PAYLOAD_MIN_HEIGHT_M = 7850.0, 0.1, 0.005
 #: A payload mass, kg.
 PayloadMass = Range(0.0, PAYLOAD_MAX_KG, "kg")
 #: A payload's centre of mass from the mount site (x, y, z), m.
@@ -194,8 +197,8 @@ def build_spec(
         body.mass = payload.mass_kg
         # A steel block, 10 cm square, of the given mass: its rotational
         # inertia is irrelevant to slide joints but keeps the body physical.
-        side = 0.1
-        height = max(payload.mass_kg / (7850.0 * side * side), 0.005)
+        side = PAYLOAD_SIDE_M
+        height = max(payload.mass_kg / (PAYLOAD_DENSITY_KG_M3 * side * side), PAYLOAD_MIN_HEIGHT_M)
         i_xy = payload.mass_kg * (side**2 + height**2) / 12.0
         body.inertia = [i_xy, i_xy, payload.mass_kg * 2 * side**2 / 12.0]
         body.add_geom(
