@@ -365,3 +365,26 @@ def test_a_killed_twin_leaves_nothing_of_linuxcnc(tmp_path):
         assert wait_until_clean(30.0) == []
     finally:
         stop(process)
+
+
+def test_without_linuxcnc_the_run_says_what_is_missing_in_one_line(tmp_path):
+    empty = tmp_path / "bin"
+    empty.mkdir()
+    done = subprocess.run(
+        [sys.executable, "-m", "gantry_twin", "run", str(SPLINE_PROGRAM), "--cnc", "linuxcnc", "--out",
+         str(tmp_path / "run")],
+        capture_output=True, text=True, cwd=ROOT, timeout=120, env={**os.environ, "PATH": str(empty)},
+    )  # fmt: skip
+    assert done.returncode == 2
+    assert "contour.cnc: linuxcnc: LinuxCNC's 'linuxcnc' is not on PATH" in done.stderr
+    assert len(done.stderr.strip().splitlines()) == 1 and not (tmp_path / "run").exists()
+
+
+@needs_rs274
+def test_validate_with_linuxcnc_reads_the_program_as_rs274_does():
+    done = subprocess.run([sys.executable, "-m", "gantry_twin", "validate", str(SPLINE_PROGRAM), "--cnc", "linuxcnc"],
+                          capture_output=True, text=True, cwd=ROOT, timeout=120)  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    # The program's own moves: G0, G1, G93 G1, G1, [G5.1 + G1: one stretch not judged], G0.
+    assert "reads 6 XY moves (2 rapid)" in done.stdout and "1 spline or other-plane stretches" in done.stdout
+    assert "X -20.000 .. 50.000 mm, Y -20.000 .. 30.000 mm" in done.stdout

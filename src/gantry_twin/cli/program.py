@@ -77,9 +77,37 @@ def validate_program(path: Path, args: argparse.Namespace) -> None:
     """Read and plan a program without simulating it; print its summary (BadInput: one line, exit 2)."""
     scenario = load_scenario(shipped(DEFAULT_SCENARIO), [*overrides(args, path), *args.overrides])  # named as given
     contour = scenario.contour
+    if contour.cnc == "linuxcnc":
+        return _validate_with_rs274(path, contour)
     try:
         program = contour.read()
         plan = contour.plan(program=program)
     except GcodeError as exc:
         raise BadInput(str(exc)) from None
     print("\n".join(validation_lines(program, plan, TRAVEL_HALF_M)), flush=True)
+
+
+def _validate_with_rs274(path: Path, contour) -> None:
+    """``validate --cnc linuxcnc``: the program as LinuxCNC's rs274 reads it (docs/linuxcnc.md); nothing runs."""
+    from gantry_twin.cnc.canon import read_canon
+    from gantry_twin.cnc.session import LinuxCncError, missing
+    from gantry_twin.gcode.geometry import bounding_box
+
+    why = missing()
+    if why is not None:
+        raise BadInput(f"--cnc linuxcnc: {why}")
+    try:
+        canon = read_canon(path, Path(contour.tool_table) if contour.tool_table else None)
+    except (GcodeError, LinuxCncError) as exc:
+        raise BadInput(str(exc)) from None
+    moves = canon.moves
+    lines = [f"{path}: LinuxCNC's rs274 reads {len(moves)} XY moves ({sum(m.rapid for m in moves)} rapid)"]
+    if moves:
+        lo, hi = bounding_box(moves)
+        lines.append(
+            f"  XY extent: X {lo[0] * 1e3:.3f} .. {hi[0] * 1e3:.3f} mm, Y {lo[1] * 1e3:.3f} .. {hi[1] * 1e3:.3f} mm"
+        )
+    if canon.unjudged:
+        lines.append(f"  {len(canon.unjudged)} spline or other-plane stretches: run, not judged by the part error")
+    lines += [f"  message: {m}" for m in canon.messages]
+    print("\n".join(lines), flush=True)

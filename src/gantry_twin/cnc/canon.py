@@ -142,7 +142,7 @@ def _moves(program: Path, calls: list[tuple[int, str, str]]) -> CanonProgram:
         if not known:
             # The spline's end is unknown: this move and the spline are one unjudged stretch to its end.
             start = pending_start if pending_start is not None else position
-            items.append(Move("line", start, end, feed_m_s, True, number, exact_stop, tolerance_m))
+            items.append(Move("line", start, end, feed_m_s, False, number, exact_stop, tolerance_m))
             unjudged.add(len(items) - 1)
             position, known, pending_start = end, True, None
             return
