@@ -173,8 +173,19 @@ def test_each_sample_is_attributed_to_its_move_and_a_full_circle_to_itself():
     record = _corner_record()
     move = attribute(MoveTable(list(record.canon.moves)), record.q_m)
     assert np.all(np.diff(move) >= 0)
-    assert np.all(move[: 5 + 400] == 0)  # the line, and the rest before it
-    assert np.all(move[5 + 400 + 1 :] == 1)  # the circle starts (on the line's end point) and ends where it began
+    assert np.all(move[: 5 + 399] == 0)  # the line, and the rest before it
+    assert np.all(move[5 + 400 :] == 1)  # the circle, which ends where it began (the junction may go to either)
+
+
+def test_a_move_that_retraces_the_one_before_is_told_from_it():
+    # Up 10 mm, back down (LinuxCNC stops at the reversal), then right: each sample on its own move.
+    moves = [Move("line", (0.0, 0.0), (0.0, 0.01), 0.1, False, 1), Move("line", (0.0, 0.01), (0.0, 0.0), 0.1, False, 2),
+             Move("line", (0.0, 0.0), (0.01, 0.0), 0.1, False, 3)]  # fmt: skip
+    u = 0.01 * (1 - np.cos(np.linspace(0, np.pi, 100))) / 2
+    zeros = np.zeros_like(u)
+    q = np.vstack([np.column_stack([zeros, u]), np.column_stack([zeros, u[::-1]]), np.column_stack([u, zeros])])
+    move = attribute(MoveTable(moves), q)
+    assert list(move[[10, 90, 110, 190, 210, 290]]) == [0, 0, 1, 1, 2, 2]
 
 
 def test_the_reference_passes_through_every_command_and_its_rates_are_its_derivatives():

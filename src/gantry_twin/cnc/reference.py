@@ -64,10 +64,10 @@ class CncPath:
         self._spline = CubicSpline(record.t_s, record.q_m, bc_type="clamped")
         moves = canon.moves or [Move("line", tuple(record.q_m[0]), tuple(record.q_m[0]), math.inf, True, 0)]
         self.table = MoveTable(moves)
-        self.servo_move = attribute(self.table, record.q_m)
-        self.moves = moves = [_with_line(m, record.line[self.servo_move == k]) for k, m in enumerate(moves)]
         move_index = [i for i, item in enumerate(canon.items) if isinstance(item, Move)]
         unjudged = {k for k, i in enumerate(move_index) if i in canon.unjudged}
+        self.servo_move = attribute(self.table, record.q_m, unjudged)
+        self.moves = moves = [_with_line(m, record.line[self.servo_move == k]) for k, m in enumerate(moves)]
         self.true_rapid = np.array([m.rapid for m in moves], dtype=bool)
         self.rapid = self.true_rapid | np.array([k in unjudged for k in range(len(moves))], dtype=bool)
         self.program = Program(
@@ -194,15 +194,19 @@ def _with_line(move: Move, lines: np.ndarray) -> Move:
     return replace(move, line=int(values[np.argmax(counts)]))
 
 
-def attribute(table: MoveTable, q_m: np.ndarray) -> np.ndarray:
+def attribute(table: MoveTable, q_m: np.ndarray, unjudged: frozenset[int] | set[int] = frozenset()) -> np.ndarray:
     """The canonical move each command sample q_m[i] is on (n,), in order.
 
     The command runs the moves in order. A sample stays on move k until it
     has covered at least half of k's length (LinuxCNC blends within half a
-    move) and is nearer move k + 1 than k; a stop at a junction stays on k
-    until the command moves on. The covered length is the command's own
-    path length since k began, so that a full circle (it starts and ends at
-    the same point) is told from the move after it.
+    move) and is nearer move k + 1 than k, or has covered all of it and is
+    no farther from k + 1 (a move that retraces k, a full circle's end). The
+    covered length is the command's own path length since k began, so that
+    a full circle (it starts and ends at the same point) is told from the
+    move after it. An ``unjudged`` move's
+    path is unknown (a spline, an arc in another plane) but not its end: the
+    command stays on it until it has come within ``END_TOLERANCE_M`` of that
+    end and come no nearer.
     """
     q = np.asarray(q_m, dtype=float).reshape(-1, 2)
     n, count = len(q), table.count
@@ -215,15 +219,41 @@ def attribute(table: MoveTable, q_m: np.ndarray) -> np.ndarray:
     for k in range(count - 1):
         if i >= n:
             break
-        length = float(table.length[k])
-        stop = int(np.searchsorted(s, s[i] + 1.5 * length + 2e-3, side="right")) + 1
-        stop = min(max(stop, i + 2), n)
-        rows = np.arange(i, stop)
-        covered = s[rows] - s[i] >= 0.5 * length - 1e-9
-        d_here = table.distance(np.full(len(rows), k), q[rows])
-        d_next = table.distance(np.full(len(rows), k + 1), q[rows])
-        switch = np.flatnonzero(covered & (d_next < d_here))
-        j = int(rows[switch[0]]) if switch.size else stop
+        if k in unjudged:
+            j = _past_end(q, i, table.end[k])
+        else:
+            length = float(table.length[k])
+            stop = int(np.searchsorted(s, s[i] + 1.5 * length + 2e-3, side="right")) + 1
+            stop = min(max(stop, i + 2), n)
+            rows = np.arange(i, stop)
+            covered = s[rows] - s[i]
+            d_here = table.distance(np.full(len(rows), k), q[rows])
+            d_next = table.distance(np.full(len(rows), k + 1), q[rows])
+            half = (covered >= 0.5 * length - 1e-9) & (d_next < d_here - NEARER_M)
+            whole = (covered >= length - COVERED_SLACK_M) & (d_next <= d_here + NEARER_M)
+            switch = np.flatnonzero(half | whole)
+            j = int(rows[switch[0]]) if switch.size else stop
         out[i:j] = k
         i = j
     return out
+
+
+#: Nearer by less than this is a tie (two moves over the same points differ by rounding only), m.
+NEARER_M = 1e-10
+#: The command has covered a move when its path since the move began is this much short of the move's length (m).
+COVERED_SLACK_M = 1e-7
+#: How near the command must come to an unjudged move's end point to have reached it (m).
+END_TOLERANCE_M = 5e-5
+
+
+def _past_end(q: np.ndarray, i: int, end: np.ndarray) -> int:
+    """The first sample after the command, from sample i on, came within END_TOLERANCE_M of ``end`` and then no
+    nearer (len(q) if it never does)."""
+    d = np.linalg.norm(q[i:] - end, axis=1)
+    near = np.flatnonzero(d < END_TOLERANCE_M)
+    if near.size == 0:
+        return len(q)
+    j = int(near[0])
+    while j + 1 < len(d) and d[j + 1] <= d[j]:
+        j += 1
+    return i + j + 1
