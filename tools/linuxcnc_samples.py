@@ -28,6 +28,7 @@ from gantry_twin.cnc.session import LinuxCncError
 from gantry_twin.gcode.geometry import bounding_box
 from gantry_twin.gcode.program import GcodeError
 from gantry_twin.gcode.reader import read_program
+from gantry_twin.gcode.tools import read_tool_table
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -37,20 +38,24 @@ def main() -> int:
     parser.add_argument("directory", nargs="?", default="/usr/share/linuxcnc/ncfiles", type=Path)
     parser.add_argument("--max-seconds", type=float, default=60.0, help="longest program run (at its feeds)")
     parser.add_argument("--run", action="store_true", help="run the candidates through --cnc linuxcnc")
+    parser.add_argument("--tool-table", type=Path, help="a LinuxCNC tool table (mm) for the reader and LinuxCNC")
     args = parser.parse_args()
     machine = twin_machine()
     (x0, x1), (y0, y1) = machine.travel_mm
     ran = failed = 0
+    table_option = ["--tool-table", str(args.tool_table)] if args.tool_table else []
     for program in sorted(args.directory.glob("*.ngc")):
         try:
-            read_program(program, drop_unsupported=True)
+            read_program(
+                program, drop_unsupported=True, tools=read_tool_table(args.tool_table) if args.tool_table else {}
+            )
             twin = "reads"
         except GcodeError as exc:
             twin = f"refuses: {str(exc).split(': ', 1)[1][:70]}"
         except Exception as exc:  # noqa: BLE001 -- a study: say what happened and go on
             twin = f"raised {type(exc).__name__}"
         try:
-            canon = read_canon(program)
+            canon = read_canon(program, args.tool_table)
         except (GcodeError, LinuxCncError) as exc:
             print(f"{program.name:28s} twin {twin:80s} rs274: {str(exc)[:60]}")
             continue
@@ -69,7 +74,7 @@ def main() -> int:
                 out = Path(tmp) / "run"
                 done = subprocess.run(
                     [sys.executable, "-m", "gantry_twin", "run", str(program), "--cnc", "linuxcnc", "--out", str(out),
-                     "--no-plots", "--no-progress"],
+                     "--no-plots", "--no-progress", *table_option],
                     capture_output=True, text=True, cwd=ROOT, timeout=args.max_seconds * TIMEOUT_FACTOR + 600,
                 )  # fmt: skip
                 if done.returncode == 0:
