@@ -3,10 +3,13 @@
 Positions are machine coordinates in metres (the twin's: origin at the
 centre of the travel); the work coordinate systems are
 :mod:`~gantry_twin.gcode.offsets`'s. ``@`` ``^`` are polar coordinates
-(radius, angle in degrees) about the work origin (G90) or the current
-point (G91). G64 Q merges consecutive collinear-within-Q G1 lines (the
-naive CAM detector); G81-G89 drill at each X Y: the rapid there is a move,
-the Z part dropped (``drop_unsupported``) and counted.
+(radius, angle in degrees) about the program's XY zero, cumulative in
+G91 (LinuxCNC's). G64 Q merges consecutive collinear-within-Q G1 lines
+(the naive CAM detector); G81-G89 drill at each X Y: the rapid there is a
+move, the Z part dropped (``drop_unsupported``) and counted. Splines (G5,
+G5.1, G5.2 / G5.3) are :mod:`~gantry_twin.gcode.splines`'s. The feed is
+F units per minute (G94), F times the spindle speed S per revolution
+(G95), or F the inverse of the block's time in minutes (G93).
 """
 
 from __future__ import annotations
@@ -15,18 +18,22 @@ import math
 from collections import Counter
 from collections.abc import Callable
 
-from gantry_twin.gcode.arcs import MM_PER_INCH, arc_move
+from gantry_twin.gcode.arcs import MM_PER_INCH, arc_moves
 from gantry_twin.gcode.compensation import compensate
+from gantry_twin.gcode.feeds import FeedModes
 from gantry_twin.gcode.geometry import Dwell, Move
 from gantry_twin.gcode.offsets import P_SYSTEM, Offsets
-from gantry_twin.gcode.tools import Tool, tool_for_compensation
+from gantry_twin.gcode.splines import SplineMoves
+from gantry_twin.gcode.tools import Tool, tool_for_compensation, write_tool
 
 #: Words a two-axis gantry cannot do, by kind, dropped only on request.
 AXES = "ZABCUVW"
 DROPPABLE_M = {3: "spindle", 4: "spindle", 5: "spindle", 7: "coolant", 8: "coolant", 9: "coolant"}
 #: Modal codes that change nothing on this machine.
-NOOP_G = {"G49", "G80", "G90.1", "G91.1", "G94", "G97", "G98", "G99", "G17"}
+NOOP_G = {"G49", "G80", "G97", "G98", "G99", "G17"}
 MOTION = {"G0": 0, "G1": 1, "G2": 2, "G3": 3}
+SPLINES = {"G5", "G5.1", "G5.2"}
+FEED_MODES = {"G93", "G94", "G95"}
 CYCLES = {f"G{n}" for n in range(81, 90)}
 #: The letters of a block that only moves (the fast path of :meth:`Machine.execute`).
 SIMPLE = frozenset("XYF@^")
@@ -35,19 +42,21 @@ INTERNED = 4096
 SYSTEMS = {"G54": 1, "G55": 2, "G56": 3, "G57": 4, "G58": 5, "G59": 6, "G59.1": 7, "G59.2": 8, "G59.3": 9}
 COMPENSATION = {"G40", "G41", "G42", "G41.1", "G42.1"}
 MODAL_GROUPS = {
-    "motion": {"G0", "G1", "G2", "G3", "G80"} | CYCLES,
+    "motion": {"G0", "G1", "G2", "G3", "G80", "G5.3"} | CYCLES | SPLINES,
     "plane": {"G17", "G18", "G19"},
     "units": {"G20", "G21"},
     "distance": {"G90", "G91"},
+    "arc distance": {"G90.1", "G91.1"},
+    "feed mode": FEED_MODES,
     "path": {"G61", "G61.1", "G64"},
     "coordinate system": set(SYSTEMS),
     "cutter compensation": COMPENSATION,
     "non-modal": {"G4", "G10", "G28", "G28.1", "G30", "G30.1", "G53", "G92", "G92.1", "G92.2", "G92.3"},
 }
 #: Every G code read (the dialect table in docs/gcode.md is checked against it).
-READ_G = set(MOTION) | CYCLES | NOOP_G | set(SYSTEMS) | COMPENSATION | {
+READ_G = set(MOTION) | CYCLES | NOOP_G | set(SYSTEMS) | COMPENSATION | SPLINES | FEED_MODES | {
     "G4", "G10", "G20", "G21", "G28", "G28.1", "G30", "G30.1", "G53", "G61", "G61.1", "G64", "G90", "G91",
-    "G92", "G92.1", "G92.2", "G92.3",
+    "G92", "G92.1", "G92.2", "G92.3", "G5.3", "G90.1", "G91.1",
 }  # fmt: skip
 READ_M = {"M0", "M1", "M2", "M30", "M6", "M70", "M71", "M72", "M73"} | {f"M{n}" for n in DROPPABLE_M}
 REFUSED_G = {
@@ -58,10 +67,11 @@ REFUSED_G = {
     "G76": "spindle-synchronised motion (threading): the gantry has no spindle",
     "G7": "lathe diameter mode: the gantry is a mill's XY",
     "G8": "lathe radius mode: the gantry is a mill's XY",
+    **{f"G38.{n}": "probing: the twin has no probe input" for n in range(2, 6)},
 }
 
 
-class Machine(Offsets):
+class Machine(Offsets, SplineMoves, FeedModes):
     """Modal state and the moves so far; ``params`` is the interpreter's numbered parameters (mm offsets)."""
 
     def __init__(
@@ -73,7 +83,7 @@ class Machine(Offsets):
         tools: dict[int, Tool] | None = None,
     ) -> None:
         self.params, self.drop, self.fail, self.check = params, drop, error, check
-        self.tools = tools or {}  # the tool table (gantry_twin.gcode.tools), for G41 / G42
+        self.tools = dict(tools or {})  # the tool table (gantry_twin.gcode.tools), for G41 / G42; G10 L1 writes it
         self.interned: dict[tuple, Move] = {}  # a loop's repeated lines are one object each
         self.items: list[Move | Dwell] = []
         self.programmed: list[Move] = []
@@ -84,6 +94,11 @@ class Machine(Offsets):
         self.motion: int | str | None = None
         self.scale_m = 1e-3  # G21
         self.incremental = False
+        self.absolute_centres = False  # G90.1 (LinuxCNC starts in G91.1)
+        self.feed_mode = "G94"
+        self.f_word = 0.0  # the last F, program units (G94: per minute, G95: per revolution)
+        self.spindle_rpm = 0.0  # the last S (G95's feed per revolution)
+        self.nurbs, self.nurbs_order, self.spline_ij = [], 3, (0.0, 0.0)
         self.exact_stop = False  # LinuxCNC starts in G64
         self.tolerance_m = math.inf
         self.naive_m = 0.0  # G64 Q: 0 = no merging
@@ -110,11 +125,11 @@ class Machine(Offsets):
     def snapshot(self) -> tuple:
         """The modal state M70 saves and M72 restores."""
         return (self.motion, self.scale_m, self.incremental, self.exact_stop, self.tolerance_m, self.naive_m,
-                self.feed_m_s, self.params.get(P_SYSTEM, 1))  # fmt: skip
+                self.feed_m_s, self.params.get(P_SYSTEM, 1), self.absolute_centres, self.feed_mode)  # fmt: skip
 
     def restore(self, state: tuple) -> None:
         (self.motion, self.scale_m, self.incremental, self.exact_stop, self.tolerance_m, self.naive_m,
-         self.feed_m_s, self.params[P_SYSTEM]) = state  # fmt: skip
+         self.feed_m_s, self.params[P_SYSTEM], self.absolute_centres, self.feed_mode) = state  # fmt: skip
 
     # -- one block -----------------------------------------------------------------------------------------
     def execute(self, words: dict[str, float], number: int, column: dict[str, int]) -> bool:
@@ -122,7 +137,8 @@ class Machine(Offsets):
         self.column, self.number = column, number
         extra = words.keys() - SIMPLE
         straight = not extra or (len(extra) == 1 and next(iter(extra)) in ("G0", "G1"))
-        if straight and self.motion not in CYCLES:  # the common block: axes and feed only, maybe with G0 / G1
+        if straight and self.motion not in CYCLES and self.motion not in SPLINES and self.feed_mode == "G94":
+            # the common block: axes and feed only, maybe with G0 / G1
             if extra:
                 self.motion = MOTION[next(iter(extra))]
             if ("@" in words or "^" in words) and ("X" in words or "Y" in words):
@@ -130,6 +146,7 @@ class Machine(Offsets):
             if "F" in words:
                 if words["F"] < 0.0:
                     raise self.error("F", "the feed must be >= 0")
+                self.f_word = words["F"]
                 self.feed_m_s = words["F"] * self.scale_m / 60.0
             if "X" in words or "Y" in words or "@" in words or "^" in words:
                 if "P" in words and self.motion not in (2, 3):
@@ -144,7 +161,11 @@ class Machine(Offsets):
                 raise self.error(code, "unsupported M code")
             self.unsupported(code, kind)
             del words[code]
-        for word, kind in (("G43", "tool length offset"), ("G96", "spindle speed mode"), ("S", "spindle speed"),
+        if "S" in words:
+            if words["S"] < 0.0:
+                raise self.error("S", "the spindle speed must be >= 0")
+            self.spindle_rpm = words.pop("S")
+        for word, kind in (("G43", "tool length offset"), ("G96", "spindle speed mode"),
                            ("H", "tool length offset"), ("$", "spindle number")):  # fmt: skip
             if word in words:
                 self.unsupported(word, kind)
@@ -178,8 +199,12 @@ class Machine(Offsets):
             self.scale_m = MM_PER_INCH * 1e-3
         if "G21" in words:
             self.scale_m = 1e-3
+        self.feed_mode = next((c for c in words if c in FEED_MODES), self.feed_mode)
         if "F" in words:
+            self.f_word = words["F"]
             self.feed_m_s = words["F"] * self.scale_m / 60.0
+        if "G90.1" in words or "G91.1" in words:
+            self.absolute_centres = "G90.1" in words
         if "G4" in words:
             if "P" not in words:
                 raise self.error("G4", "a dwell needs P (seconds)")
@@ -197,7 +222,12 @@ class Machine(Offsets):
         if "G91" in words:
             self.incremental = True
         if "G10" in words:
-            self.g10(words)
+            if words.get("L") in (1.0, 10.0, 11.0):
+                if "P" not in words or words["P"] < 1 or words["P"] != int(words["P"]):
+                    raise self.error("P", "G10 L1 / L10 / L11 need P, the tool number (a whole number >= 1)")
+                write_tool(self.tools, int(words["P"]), words, self.scale_m, self.error)
+            else:
+                self.g10(words)
             return "M2" in words or "M30" in words
         if any(c in words for c in ("G92", "G92.1", "G92.2", "G92.3")):
             self.g92(words)
@@ -206,17 +236,26 @@ class Machine(Offsets):
         if home is not None:
             self.home(home, words, number)
             return "M2" in words or "M30" in words
-        motion = next((c for c in words if c in MOTION or c in CYCLES), None) or ("G80" if "G80" in words else None)
+        motion = next((c for c in words if c in MOTION or c in CYCLES or c in SPLINES), None)
+        motion = motion or ("G80" if "G80" in words else None)
         if motion is not None:
+            if motion != self.motion:
+                self.nurbs = []  # a new G5.2 curve
             self.motion = None if motion == "G80" else MOTION.get(motion, motion)
-        uses_p = "G4" in words or "G64" in words
+        if "G5.3" in words:
+            self.nurbs_end(words, number)
+            return "M2" in words or "M30" in words
+        uses_p = "G4" in words or "G64" in words or self.motion in SPLINES
         axes = any(letter in words for letter in "XY@^")
         arc_p = self.motion in (2, 3) and (axes or "I" in words or "J" in words)
+        if self.motion == "G5.2" and not axes and ("P" in words or "L" in words):
+            self.spline(words, number)  # the first control point's weight, the order
+            return "M2" in words or "M30" in words
         if "P" in words and not uses_p and not arc_p:
             raise self.error("P", "P only follows G4, G64, G10 or an arc (turns)")
         if not axes and any(letter in words for letter in "IJR"):
-            if self.motion in (2, 3) and "R" not in words:
-                axes = True  # a full circle: I J without X Y
+            if self.motion in (2, 3, "G5.1") and "R" not in words:
+                axes = True  # a full circle: I J without X Y (a G5.1 back to its start)
             else:
                 raise self.error(next(c for c in "IJR" if c in words), "needs an arc with X or Y")
         if axes:
@@ -236,10 +275,12 @@ class Machine(Offsets):
                 if word.startswith("G"):
                     raise self.error(word, "unsupported G code")
                 raise self.error(word, "unsupported word")
+        spline = self.motion in SPLINES or any(c in words for c in SPLINES)
         if "L" in words and "G10" not in words and not (self.motion in CYCLES or any(c in words for c in CYCLES)):
-            raise self.error("L", "L only follows G10 or a drilling cycle (repeats)")
-        if "Q" in words and "G64" not in words:
-            raise self.error("Q", "Q only follows G64 (or a drilling cycle's peck)")
+            if not spline:
+                raise self.error("L", "L only follows G10, a drilling cycle (repeats) or G5.2 (the order)")
+        if "Q" in words and "G64" not in words and not spline and "G10" not in words:
+            raise self.error("Q", "Q only follows G64, G5 or G10 L1 (or a drilling cycle's peck)")
         if "D" in words and not any(c in words for c in ("G41", "G42", "G41.1", "G42.1")):
             raise self.error("D", "D only follows G41 / G42 (a tool) or G41.1 / G42.1 (a diameter)")
         if ("@" in words or "^" in words) and ("X" in words or "Y" in words):
@@ -285,67 +326,36 @@ class Machine(Offsets):
         self.compensation = (side, None, tool, self.number)
 
     # -- moves ---------------------------------------------------------------------------------------------
-    def target(self, words: dict[str, float]) -> tuple[float, float]:
-        """The block's end point, machine m, from X Y (or @ ^) in the distance mode and system in force."""
-        s = self.scale_m
-        x, y = self.position
-        if "G53" in words:
-            if self.incremental:
-                raise self.error("G53", "machine coordinates need G90 (absolute)")
-            return (words["X"] * s if "X" in words else x), (words["Y"] * s if "Y" in words else y)
-        polar = "@" in words or "^" in words
-        wx, wy, gx, gy, c, sn = self.frame()
-        if sn == 0.0 and not polar:  # unrotated: an axis not given keeps its machine coordinate exactly
-            if self.incremental:
-                return x + words.get("X", 0.0) * s, y + words.get("Y", 0.0) * s
-            return (words["X"] * s + wx + gx if "X" in words else x), (words["Y"] * s + wy + gy if "Y" in words else y)
-        px, py = self.to_program(x, y)
-        if polar:
-            radius, angle = words.get("@", 0.0) * s, math.radians(words.get("^", 0.0))
-            dx, dy = radius * math.cos(angle), radius * math.sin(angle)
-            px, py = (px + dx, py + dy) if self.incremental else (dx, dy)
-        elif self.incremental:
-            px, py = px + words.get("X", 0.0) * s, py + words.get("Y", 0.0) * s
-        else:
-            px, py = (words["X"] * s if "X" in words else px), (words["Y"] * s if "Y" in words else py)
-        return self.to_machine(px, py)
-
     def move(self, words: dict[str, float], number: int) -> None:
         if self.motion is None:
             raise self.error("X" if "X" in words else "Y", "an axis word without G0, G1, G2, G3 or a cycle in force")
         if self.motion in CYCLES:
             self.drill(words, number)
             return
+        if self.motion in SPLINES:
+            self.spline(words, number)
+            return
         if "G53" in words and self.motion not in (0, 1):
             raise self.error("G53", "machine coordinates only with G0 or G1")
         end = self.target(words)
         rapid = self.motion == 0
-        if not rapid and not self.feed_m_s:
-            what = "F must be given before the first feed move" if self.feed_m_s is None else "F is 0"
-            raise self.error(f"G{self.motion}", f"no feed: {what}")
         if not self.items and not self.compensated and rapid and self.start is None and self.compensation is None:
             self.start = self.position = end  # the run starts at rest after its first G0
             return
-        if self.start is None:
-            self.start = self.position
-        common = dict(
-            feed_m_s=math.inf if rapid else self.feed_m_s, rapid=rapid, line=number,
-            exact_stop=self.exact_stop, tolerance_m=self.tolerance_m,
-        )  # fmt: skip
+        common = self.feed_common(words, number)
         if self.motion in (0, 1):
             if "I" in words or "J" in words or "R" in words:
                 raise self.error("I" if "I" in words else "J" if "J" in words else "R", "only arcs take it")
             if end != self.position:
-                self.emit(self.line(end, common))
+                line = self.line(end, common)
+                self.emit(self.timed([line], words)[0] if self.feed_mode == "G93" else line)
             self.position = end
             return
-        c, s = self.frame()[4:]
-        if s != 0.0 and ("I" in words or "J" in words):  # the centre's offset turns with the system
-            i, j = words.get("I", 0.0), words.get("J", 0.0)
-            words = {**words, "I": c * i - s * j, "J": s * i + c * j}
-        move = arc_move(words, self.position, end, self.scale_m, self.motion == 3, common, self.error)
-        self.emit(move)
-        self.position = move.end_m
+        centre = self.arc_centre(words) if "R" not in words else None
+        moves = arc_moves(words, self.position, end, self.scale_m, self.motion == 3, common, self.error, centre)
+        for move in self.timed(moves, words):
+            self.emit(move)
+        self.position = end
 
     def line(self, end: tuple[float, float], common: dict) -> Move:
         """The line from the current point to ``end``; the same object for the same line (a loop's repeats)."""
