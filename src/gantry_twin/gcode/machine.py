@@ -180,6 +180,9 @@ class Machine(Offsets, SplineMoves, FeedModes):
             if cycle in ("G82", "G89") or "P" in words:
                 words.pop("P", None)
         self.axis_dropped = False
+        if "G10" in words and words.get("L") in (1.0, 10.0, 11.0):
+            for letter in AXES:
+                words.pop(letter, None)  # a tool's offsets: read, not used (no tool length offset in XY)
         for letter in AXES:
             if letter in words:
                 self.unsupported(letter, f"{letter} axis")
