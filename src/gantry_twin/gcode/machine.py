@@ -234,7 +234,8 @@ class Machine(Offsets, SplineMoves, FeedModes):
             return "M2" in words or "M30" in words
         if any(c in words for c in ("G92", "G92.1", "G92.2", "G92.3")):
             self.g92(words)
-            return "M2" in words or "M30" in words
+            if "G92" in words:  # its X Y are the offset's; G92.1 / .2 / .3 leave them to the motion
+                return "M2" in words or "M30" in words
         home = next((c for c in ("G28", "G28.1", "G30", "G30.1") if c in words), None)
         if home is not None:
             self.home(home, words, number)
