@@ -42,7 +42,8 @@ def both(name: str, tmp_path: Path):
     code, output = run_rs274(program, inch_table(tmp_path) if table else None)
     oracle = rs274_path(code, output)
     assert oracle.ok, f"rs274 refused {name}: {oracle.message}"
-    twin = read_program(program, drop_unsupported=True, tools=read_tool_table(table) if table else None)
+    tools = read_tool_table(table) if table else None
+    twin = read_program(program, drop_unsupported=True, tools=tools, merge_lines=False)
     return oracle, twin
 
 
@@ -77,7 +78,7 @@ def test_the_comparison_sees_a_changed_program(name, change, tmp_path):
     oracle, _ = both(name, tmp_path)
     changed = tmp_path / name
     changed.write_text(change((DATA / name).read_text()))
-    twin = read_program(changed, drop_unsupported=True)
+    twin = read_program(changed, drop_unsupported=True, merge_lines=False)
     assert not compare(oracle.points, twin_path(twin)).agreed
 
 

@@ -98,6 +98,7 @@ class Interpreter:
         work_offsets_mm: dict[int, tuple[float, float]] | None = None,
         travel_half_m: tuple[float, float] = TRAVEL_HALF_M,
         tools: dict[int, Tool] | None = None,
+        merge_lines: bool = True,
     ) -> None:
         self.main, self.unit = unit, unit
         self.block_delete, self.max_blocks, self.path = block_delete, max_blocks, subroutine_path
@@ -115,6 +116,7 @@ class Interpreter:
             tools,
         )
         self.machine.file = unit.name
+        self.machine.merge = merge_lines
         self.messages: list[str] = []
         self.loaded: dict[str, Unit] = {}
         self.blocks = 0

@@ -89,6 +89,7 @@ class Machine(Offsets, SplineMoves, FeedModes):
         self.programmed: list[Move] = []
         self.dropped: Counter[str] = Counter()
         self.merged = 0
+        self.merge = True  # G64 Q merges lines (False: every line kept, as LinuxCNC's interpreter emits them)
         self.position = (0.0, 0.0)
         self.start: tuple[float, float] | None = None
         self.motion: int | str | None = None
@@ -428,7 +429,9 @@ class Machine(Offsets, SplineMoves, FeedModes):
     def merges(self, item: Move | Dwell) -> bool:
         """The naive CAM detector: the G1 line joins the previous one when every point of the chain stays within
         Q of the line from the chain's start to the new end and the new end goes on forward."""
-        if not (isinstance(item, Move) and item.kind == "line" and not item.rapid and self.naive_m > 0.0):
+        if not (
+            isinstance(item, Move) and item.kind == "line" and not item.rapid and self.naive_m > 0.0 and self.merge
+        ):
             return False
         if not self.chain or not self.items or not isinstance(self.items[-1], Move):
             return False
