@@ -81,6 +81,12 @@ def test_a_full_circle_off_its_end_is_cut_in_quarter_turns_ending_at_the_program
         assert a.end_m == b.start_m
 
 
+def test_utf8_in_comments_is_read_as_linuxcnc_keeps_it():
+    program = parse_program("G1 X1 F10 (caf\u00e9 \u00b0C) ; \u00fc\n(msg, r\u00e9sum\u00e9)\n")
+    assert program.moves[0].end_m == (0.001, 0.0)
+    assert program.messages == ("<program>:2: msg: r?sum?",)
+
+
 def test_dropped_words_are_counted():
     program = parse_program("G0 X0 Y0 Z5\nM3 S1000\nG1 X10 Z-1 F100\nT1 M6\nM8\nM30", drop_unsupported=True)
     assert program.dropped == {"Z axis": 2, "spindle": 1, "coolant": 1}  # T M6 select a tool; S is read (G95)
@@ -125,7 +131,8 @@ BAD = {
     "letter without number": ("G1 X F10\n", 1, "X: a number must follow"),
     "not a word": ("G1 X1 F10\n123\n", 2, "line: expected a word (a letter and a number) at '123'"),
     "binary junk": (b"G1 X1 F10\n\x00\xff\x13binary\n", 2, "line: byte 0x00 at column 1"),
-    "non-ascii": ("G1 X1 F10 (caf\u00e9)\n", 1, "line: byte 0xc3"),
+    "non-ascii": ("G1 X1 F10 Y\u00e9\n", 1, "line: '\u00e9' at column 12: not ASCII, and not in a comment"),
+    "not utf-8": (b"G1 X1 F10 (caf\xe9)\n", 1, "line: byte 0xe9 at column 15: not G-code text"),
     "axis word without motion": ("X10\n", 1, "X: an axis word without G0"),
     "I on a line": ("G1 X1 I2 F10\n", 1, "I: only arcs take it"),
     "negative line number": ("N-5 G1 X1 F1\n", 1, "N: a line number is a whole number"),

@@ -44,7 +44,7 @@ DIALECT: tuple[Entry, ...] = (
     ),  # fmt: skip
     Entry("G5.3", "read", "end the NURBS (G5.2) and move along it", "G5.2 X0 Y5 P1 F100\nX5 Y5 P1\nG5.3\n"),
     Entry("G7", "refused", "lathe diameter mode", "G7\n"),
-    Entry("G8", "refused", "lathe radius mode", "G8\n"),
+    Entry("G8", "read", "lathe radius mode (the start, a mill's): nothing to do", "G8\n" + _F),
     Entry(
         "G10",
         "read",

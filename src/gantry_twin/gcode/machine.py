@@ -30,7 +30,7 @@ from gantry_twin.gcode.tools import Tool, tool_for_compensation, write_tool
 AXES = "ZABCUVW"
 DROPPABLE_M = {3: "spindle", 4: "spindle", 5: "spindle", 7: "coolant", 8: "coolant", 9: "coolant"}
 #: Modal codes that change nothing on this machine.
-NOOP_G = {"G49", "G80", "G97", "G98", "G99", "G17"}
+NOOP_G = {"G49", "G80", "G97", "G98", "G99", "G17", "G8"}
 MOTION = {"G0": 0, "G1": 1, "G2": 2, "G3": 3}
 SPLINES = {"G5", "G5.1", "G5.2"}
 FEED_MODES = {"G93", "G94", "G95"}
@@ -66,7 +66,6 @@ REFUSED_G = {
     "G33.1": "spindle-synchronised motion: the gantry has no spindle",
     "G76": "spindle-synchronised motion (threading): the gantry has no spindle",
     "G7": "lathe diameter mode: the gantry is a mill's XY",
-    "G8": "lathe radius mode: the gantry is a mill's XY",
     **{f"G38.{n}": "probing: the twin has no probe input" for n in range(2, 6)},
 }
 
@@ -270,6 +269,9 @@ class Machine(Offsets, SplineMoves, FeedModes):
         return "M2" in words or "M30" in words
 
     def check_words(self, words: dict[str, float]) -> None:
+        refused = next((word for word in words if word in REFUSED_G), None)
+        if refused is not None:  # the code's own reason first (G33 K: spindle-synchronised, not a plane)
+            raise self.error(refused, REFUSED_G[refused])
         if "K" in words:
             raise self.error("K", "not used in the XY plane (G17): arcs take I and J")
         allowed = set("XYIJRFNPTDLQ@^") | READ_G | READ_M

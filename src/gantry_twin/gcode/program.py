@@ -3,7 +3,7 @@
 Every error is a :class:`GcodeError`, one line ``FILE:LINE:COLUMN: WORD: what
 is wrong`` (``FILE:LINE: WORD: ...`` where no column applies). Input is
 bounded: a regular file of at most ``MAX_FILE_BYTES``, lines of at most
-``MAX_LINE_CHARS``, ASCII only, read in one bounded read.
+``MAX_LINE_CHARS``, ASCII (UTF-8 only inside comments), read in one bounded read.
 """
 
 from __future__ import annotations
@@ -90,11 +90,11 @@ def text_lines(data: bytes, name: str, max_line_chars: int = MAX_LINE_CHARS) -> 
         if len(raw) > max_line_chars + 1:
             raise GcodeError(name, number, "line", f"longer than {max_line_chars} characters")
         for column, byte in enumerate(raw.rstrip(b"\r"), start=1):
-            if byte >= 127 or (byte < 32 and byte != 9):
+            if byte == 127 or (byte < 32 and byte != 9):
                 raise GcodeError(
                     name, number, "line", f"byte 0x{byte:02x} at column {column}: not G-code text (binary?)"
                 )
-        text = raw.rstrip(b"\r").decode("ascii")
+        text = _ascii(raw.rstrip(b"\r"), name, number)
         stripped = text.strip()
         if stripped.startswith("%"):
             if out or percent_open:
@@ -107,6 +107,34 @@ def text_lines(data: bytes, name: str, max_line_chars: int = MAX_LINE_CHARS) -> 
             raise GcodeError(name, number, "line", f"longer than {max_line_chars} characters")
         out.append((number, text))  # columns count from the line's first character
     return out
+
+
+def _ascii(raw: bytes, name: str, number: int) -> str:
+    """A line's text: ASCII, or UTF-8 whose other characters are all in comments (LinuxCNC keeps a comment's
+    text as it is), each of those read as ``?``."""
+    if raw.isascii():
+        return raw.decode("ascii")
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as error:
+        byte = raw[error.start]
+        raise GcodeError(
+            name, number, "line", f"byte 0x{byte:02x} at column {error.start + 1}: not G-code text (binary?)"
+        ) from None
+    out, depth, rest = [], 0, False
+    for column, char in enumerate(text, start=1):
+        if not char.isascii():
+            if not (depth or rest):
+                raise GcodeError(name, number, "line", f"{char!r} at column {column}: not ASCII, and not in a comment")
+            char = "?"
+        elif char == "(" and not rest:
+            depth += 1
+        elif char == ")" and depth:
+            depth -= 1
+        elif char == ";" and not depth:
+            rest = True
+        out.append(char)
+    return "".join(out)
 
 
 def check_move(item: Move, half: tuple[float, float], name: str) -> None:
