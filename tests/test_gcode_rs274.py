@@ -104,3 +104,24 @@ def test_rs274s_offsets_compose_as_linuxcncs_canon():
     ])  # fmt: skip
     (point,) = rs274_path(0, output).points
     assert (point.x, point.y, point.unit) == (pytest.approx(25.4), pytest.approx(2.0 * 25.4 + 1.5 * 25.4), "in")
+
+
+@needs_rs274
+def test_the_study_tool_classes_each_program_of_a_checkout(tmp_path, capsys):
+    """tools/rs274_study.py on a checkout of four programs: two agree, one is in another plane, one rs274
+    stops (no program end); exit 0 (none differs)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("rs274_study", Path(__file__).parents[1] / "tools/rs274_study.py")
+    study = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(study)
+    files = tmp_path / "checkout" / "nc_files"
+    files.mkdir(parents=True)
+    for name in ("polar.ngc", "rotation.ngc"):
+        (files / name).write_text((DATA / name).read_text())
+    (files / "xz.ngc").write_text("G18 G0 X0 Z0\nG2 X10 Z0 I5 K0 F100\nM2\n")
+    (files / "sub.ngc").write_text("o<sub> sub\nG1 X1 F1\no<sub> endsub\n")
+    assert study.main([str(tmp_path / "checkout"), "--list"]) == 0
+    out = capsys.readouterr().out
+    assert "4 programs: agree 2, not XY 1, rs274 stops 1" in out
+    assert "not XY         nc_files/xz.ngc: arcs in another plane" in out

@@ -85,7 +85,8 @@ def main(argv: list[str] | None = None) -> int:
             details[f"{kind}: {detail.split(': ', 1)[-1] if kind == 'twin refuses' else detail}"[:110]] += 1
         if args.list:
             print(f"{kind:14} {path.relative_to(args.checkout)}: {detail}")
-    print(f"{len(found)} programs: " + ", ".join(f"{kind} {n}" for kind, n in counts.most_common()))
+    ordered = sorted(counts.items(), key=lambda item: (-item[1], item[0]))
+    print(f"{len(found)} programs: " + ", ".join(f"{kind} {n}" for kind, n in ordered))
     for detail, n in details.most_common():
         print(f"  {n:3d} x {detail}")
     return 1 if counts["differ"] else 0
