@@ -143,6 +143,10 @@ def check_move(item: Move, half: tuple[float, float], name: str) -> None:
         (x0, y0), (x1, y1) = item.start_m, item.end_m
         if abs(x0) <= half[0] and abs(x1) <= half[0] and abs(y0) <= half[1] and abs(y1) <= half[1]:
             return  # a line inside: its ends are (the common case, without numpy)
+    else:
+        (cx, cy), r = item.centre_m, item.radius_m
+        if abs(cx) + r <= half[0] and abs(cy) + r <= half[1]:
+            return  # an arc whose whole circle is inside (without numpy)
     lo, hi = bounding_box([item])
     for axis, letter in enumerate("XY"):
         if lo[axis] < -half[axis] - 1e-12 or hi[axis] > half[axis] + 1e-12:

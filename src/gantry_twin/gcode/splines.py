@@ -38,6 +38,10 @@ from gantry_twin.gcode.geometry import Move
 
 #: Samples per control point (LinuxCNC's NURBS_FEED), the tangent's parameter step, the straight-arc test.
 SAMPLES_PER_POINT = 4
+#: The most control points of one NURBS and its highest order (bounds LinuxCNC has not: a runaway loop of
+#: G5.2 lines, or L in the thousands, would take minutes to sample).
+MAX_CONTROL_POINTS = 10_000
+MAX_ORDER = 20
 TANGENT_STEP = 1e-5
 STRAIGHT = 1e-6
 
@@ -49,29 +53,42 @@ def knots(count: int, order: int) -> np.ndarray:
                     dtype=float)  # fmt: skip
 
 
+def local_basis(u: np.ndarray, order: int, knot: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For each u: the first index and the ``order`` basis functions not zero there ((m,) and (m, order)), by
+    the triangular Cox-de Boor recursion N_i,k(u) = (u - t_i) / (t_i+k-1 - t_i) N_i,k-1(u)
+    + (t_i+k - u) / (t_i+k - t_i+1) N_i+1,k-1(u); the last span is closed, so u at the end gives the last
+    control point."""
+    u = np.asarray(u, dtype=float)
+    count, p = len(knot) - order, order - 1
+    s = np.clip(np.searchsorted(knot, u, side="right") - 1, p, count - 1)  # knot[s] <= u < knot[s + 1]
+    n = np.zeros((len(u), order))
+    left, right = np.zeros((len(u), order)), np.zeros((len(u), order))
+    n[:, 0] = 1.0
+    for j in range(1, order):
+        left[:, j], right[:, j] = u - knot[s + 1 - j], knot[s + j] - u
+        saved = np.zeros(len(u))
+        for r in range(j):
+            temp = n[:, r] / (right[:, r + 1] + left[:, j - r])
+            n[:, r] = saved + right[:, r + 1] * temp
+            saved = left[:, j - r] * temp
+        n[:, j] = saved
+    return s - p, n
+
+
 def basis(u: float, order: int, knot: np.ndarray) -> np.ndarray:
-    """The B-spline basis functions N_i,order(u), i = 0 .. len(knot) - order - 1 (Cox-de Boor); the last span
-    is closed, so that u at the end gives the last control point."""
-    count = len(knot) - order
-    last = knot[-1]
-    n = np.array([(knot[i] <= u < knot[i + 1]) or (u == last and knot[i] < knot[i + 1] == last)
-                  for i in range(len(knot) - 1)], dtype=float)  # fmt: skip
-    for k in range(2, order + 1):
-        nxt = np.zeros(len(knot) - k)
-        for i in range(len(knot) - k):
-            left = knot[i + k - 1] - knot[i]
-            right = knot[i + k] - knot[i + 1]
-            a = (u - knot[i]) / left * n[i] if left > 0 else 0.0
-            b = (knot[i + k] - u) / right * n[i + 1] if right > 0 else 0.0
-            nxt[i] = a + b
-        n = nxt
-    return n[:count]
+    """All the basis functions N_i,order(u), i = 0 .. len(knot) - order - 1."""
+    first, local = local_basis(np.array([u]), order, knot)
+    out = np.zeros(len(knot) - order)
+    out[first[0] : first[0] + order] = local[0]
+    return out
 
 
-def nurbs_point(u: float, points: np.ndarray, weights: np.ndarray, order: int, knot: np.ndarray) -> np.ndarray:
-    """The curve's point at knot parameter u: sum N_i w_i P_i / sum N_i w_i."""
-    nw = basis(u, order, knot) * weights
-    return nw @ points / nw.sum()
+def nurbs_points(u: np.ndarray, points: np.ndarray, weights: np.ndarray, order: int, knot: np.ndarray) -> np.ndarray:
+    """The curve's points (m, 2) at knot parameters u: sum N_i w_i P_i / sum N_i w_i."""
+    first, local = local_basis(u, order, knot)
+    index = first[:, None] + np.arange(order)
+    nw = local * weights[index]
+    return np.einsum("mk,mkd->md", nw, points[index]) / nw.sum(axis=1)[:, None]
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
@@ -84,14 +101,16 @@ def nurbs_samples(points: np.ndarray, weights: np.ndarray, order: int) -> tuple[
     knot = knots(len(points), order)
     umax = knot[-1]
     count = SAMPLES_PER_POINT * len(points)
-    out, tangents = [], []
-    for i in range(count + 1):
-        u = umax * i / count
-        out.append(points[0] if i == 0 else points[-1] if i == count else nurbs_point(u, points, weights, order, knot))
-        lo, hi = max(0.0, u - TANGENT_STEP), min(umax, u + TANGENT_STEP)
-        d = nurbs_point(hi, points, weights, order, knot) - nurbs_point(lo, points, weights, order, knot)
-        tangents.append(_unit(d / (hi - lo)))
-    return np.array(out, dtype=float), np.array(tangents, dtype=float)
+    u = umax * np.arange(count + 1) / count
+    out = nurbs_points(u, points, weights, order, knot)
+    out[0], out[-1] = points[0], points[-1]
+    lo, hi = np.maximum(0.0, u - TANGENT_STEP), np.minimum(umax, u + TANGENT_STEP)
+    d = (nurbs_points(hi, points, weights, order, knot) - nurbs_points(lo, points, weights, order, knot)) / (hi - lo)[
+        :, None
+    ]
+    norm = np.hypot(d[:, 0], d[:, 1])
+    tangents = np.where(norm[:, None] > 0, d / np.where(norm > 0, norm, 1.0)[:, None], d)
+    return out, tangents
 
 
 Piece = tuple[tuple[float, float], tuple[float, float] | None, int]  # end, centre (None: a line), +1 ccw / -1 cw
@@ -196,12 +215,15 @@ class SplineMoves:
             self.nurbs = [(x0, y0, weight)]
             self.nurbs_order = 3
         if "L" in words:
-            if words["L"] != int(words["L"]) or words["L"] < 1:
-                raise self.error("L", "a NURBS order is a whole number >= 1 (over 3 sets it; 3 is the least)")
+            if words["L"] != int(words["L"]) or not 1 <= words["L"] <= MAX_ORDER:
+                raise self.error("L", f"a NURBS order is a whole number 1 to {MAX_ORDER} (over 3 sets it; 3 is the "
+                                 "least)")  # fmt: skip
             self.nurbs_order = max(3, int(words["L"])) if words["L"] > 3 else self.nurbs_order
         if "X" in words:
             if words.get("P", 0.0) <= 0.0:
                 raise self.error("P", "every G5.2 control point needs a weight P > 0")
+            if len(self.nurbs) >= MAX_CONTROL_POINTS:
+                raise self.error("G5.2", f"more than {MAX_CONTROL_POINTS} control points in one NURBS (G5.3 ends one)")
             x, y = (v / s for v in self.to_program(*self.target(words)))
             self.nurbs.append((x, y, words["P"]))
 
