@@ -39,22 +39,28 @@ class FeedModes:
         if self.start is None:
             self.start = self.position
         rapid = self.motion == 0
-        feed = math.inf
+        if rapid:
+            feed = math.inf
+        elif self.feed_mode == "G94" and self.feed_m_s:
+            feed = self.feed_m_s  # the common case first
+        else:
+            feed = self.feed_other(words)
+        return dict(feed_m_s=feed, rapid=rapid, line=number, exact_stop=self.exact_stop, tolerance_m=self.tolerance_m)
+
+    def feed_other(self, words: dict[str, float]) -> float:
+        """A feed block's feed, m/s, but G94's with F > 0: G95's, G93's placeholder, or the error of none."""
         code = f"G{self.motion}" if isinstance(self.motion, int) else str(self.motion)
-        if not rapid and self.feed_mode == "G93":
+        if self.feed_mode == "G93":
             if words.get("F", 0.0) <= 0.0:
                 raise self.error(code, "G93 (inverse time) needs F > 0 on every feed move (1 / minutes)")
-        elif not rapid and self.feed_mode == "G95":
+            return math.inf  # placed by timed()
+        if self.feed_mode == "G95":
             if self.f_word <= 0.0 or self.spindle_rpm <= 0.0:
                 what = "F is 0" if self.f_word <= 0.0 else "the spindle speed S is 0"
                 raise self.error(code, f"no feed: {what} (G95: F units per revolution times S rpm)")
-            feed = self.f_word * self.spindle_rpm * self.scale_m / 60.0
-        elif not rapid:
-            if not self.feed_m_s:
-                what = "F must be given before the first feed move" if self.feed_m_s is None else "F is 0"
-                raise self.error(code, f"no feed: {what}")
-            feed = self.feed_m_s
-        return dict(feed_m_s=feed, rapid=rapid, line=number, exact_stop=self.exact_stop, tolerance_m=self.tolerance_m)
+            return self.f_word * self.spindle_rpm * self.scale_m / 60.0
+        what = "F must be given before the first feed move" if self.feed_m_s is None else "F is 0"
+        raise self.error(code, f"no feed: {what}")
 
     def timed(self, moves: list[Move], words: dict[str, float]) -> list[Move]:
         """G93: the block's moves at the one feed that takes 60 / F s over all of them (else as they are)."""

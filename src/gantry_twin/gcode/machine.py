@@ -35,6 +35,8 @@ MOTION = {"G0": 0, "G1": 1, "G2": 2, "G3": 3}
 SPLINES = {"G5", "G5.1", "G5.2"}
 FEED_MODES = {"G93", "G94", "G95"}
 CYCLES = {f"G{n}" for n in range(81, 90)}
+#: Motion modes whose axis words are not a plain move's (the fast path of :meth:`Machine.execute` skips them).
+NOT_STRAIGHT = frozenset(CYCLES | SPLINES)
 #: The letters of a block that only moves (the fast path of :meth:`Machine.execute`).
 SIMPLE = frozenset("XYF@^")
 #: Distinct lines kept for reuse (a program that loops over the same moves holds each once).
@@ -137,7 +139,7 @@ class Machine(Offsets, SplineMoves, FeedModes):
         self.column, self.number = column, number
         extra = words.keys() - SIMPLE
         straight = not extra or (len(extra) == 1 and next(iter(extra)) in ("G0", "G1"))
-        if straight and self.motion not in CYCLES and self.motion not in SPLINES and self.feed_mode == "G94":
+        if straight and self.motion not in NOT_STRAIGHT and self.feed_mode == "G94":
             # the common block: axes and feed only, maybe with G0 / G1
             if extra:
                 self.motion = MOTION[next(iter(extra))]
