@@ -195,3 +195,17 @@ def test_spline_refusals_name_the_word(text, message):
     with pytest.raises(GcodeError) as info:
         parse_program(text, name="t.ngc")
     assert str(info.value).startswith(message), str(info.value)
+
+
+# -- cutter compensation: G40 and G41 again with no move between -----------------------------------------------
+def test_g41_right_after_g40_ends_the_run_where_the_tool_is_and_starts_the_next_there():
+    """LinuxCNC's convert_cutter_compensation_off: the run ends at its last offset point (20 - 2, 20), and the
+    next entry line starts there, not at the programmed (20, 20) (rs274 -g prints (18, 20) then (38, 22))."""
+    text = "G10 L1 P1 R2\nT1 M6\nG0 X-10 Y-10\nG41 G1 X0 Y0 F100\nX20\nY20\nG40\nG41\nG1 X40 Y20\nY40\nG40 X50 Y50\n"
+    moves = parse_program(text).moves
+    ends = [(round(m.end_m[0] * 1e3, 9), round(m.end_m[1] * 1e3, 9)) for m in moves]
+    assert ends[3:6] == [(18.0, 20.0), (38.0, 22.0), (38.0, 40.0)]
+    assert moves[4].start_m == moves[3].end_m  # no gap: the tool goes on from where it stands
+    arc = text.replace("G1 X40 Y20\nY40", "G3 X40 Y20 I10 J0\nG1 Y40")
+    with pytest.raises(GcodeError, match=r"t.ngc:9:1: G3: the move just after G40 must be a line"):
+        parse_program(arc, name="t.ngc")

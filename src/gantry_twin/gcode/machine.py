@@ -14,6 +14,7 @@ F units per minute (G94), F times the spindle speed S per revolution
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections import Counter
 from collections.abc import Callable
@@ -109,6 +110,7 @@ class Machine(Offsets, SplineMoves, FeedModes):
         self.selected = 0  # M6
         self.compensation: tuple[str, float | None, int, int] | None = None  # side, radius, tool, G41 line
         self.compensated: list[Move | Dwell] = []
+        self.resume: tuple[float, float] | None = None  # where a run ended by G41 / G42 right after G40 left the tool
         self.chain: list[tuple[float, float]] = []  # the points of the last item's merged G1 lines
         self.column: dict[str, int] = {}
         self.axis_dropped = False
@@ -320,7 +322,11 @@ class Machine(Offsets, SplineMoves, FeedModes):
                 self.compensation = (*self.compensation[:3], -self.compensation[3])  # ends after the next move
             return
         if self.compensation is not None:
-            raise self.error(code, "cutter compensation is already on (G40 first)")
+            if self.compensation[3] > 0:
+                raise self.error(code, "cutter compensation is already on (G40 first)")
+            # G40, then G41 / G42 before a move: LinuxCNC ends the run where the tool is and goes on from there
+            self.finish_compensation()
+            self.resume = next((item.end_m for item in reversed(self.items) if isinstance(item, Move)), None)
         side = "left" if code.startswith("G41") else "right"
         if code.endswith(".1"):
             if "D" not in words or words["D"] < 0:
@@ -360,6 +366,9 @@ class Machine(Offsets, SplineMoves, FeedModes):
                 self.emit(self.timed([line], words)[0] if self.feed_mode == "G93" else line)
             self.position = end
             return
+        if self.resume is not None and self.compensation is not None and not self.compensated:
+            raise self.error(f"G{self.motion}", "the move just after G40 must be a line (G0 or G1), not an arc "
+                             "(G41 / G42 again starts where the tool is)")  # fmt: skip
         centre = self.arc_centre(words) if "R" not in words else None
         moves = arc_moves(words, self.position, end, self.scale_m, self.motion == 3, common, self.error, centre)
         for move in self.timed(moves, words):
@@ -396,24 +405,6 @@ class Machine(Offsets, SplineMoves, FeedModes):
         if end != self.position:
             self.emit(Move("line", self.position, end, math.inf, True, number, self.exact_stop, self.tolerance_m))
         self.position = end
-
-    def home(self, code: str, words: dict[str, float], number: int) -> None:
-        """G28 / G30: a rapid to the X Y given (if any, in the mode in force), then to the stored position
-        (parameters 5161-5162 / 5181-5182, machine mm) of the axes given, or of both when none is; G28.1 / G30.1
-        store the current point there (LinuxCNC's G28)."""
-        base = 5161 if code.startswith("G28") else 5181
-        if code.endswith(".1"):
-            self.params[base], self.params[base + 1] = self.position[0] * 1e3, self.position[1] * 1e3
-            return
-        given = ("X" in words, "Y" in words)
-        if not any(given) and self.axis_dropped:
-            return  # G28 Z0: only a dropped axis goes home
-        if any(given):
-            self.rapid_to(self.target(words), number)
-        stored = (self.params.get(base, 0.0) * 1e-3, self.params.get(base + 1, 0.0) * 1e-3)
-        both = not any(given)
-        end = tuple(stored[a] if both or given[a] else self.position[a] for a in (0, 1))
-        self.rapid_to((end[0], end[1]), number)
 
     def emit(self, item: Move | Dwell) -> None:
         """Append a move or a dwell: into the compensated run while G41 / G42 is on, else merged by G64 Q."""
@@ -466,7 +457,9 @@ class Machine(Offsets, SplineMoves, FeedModes):
         run, self.compensated, self.compensation = self.compensated, [], None
         moves = [item for item in run if isinstance(item, Move)]
         if moves:
-            centre = self.compensated_run(moves, side, radius_m, tool, abs(line), exit_move)
+            centre = list(self.compensated_run(moves, side, radius_m, tool, abs(line), exit_move))
+            if self.resume is not None and centre:  # the entry line starts where the run before ended
+                centre[0], self.resume = dataclasses.replace(centre[0], start_m=self.resume), None
             for move in centre:
                 self.items.append(move)
                 self.chain = []

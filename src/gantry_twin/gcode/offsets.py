@@ -24,6 +24,7 @@ from the start (G91.1) or program coordinates (G90.1, both needed).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 #: Parameters: G92 in force, its offsets; the current system; the first system's offsets (20 apart; R at +9).
 P_G92_ON, P_G92_X, P_SYSTEM, P_SYSTEM_X = 5210, 5211, 5220, 5221
@@ -38,6 +39,8 @@ class Offsets:
     scale_m: float
     incremental: bool
     absolute_centres: bool
+    axis_dropped: bool
+    rapid_to: Callable[[tuple[float, float], int], None]
 
     def frame(self) -> tuple[float, float, float, float, float, float]:
         """The system in force: its offset (x, y) m, the G92 offset in force (x, y) m, cos and sin of its
@@ -176,3 +179,21 @@ class Offsets:
             else:
                 self.params[P_G92_X + axis] = old[axis]
         self.params[P_G92_ON] = 1.0
+
+    def home(self, code: str, words: dict[str, float], number: int) -> None:
+        """G28 / G30: a rapid to the X Y given (if any, in the mode in force), then to the stored position
+        (parameters 5161-5162 / 5181-5182, machine mm) of the axes given, or of both when none is; G28.1 / G30.1
+        store the current point there (LinuxCNC's G28)."""
+        base = 5161 if code.startswith("G28") else 5181
+        if code.endswith(".1"):
+            self.params[base], self.params[base + 1] = self.position[0] * 1e3, self.position[1] * 1e3
+            return
+        given = ("X" in words, "Y" in words)
+        if not any(given) and self.axis_dropped:
+            return  # G28 Z0: only a dropped axis goes home
+        if any(given):
+            self.rapid_to(self.target(words), number)
+        stored = (self.params.get(base, 0.0) * 1e-3, self.params.get(base + 1, 0.0) * 1e-3)
+        both = not any(given)
+        end = tuple(stored[a] if both or given[a] else self.position[a] for a in (0, 1))
+        self.rapid_to((end[0], end[1]), number)
