@@ -125,3 +125,94 @@ def test_the_study_tool_classes_each_program_of_a_checkout(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "4 programs: agree 2, not XY 1, rs274 stops 1" in out
     assert "not XY         nc_files/xz.ngc: arcs in another plane" in out
+
+
+# -- splines: LinuxCNC's own NURBS evaluation, from its preview parser ----------------------------------------------
+#: The AXIS preview's parser (LinuxCNC's Python module gcode, the system Python's) samples a spline with the
+#: interpreter's own NURBS code at 15 points per control point; rs274 -g prints none of them.
+_PREVIEW = """
+import json, sys
+import gcode
+
+class Canon:
+    parameter_file = ""
+    def __init__(self): self.points = []
+    def __getattr__(self, name): return lambda *args, **kw: None
+    def straight_feed(self, *a): self.points.append((a[0] * 25.4, a[1] * 25.4))
+    def get_external_length_units(self): return 1 / 25.4
+    def get_external_angular_units(self): return 1.0
+    def get_axis_mask(self): return 7
+    def get_block_delete(self): return True
+    def check_abort(self): return False
+    def get_tool(self, n): return (n, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0.0, 0.0, 0.0, 0)
+
+canon = Canon()
+gcode.parse(sys.argv[1], canon, "G21", "")
+print(json.dumps(canon.points))
+"""
+SYSTEM_PYTHON = Path("/usr/bin/python3")
+
+
+def _preview_available() -> bool:
+    import subprocess
+
+    if not SYSTEM_PYTHON.exists():
+        return False
+    done = subprocess.run([str(SYSTEM_PYTHON), "-c", "import gcode"], capture_output=True, timeout=60, check=False)
+    return done.returncode == 0
+
+
+needs_preview = pytest.mark.skipif(
+    not _preview_available(), reason="LinuxCNC's Python module gcode (Debian linuxcnc-uspace) is not installed"
+)
+
+SPLINES = {
+    "G5.1 quadratic": ("G5.1 X40 Y0 I20 J30", [(0, 0), (20, 30), (40, 0)], [1, 1, 1], 3, 2e-6),
+    "G5 cubic": ("G5 X30 Y10 I0 J20 P-5 Q15", [(0, 0), (0, 20), (25, 25), (30, 10)], [1, 1, 1, 1], 4, 2e-6),
+    "G5.2 weighted order 4": (
+        "G5.2 X10 Y20 P2 L4\nX30 Y25 P0.5\nX40 Y0 P1\nX60 Y10 P3\nX70 Y-5 P1\nG5.3",
+        [(0, 0), (10, 20), (30, 25), (40, 0), (60, 10), (70, -5)],
+        [1, 2, 0.5, 1, 3, 1],
+        4,
+        20e-6,
+    ),  # fmt: skip
+}
+
+
+@needs_preview
+@pytest.mark.parametrize("case", sorted(SPLINES))
+def test_splines_are_linuxcncs_nurbs_point_for_point(case, tmp_path):
+    """LinuxCNC's preview points P(u_i), u_i = i umax / (15 (n + 1)): the reader's NURBS gives each to 1e-9 mm,
+    and its biarcs (4 samples per control point, as LinuxCNC's canon) pass within 2 um of every one (20 um on
+    the sharply weighted NURBS: the biarcs' own error, LinuxCNC's too)."""
+    import json
+    import subprocess
+
+    import numpy as np
+
+    from gantry_twin.gcode.geometry import MoveTable
+    from gantry_twin.gcode.splines import knots, nurbs_points
+
+    block, points, weights, order, within_m = SPLINES[case]
+    program = tmp_path / "spline.ngc"
+    program.write_text(f"G21 G17 G90\nG0 X0 Y0\nG1 F600\n{block}\nM2\n")
+    script = tmp_path / "preview.py"
+    script.write_text(_PREVIEW)
+    done = subprocess.run([str(SYSTEM_PYTHON), str(script), str(program)], capture_output=True, text=True,
+                          timeout=120, check=True, cwd=tmp_path)  # fmt: skip
+    control = np.array(points, dtype=float)
+    preview = np.array(json.loads(done.stdout))
+    ends = np.hypot(*(preview - control[0]).T) < 1e-12, np.hypot(*(preview - control[-1]).T) < 1e-12
+    preview = preview[~(ends[0] | ends[1])]  # the points between: u_i = i umax / (15 (n + 1)), i = 1, 2, ...
+    knot = knots(len(control), order)
+    u = knot[-1] * np.arange(1, len(preview) + 1) / (15 * len(control))
+    ours = nurbs_points(u, control, np.array(weights, dtype=float), order, knot)
+    assert 15 * len(control) - 2 <= len(preview) <= 15 * len(control) - 1
+    assert np.abs(ours - preview).max() < 1e-9
+    read = read_program(program)
+    table = MoveTable(read.moves)
+    k = np.repeat(np.arange(table.count), len(preview))  # every point against every move, exactly
+    q = np.tile(preview * 1e-3, (table.count, 1))
+    distance = table.distance(k, q).reshape(table.count, len(preview)).min(axis=0)
+    assert distance.max() < within_m  # the biarcs' own error: 4 samples a control point, as LinuxCNC's canon
+    assert read.moves[-1].end_m == pytest.approx(tuple(control[-1] * 1e-3), abs=1e-15)
