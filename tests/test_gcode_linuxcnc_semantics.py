@@ -148,9 +148,12 @@ def test_g5_1_follows_its_quadratic_bezier_in_linuxcncs_biarcs():
 
 
 def test_g5_follows_its_cubic_and_chains_from_the_last_p_q():
-    text = "G0 X0 Y0\nG5 X30 Y0 I0 J20 P0 Q20 F600\nX60 Y0 P0 Q-20\n"
+    text = "G0 X0 Y0\nG5 X30 Y0 I0 J20 P0 Q20 F600\nG5 X60 Y0 P0 Q-20\nX70\n"  # G5 is not modal: X70 is a G0
     program = parse_program(text)
-    assert [m.end_m for m in program.moves if not m.piece] == [pytest.approx(p) for p in ((0.03, 0.0), (0.06, 0.0))]
+    ends = [m.end_m for m in program.moves if not m.piece]
+    assert ends == [pytest.approx(p) for p in ((0.03, 0.0), (0.06, 0.0), (0.07, 0.0))]
+    assert program.moves[-1].rapid
+    program = parse_program(text.replace("X70\n", ""))  # the curves alone, for their shape
     t = np.linspace(0.0, 1.0, 20001)[:, None]
 
     def cubic(p0, p1, p2, p3):
@@ -209,3 +212,12 @@ def test_g41_right_after_g40_ends_the_run_where_the_tool_is_and_starts_the_next_
     arc = text.replace("G1 X40 Y20\nY40", "G3 X40 Y20 I10 J0\nG1 Y40")
     with pytest.raises(GcodeError, match=r"t.ngc:9:1: G3: the move just after G40 must be a line"):
         parse_program(arc, name="t.ngc")
+
+
+def test_g5_and_g5_1_leave_the_motion_mode_as_it_was():
+    """LinuxCNC 2.9 (rs274 -g prints the (debug, ...) lines): 10, 10, 20; G5.3 leaves no motion mode."""
+    text = "G1 X1 F100\nG5.1 X5 I1 J1\n(debug, #<_motion_mode>)\nG5 X9 I1 J1 P1 Q1\n(debug, #<_motion_mode>)\n"
+    program = parse_program(text + "G2 X10 Y1 R1\n(debug, #<_motion_mode>)\n")
+    assert [m.rsplit(" ", 1)[-1] for m in program.messages] == ["10.000000", "10.000000", "20.000000"]
+    with pytest.raises(GcodeError, match=r"t.ngc:5:1: X: an axis word without G0, G1, G2, G3 or a cycle in force"):
+        parse_program("G1 X1 F100\nG5.2 X5 Y1 P1\nX6 Y2 P1\nG5.3\nX7\n", name="t.ngc")

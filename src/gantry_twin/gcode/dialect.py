@@ -33,7 +33,7 @@ DIALECT: tuple[Entry, ...] = (
         "read",
         "cubic spline to X Y: control points start + I J (left out: the last G5's -P -Q) and end + P Q; "
         "sampled into arcs as LinuxCNC's canon",
-        "G5 X10 Y0 I2 J3 P-2 Q3 F100\nX20 Y0 P-2 Q-3\n",
+        "G5 X10 Y0 I2 J3 P-2 Q3 F100\nG5 X20 Y0 P-2 Q-3\n",
     ),  # fmt: skip
     Entry("G5.1", "read", "quadratic spline to X Y, control point start + I J; sampled as G5", "G5.1 X10 I5 J5 F100\n"),
     Entry(

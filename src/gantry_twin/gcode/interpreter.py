@@ -155,7 +155,7 @@ class Interpreter:
         m = self.machine
         metric = m.scale_m == 1e-3
         system = {v: k for k, v in SYSTEMS.items()}[int(self.params.get(P_SYSTEM, 1))]
-        motion = m.motion if isinstance(m.motion, int) else int(str(m.motion)[1:]) if m.motion else 80
+        motion = m.motion if isinstance(m.motion, int) else float(str(m.motion)[1:]) if m.motion else 80
         return {
             "_x": lambda: m.program_point()[0],
             "_y": lambda: m.program_point()[1],
@@ -169,7 +169,7 @@ class Interpreter:
             "_selected_tool": lambda: float(m.tool),
             "_line": lambda: float(self.number),
             "_call_level": lambda: float(len(self.frames) - 1),
-            "_motion_mode": lambda: float(motion * 10),
+            "_motion_mode": lambda: float(round(motion * 10)),  # G5.1: 51
         }[name]()
 
     # -- running -------------------------------------------------------------------------------------------

@@ -246,6 +246,7 @@ class Machine(Offsets, SplineMoves, FeedModes):
             return "M2" in words or "M30" in words
         motion = next((c for c in words if c in MOTION or c in CYCLES or c in SPLINES), None)
         motion = motion or ("G80" if "G80" in words else None)
+        before = self.motion
         if motion is not None:
             if motion != self.motion:
                 self.nurbs = []  # a new G5.2 curve
@@ -270,6 +271,8 @@ class Machine(Offsets, SplineMoves, FeedModes):
             self.move(words, number)
         elif "G53" in words and not self.axis_dropped:
             raise self.error("G53", "needs X or Y on its line")
+        if self.motion in ("G5", "G5.1"):
+            self.motion = before  # LinuxCNC's: a G5 / G5.1 block leaves the motion mode as it was
         return "M2" in words or "M30" in words
 
     def check_words(self, words: dict[str, float]) -> None:

@@ -12,6 +12,10 @@ points (x, y, weight) and order k.
   the current point, of weight 1), order L (3 when L is not over 3); more
   lines of X Y P follow; G5.3 ends the curve and moves along it.
 
+G5 and G5.1 leave the motion mode as it was (a line of X Y after them is
+the G1 or G0 before); G5.2 is the motion mode until G5.3, which leaves
+none, as LinuxCNC 2.9's interpreter does.
+
 The knots are uniform and clamped, 0 k times, then 1, 2, ... n - k + 1,
 then n - k + 2 k times, for n + 1 control points; the curve runs from the
 first control point to the last. LinuxCNC's canon (``NURBS_FEED``) samples
