@@ -24,6 +24,8 @@ ARC_RADIUS_TOLERANCE_MM = 0.02 * math.sqrt(2.0)
 ARC_RADIUS_TOLERANCE_IN = 0.002 * math.sqrt(2.0)
 ARC_RELATIVE_TOLERANCE = 0.001
 MM_PER_INCH = 25.4
+#: The most turns of an arc whose end is off its circle (followed in quarter turns: 4 moves a turn).
+MAX_SPIRAL_TURNS = 1000
 
 
 def arc_moves(
@@ -88,6 +90,10 @@ def arc_moves(
     if sweep < 1e-12 or (chord <= tolerance_abs_m and has_ij and sweep > 2.0 * math.pi - 1e-6):
         sweep = 2.0 * math.pi  # the end is the start: a full circle
     sweep += 2.0 * math.pi * (turns - 1)
+    off_circle = abs(math.dist(start, centre) - math.dist(end, centre)) > 1e-12
+    if off_circle and turns > MAX_SPIRAL_TURNS:
+        raise error("P", f"at most {MAX_SPIRAL_TURNS} turns for an arc whose end is off its circle (a spiral), "
+                    f"got {turns:g}")  # fmt: skip
     return spiral_arcs(start, end, centre, sweep if ccw else -sweep, common)
 
 

@@ -12,6 +12,8 @@ import os
 import stat
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from gantry_twin.gcode.geometry import Dwell, Move, bounding_box
 
 #: Largest program file read, bytes.
@@ -148,6 +150,8 @@ def check_move(item: Move, half: tuple[float, float], name: str) -> None:
         if abs(cx) + r <= half[0] and abs(cy) + r <= half[1]:
             return  # an arc whose whole circle is inside (without numpy)
     lo, hi = bounding_box([item])
+    if not (np.isfinite(lo).all() and np.isfinite(hi).all()):
+        raise GcodeError(name, item.line, "move", "not a finite point (a number too large for the arithmetic)")
     for axis, letter in enumerate("XY"):
         if lo[axis] < -half[axis] - 1e-12 or hi[axis] > half[axis] + 1e-12:
             extreme = lo[axis] if lo[axis] < -half[axis] else hi[axis]

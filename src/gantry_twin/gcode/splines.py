@@ -46,6 +46,9 @@ SAMPLES_PER_POINT = 4
 #: G5.2 lines, or L in the thousands, would take minutes to sample).
 MAX_CONTROL_POINTS = 10_000
 MAX_ORDER = 20
+#: The farthest a control point may be from the program's zero, m (far beyond any travel; the sampling's
+#: arithmetic overflows long before a number the lexer reads).
+MAX_CONTROL_M = 1e3
 TANGENT_STEP = 1e-5
 STRAIGHT = 1e-6
 
@@ -246,6 +249,10 @@ class SplineMoves:
         """Move along the NURBS (program units and frame) by :func:`nurbs_biarcs`'s pieces, the last one the
         block's end; the feed is the block's (G93: the whole curve in 60 / F s)."""
         s = self.scale_m
+        far = float(np.abs(points).max()) * s
+        if not far <= MAX_CONTROL_M:  # the curve stays in its points' hull: one a kilometre away cannot be cut
+            raise self.error(str(self.motion or "G5.3"), f"a control point {far * 1e3:.6g} mm from the program's "
+                             f"zero, more than {MAX_CONTROL_M * 1e3:g} mm")  # fmt: skip
         common = self.feed_common(words, number)
         moves: list[Move] = []
         position = self.position
