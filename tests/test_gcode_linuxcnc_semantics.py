@@ -193,7 +193,7 @@ def test_the_basis_sums_to_one_on_linuxcncs_clamped_knots():
         ("G1 X1 F100\nG5.3\n", "t.ngc:2:1: G5.3: ends a NURBS: G5.2 first"),
         ("G1 X1 F100\nG41.1 D1 G5.1 X5 I1 J1\n", "t.ngc:2:10: G5.1: a spline cannot be cut with cutter radius"),
         (f"G5 X10 Y0 I{'9' * 200} J0 P0 Q0 F100\n", "t.ngc:1:1: G5: a control point 1e+200 mm from the program's"),
-        ("G1 X10 F100\nG2 X10.001 Y0 I-10 J0 P1001\n", "t.ngc:2:24: P: at most 1000 turns for an arc whose end is off"),
+        ("G1 X10 F100\nG2 X10.001 Y0 I-10 J0 P1001\n", "t.ngc:2:23: P: at most 1000 turns for an arc whose end is off"),
     ],
 )
 def test_spline_refusals_name_the_word(text, message):
