@@ -180,18 +180,20 @@ def twin_path(program: Program) -> tuple[Point, ...]:
     """The reader's path as points, machine mm: its start, then the end of every block's moves (the pieces of
     a block split into several moves, a spline's arcs or an off-circle arc's, left out)."""
     points = [Point("start", program.start_m[0] * 1e3, program.start_m[1] * 1e3)]
-    whole = True  # the move is a whole block (not the last piece of one)
+    whole, sweep = True, 0.0  # the move is a whole block (not the last piece of one); the block's turn so far
     for move in program.moves:
         if move.kind == "line" and math.dist(move.start_m, move.end_m) < 1e-9:
             continue  # shorter than 1 nm: rs274 prints no motion (4 decimals)
+        sweep += move.sweep_rad
         if not move.piece:
             kind = "rapid" if move.rapid else move.kind
             centre, turns = None, 0
             if move.centre_m is not None:
-                turns = int(math.copysign(math.ceil(abs(move.sweep_rad) / (2.0 * math.pi) - 1e-9), move.sweep_rad))
+                turns = int(math.copysign(math.ceil(abs(sweep) / (2.0 * math.pi) - 1e-3), sweep))  # 1e-3: pieces
                 centre = (move.centre_m[0] * 1e3, move.centre_m[1] * 1e3) if whole else None
             points.append(Point(kind, move.end_m[0] * 1e3, move.end_m[1] * 1e3, line=move.line, centre=centre,
                                 turns=turns))  # fmt: skip
+            sweep = 0.0
         whole = not move.piece
     return tuple(points)
 
