@@ -286,9 +286,10 @@ def test_g53_moves_in_machine_coordinates_for_its_line():
 
 
 def test_initial_work_offsets_and_polar_coordinates():
+    # G91 polar is about the XY zero too: @5 lengthens the radius 10 to 15 (LinuxCNC's find_ends)
     text = "G1 @10 ^90 F100\nG91 @5 ^0\nG90 G55 @2 ^180\n"
     got = path_mm(text, work_offsets_mm={1: (1.0, 2.0), 2: (-50.0, 0.0)})
-    assert got == [((0, 0), (1, 12)), ((1, 12), (6, 12)), ((6, 12), (-52, 0))]
+    assert got == [((0, 0), (1, 12)), ((1, 12), (1, 17)), ((1, 17), (-52, 0))]
 
 
 # -- planning words ----------------------------------------------------------------------------------------

@@ -12,6 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from gantry_twin.gcode import GcodeError, parse_program, read_program
+from gantry_twin.gcode.geometry import MoveTable
 from gantry_twin.gcode.planner import plan_program
 from gantry_twin.gcode.reader import MAX_FILE_BYTES
 
@@ -56,20 +57,45 @@ def test_an_arc_by_its_radius(r, sweep):
     assert np.hypot(*np.subtract(arc.end_m, arc.centre_m)) == pytest.approx(0.010)
 
 
-def test_an_arc_end_within_linuxcnc_tolerance_ends_on_its_circle():
-    (arc,) = moves("G0 X10 Y0\nG3 X0 Y10.02 I-10 J0 F100\n")  # 0.02 mm: within 0.028 mm
-    assert np.hypot(*arc.end_m) == pytest.approx(0.010, abs=1e-12)
+def test_an_arc_end_within_linuxcnc_tolerance_ends_at_the_programmed_point_along_linuxcncs_spiral():
+    pieces = moves("G0 X10 Y0\nG3 X0 Y10.02 I-10 J0 F100\n")  # 0.02 mm off: within 0.028 mm
+    assert pieces[-1].end_m == (0.0, 0.01002)  # the programmed end, as LinuxCNC keeps it
+    assert [p.piece for p in pieces] == [False]  # a quarter turn: one arc, through both ends
+    # The path stays within 1 um of LinuxCNC's spiral, radius 10 + 0.02 * angle / (pi / 2) mm about (0, 0).
+    table = MoveTable(pieces)
+    for k, piece in enumerate(pieces):
+        sweep = abs(piece.sweep_rad)
+        u = np.linspace(0.0, piece.length_m, 50)
+        p = table.kinematics(np.full(50, k), u, u * 0, u * 0, u * 0)[0]
+        angle = np.arctan2(p[:, 1], p[:, 0])
+        spiral = 0.010 + 0.00002 * angle / (0.5 * math.pi)
+        assert np.abs(np.hypot(p[:, 0], p[:, 1]) - spiral).max() < 1e-6, sweep
+
+
+def test_a_full_circle_off_its_end_is_cut_in_quarter_turns_ending_at_the_programmed_point():
+    pieces = moves("G0 X10 Y0\nG2 X10.01 Y0 I-10 J0 P2 F100\n")  # two turns, 10 um outwards
+    assert [p.piece for p in pieces] == [True] * 7 + [False]
+    assert pieces[-1].end_m == (0.01001, 0.0)
+    assert sum(p.sweep_rad for p in pieces) == pytest.approx(-4.0 * math.pi, abs=1e-6)
+    for a, b in zip(pieces[:-1], pieces[1:], strict=True):
+        assert a.end_m == b.start_m
+
+
+def test_utf8_in_comments_is_read_as_linuxcnc_keeps_it():
+    program = parse_program("G1 X1 F10 (caf\u00e9 \u00b0C) ; \u00fc\n(msg, r\u00e9sum\u00e9)\n")
+    assert program.moves[0].end_m == (0.001, 0.0)
+    assert program.messages == ("<program>:2: msg: r?sum?",)
 
 
 def test_dropped_words_are_counted():
     program = parse_program("G0 X0 Y0 Z5\nM3 S1000\nG1 X10 Z-1 F100\nT1 M6\nM8\nM30", drop_unsupported=True)
-    assert program.dropped == {"Z axis": 2, "spindle": 1, "spindle speed": 1, "coolant": 1}  # T M6 select a tool
+    assert program.dropped == {"Z axis": 2, "spindle": 1, "coolant": 1}  # T M6 select a tool; S is read (G95)
     assert [m.end_m for m in program.moves] == [pytest.approx((0.010, 0.0))]
 
 
 #: Malformed or unsupported programs, each with the line and the words its message must have.
 BAD = {
-    "unknown G": ("G1 X1 F10\nG5 X2\n", 2, "G5: unsupported G code"),
+    "unknown G": ("G1 X1 F10\nG6 X2\n", 2, "G6: unsupported G code"),
     "unknown M": ("M99\n", 1, "M99: unsupported M code"),
     "G code not whole": ("G1.55 X1\n", 1, "G1.55: unknown G code"),
     "arc end off circle": ("G0 X10 Y0\nG3 X0 Y11 I-10 J0 F100\n", 2, "G3: the end is not on the arc's circle"),
@@ -86,7 +112,7 @@ BAD = {
     "Z move": ("G1 X1 Z-1 F100\n", 1, "Z: Z axis: a two-axis gantry cannot do this"),
     "A axis": ("G0 A90\n", 1, "A: A axis"),
     "spindle": ("M3 S1000\n", 1, "M3: spindle"),
-    "spindle speed": ("S1000\n", 1, "S: spindle speed"),
+    "spindle speed": ("S-1\n", 1, "S: the spindle speed must be >= 0"),
     "coolant": ("M8\n", 1, "M8: coolant"),
     "K word": ("G2 X1 Y0 I0.5 K1 F10\n", 1, "K: not used in the XY plane"),
     "leaving the travel": ("G1 X300 F100\n", 1, "X: the move reaches 300 mm, outside the travel"),
@@ -105,7 +131,8 @@ BAD = {
     "letter without number": ("G1 X F10\n", 1, "X: a number must follow"),
     "not a word": ("G1 X1 F10\n123\n", 2, "line: expected a word (a letter and a number) at '123'"),
     "binary junk": (b"G1 X1 F10\n\x00\xff\x13binary\n", 2, "line: byte 0x00 at column 1"),
-    "non-ascii": ("G1 X1 F10 (caf\u00e9)\n", 1, "line: byte 0xc3"),
+    "non-ascii": ("G1 X1 F10 Y\u00e9\n", 1, "line: '\u00e9' at column 12: not ASCII, and not in a comment"),
+    "not utf-8": (b"G1 X1 F10 (caf\xe9)\n", 1, "line: byte 0xe9 at column 15: not G-code text"),
     "axis word without motion": ("X10\n", 1, "X: an axis word without G0"),
     "I on a line": ("G1 X1 I2 F10\n", 1, "I: only arcs take it"),
     "negative line number": ("N-5 G1 X1 F1\n", 1, "N: a line number is a whole number"),

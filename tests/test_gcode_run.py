@@ -40,10 +40,10 @@ def test_a_scenario_runs_a_program_relative_to_its_file(tmp_path):
 
 
 def test_a_bad_program_is_a_scenario_error_naming_its_line(tmp_path):
-    (tmp_path / "part.ngc").write_text("G1 X1 F100\nG5 X2\n")
+    (tmp_path / "part.ngc").write_text("G1 X1 F100\nG6 X2\n")
     scenario_file = tmp_path / "part.yaml"
     scenario_file.write_text("contour: {type: gcode, file: part.ngc}\n")
-    with pytest.raises(ScenarioError, match=r"contour.file: .*part.ngc:2:1: G5: unsupported G code$"):
+    with pytest.raises(ScenarioError, match=r"contour.file: .*part.ngc:2:1: G6: unsupported G code$"):
         build(load_scenario(scenario_file), str(scenario_file))
 
 

@@ -59,7 +59,7 @@ def test_drop_unsupported_is_a_flag_of_run_and_validate(tmp_path, capsys):
                    "(--drop-unsupported drops it)"]  # fmt: skip
     assert cli.main(["validate", str(program), "--drop-unsupported"]) == 0
     out = capsys.readouterr().out
-    assert "  dropped: Z axis 2, spindle 1, spindle speed 1" in out
+    assert "  dropped: Z axis 2, spindle 1" in out  # S is read (G95 uses it)
     parser = cli.build_parser()
     args = parser.parse_args(["run", str(program), "--drop-unsupported", "--subroutine-path", str(tmp_path)])
     assert args.drop_unsupported and args.subroutine_path == [str(tmp_path)]
@@ -106,3 +106,19 @@ def test_a_scenario_gives_work_offsets_a_subroutine_path_and_the_block_bound(tmp
     scenario.write_text(f"contour: {contour % 2}\n")
     with pytest.raises(ScenarioError, match=r"p.ngc:2: program: more than 2 blocks executed"):
         build(load_scenario(scenario), str(scenario))
+
+
+def test_validate_reports_a_program_without_xy_moves_and_run_refuses_it(tmp_path, capsys, monkeypatch):
+    """A program that only computes and prints, or only moves Z, is judged (0 moves, exit 0); run has nothing
+    to run and says so (exit 2)."""
+    program = tmp_path / "compute.ngc"
+    program.write_text("#1=[2*3]\n(print, six=#1)\nG0 Z5\nG1 Z-1 F100\nM2\n")
+    assert cli.main(["validate", str(program), "--drop-unsupported"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[1] == "  moves: 0 (0 feed, 0 rapid)"
+    assert out[3] == "  planned time: 0 s (no XY move to plan)"
+    assert out[5] == "  dropped: Z axis 2"
+    assert out[-1] == f"  {program}:2: print: six=6.000000"
+    monkeypatch.chdir(tmp_path)
+    assert cli.main(["run", str(program), "--drop-unsupported"]) == 2
+    assert "program: has no moves to run" in capsys.readouterr().err

@@ -162,6 +162,12 @@ CASES = [
             ("endwhile_without_while", "G1 X1 F100\no1 endwhile\n"),
             ("call_of_a_missing_subroutine", "o<pocket> call [1]\n"),
             ("g41_without_a_tool", "G41 G1 X10 F100\n"),
+            (
+                "nurbs_of_endless_points",
+                "#1=0\nG5.2 X0 Y1 P1 F600\no1 while [1]\n  #1=[#1+1]\n  X[#1 MOD 100] Y1 P1\no1 endwhile\n",
+            ),
+            ("nurbs_order_in_the_thousands", "G5.2 X1 Y1 P1 L5000 F600\n"),
+            ("spiral_of_a_hundred_million_turns", "G1 X10 F100\nG2 X10.001 Y0 I-10 J0 P99999999\n"),
         )
     ),
     # A log in other units than the machine's.

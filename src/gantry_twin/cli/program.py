@@ -81,7 +81,7 @@ def validate_program(path: Path, args: argparse.Namespace) -> None:
         return _validate_with_rs274(path, contour)
     try:
         program = contour.read()
-        plan = contour.plan(program=program)
+        plan = contour.plan(program=program) if program.moves else None  # nothing in XY: judged, not planned
     except GcodeError as exc:
         raise BadInput(str(exc)) from None
     print("\n".join(validation_lines(program, plan, TRAVEL_HALF_M)), flush=True)

@@ -28,13 +28,29 @@ DIALECT: tuple[Entry, ...] = (
     Entry("G2", "read", "clockwise arc: centre I J (from the start) or radius R; P turns", "G2 X2 I1 F100\n"),
     Entry("G3", "read", "counter-clockwise arc, as G2", "G3 X2 R1 F100\n"),
     Entry("G4", "read", "dwell P seconds", "G4 P0.5\n" + _F),
+    Entry(
+        "G5",
+        "read",
+        "cubic spline to X Y: control points start + I J (left out: the last G5's -P -Q) and end + P Q; "
+        "sampled into arcs as LinuxCNC's canon",
+        "G5 X10 Y0 I2 J3 P-2 Q3 F100\nG5 X20 Y0 P-2 Q-3\n",
+    ),  # fmt: skip
+    Entry("G5.1", "read", "quadratic spline to X Y, control point start + I J; sampled as G5", "G5.1 X10 I5 J5 F100\n"),
+    Entry(
+        "G5.2",
+        "read",
+        "NURBS: control points X Y of weight P (the current point the first), order L (at least 3); sampled as G5",
+        "G5.2 X0 Y5 P1 L3 F100\nX5 Y5 P2\nX5 Y0 P1\nG5.3\n",
+    ),  # fmt: skip
+    Entry("G5.3", "read", "end the NURBS (G5.2) and move along it", "G5.2 X0 Y5 P1 F100\nX5 Y5 P1\nG5.3\n"),
     Entry("G7", "refused", "lathe diameter mode", "G7\n"),
-    Entry("G8", "refused", "lathe radius mode", "G8\n"),
+    Entry("G8", "read", "lathe radius mode (the start, a mill's): nothing to do", "G8\n" + _F),
     Entry(
         "G10",
         "read",
-        "L2 P X Y R: a system's offset and rotation (degrees); L20 P X Y: the offset making the current point X Y",
-        "G10 L2 P2 X1 Y1 R30\nG10 L20 P0 X5\n" + _F,
+        "L2 P X Y R: a system's offset and rotation (degrees); L20 P X Y: the offset making the current point X Y; "
+        "L1 / L10 / L11 P R Q: tool P's radius and orientation in the tool table (its offsets read, not used)",
+        "G10 L2 P2 X1 Y1 R30\nG10 L20 P0 X5\nG10 L1 P3 R1.5\n" + _F,
     ),  # fmt: skip
     Entry("G17", "read", "the XY plane (the only one)", "G17\n" + _F),
     Entry("G18", "refused", "only the XY plane (G17)", "G18\n"),
@@ -89,19 +105,27 @@ DIALECT: tuple[Entry, ...] = (
         for n in range(81, 90)
     ),
     Entry("G90", "read", "absolute distances", "G90\n" + _F),
-    Entry("G90.1", "read", "absolute arc centres: nothing to do", "G90.1\n" + _F),
+    Entry(
+        "G90.1", "read", "absolute arc centres: I J are program coordinates (both needed)", "G90.1\nG2 X2 I1 J0 F100\n"
+    ),
     Entry("G91", "read", "incremental distances", "G91\n" + _F),
-    Entry("G91.1", "read", "incremental arc centres (the only kind read): nothing to do", "G91.1\n" + _F),
+    Entry("G91.1", "read", "incremental arc centres: I J from the arc's start (the start)", "G91.1\n" + _F),
     Entry("G92", "read", "offset making the current point X Y, in every system", "G92 X0 Y0\n" + _F),
     Entry("G92.1", "read", "clear the G92 offset and its parameters", "G92 X1\nG92.1\n" + _F),
     Entry("G92.2", "read", "suspend the G92 offset (parameters kept)", "G92 X1\nG92.2\n" + _F),
     Entry("G92.3", "read", "restore the G92 offset from its parameters", "G92 X1\nG92.2\nG92.3\n" + _F),
-    Entry("G94", "read", "feed per minute (the only feed mode)", "G94\n" + _F),
+    Entry("G93", "read", "inverse time: F on every feed move, the move takes 60 / F s", "G93 G1 X1 F2\n"),
+    Entry("G94", "read", "feed per minute (the start)", "G94\n" + _F),
+    Entry("G95", "read", "feed per revolution: F times the spindle speed S (rpm) per minute", "G95 S1000 G1 X1 F0.1\n"),
     Entry("G96", "dropped", "spindle speed mode", "G96 S100\n" + _F),
     Entry("G97", "read", "spindle speed in rpm: nothing to do", "G97\n" + _F),
     Entry("G98", "read", "cycle retract to the start Z: nothing to do in XY", "G98\n" + _F),
     Entry("G99", "read", "cycle retract to R: nothing to do in XY", "G99\n" + _F),
-    Entry("other G codes", "refused", "unsupported G code", "G5 X1\n"),
+    *(
+        Entry(code, "refused", "probing: the twin has no probe input", f"{code} X1 F100\n")
+        for code in ("G38.2", "G38.3", "G38.4", "G38.5")
+    ),  # fmt: skip
+    Entry("other G codes", "refused", "unsupported G code", "G6 X1\n"),
     Entry("M0 M1", "read", "pause: the twin runs on", "M0\nM1\n" + _F),
     Entry("M2 M30", "read", "end of program", _F + "M2\nG1 X500\n"),
     Entry("M3 M4 M5", "dropped", "spindle", "M3\n" + _F),
@@ -116,13 +140,18 @@ DIALECT: tuple[Entry, ...] = (
     Entry(
         "@ ^",
         "read",
-        "polar: radius, angle in degrees (about the work origin; the current point in G91)",
+        "polar: radius, angle in degrees, about the program's XY zero (G91: added to the current point's)",
         "G1 @1 ^45 F100\n",
     ),  # fmt: skip
-    Entry("I J R", "read", "arc centre or radius", "G2 X2 I1 F100\n"),
+    Entry(
+        "I J R",
+        "read",
+        "arc centre (G91.1: from the start; G90.1: absolute) or radius; spline control points",
+        "G2 X2 I1 F100\n",
+    ),
     Entry("K", "refused", "not used in the XY plane", "G2 X1 I1 K1 F100\n"),
     Entry("F", "read", "feed, units per minute", _F),
-    Entry("S", "dropped", "spindle speed", "S1000\n" + _F),
+    Entry("S", "read", "spindle speed, rpm: only G95's feed uses it (the gantry has no spindle)", "S1000\n" + _F),
     Entry("$", "dropped", "spindle number", "$0\n" + _F),
     Entry("T", "read", "tool number (M6 selects it)", "T2\n" + _F),
     Entry("H", "dropped", "tool length offset", "H1\n" + _F),
@@ -132,7 +161,12 @@ DIALECT: tuple[Entry, ...] = (
         "the tool, or the diameter, that cutter radius compensation offsets by",
         "G41.1 D0 G1 X1 F100\nG40 X2\n",
     ),  # fmt: skip
-    Entry("L P Q", "read", "G10's level and system, dwell time, arc turns, G64's tolerances, cycle repeats", _F),
+    Entry(
+        "L P Q",
+        "read",
+        "G10's level and system, dwell time, arc turns, G64's tolerances, cycle repeats, spline points, NURBS order",
+        _F,
+    ),  # fmt: skip
     Entry("N", "read", "line number", "N10 " + _F),
     Entry(
         "#n, n 1 to 5399",

@@ -28,6 +28,8 @@ class Move:
     rapid limits). exact_stop: G61 in force at this block's end (the machine
     stops at the junction that follows); tolerance_m: G64 P in force (inf: no
     P given). line: the source line, for messages and the per-block error.
+    piece: the block goes on in the next move (a spline's arcs, an arc whose
+    end is off its circle): this move's end is not the block's end.
     """
 
     kind: Literal["line", "arc"]
@@ -40,6 +42,7 @@ class Move:
     tolerance_m: float = math.inf
     centre_m: tuple[float, float] | None = None
     sweep_rad: float = 0.0
+    piece: bool = False
 
     @property
     def radius_m(self) -> float:

@@ -98,6 +98,7 @@ class Interpreter:
         work_offsets_mm: dict[int, tuple[float, float]] | None = None,
         travel_half_m: tuple[float, float] = TRAVEL_HALF_M,
         tools: dict[int, Tool] | None = None,
+        merge_lines: bool = True,
     ) -> None:
         self.main, self.unit = unit, unit
         self.block_delete, self.max_blocks, self.path = block_delete, max_blocks, subroutine_path
@@ -115,6 +116,7 @@ class Interpreter:
             tools,
         )
         self.machine.file = unit.name
+        self.machine.merge = merge_lines
         self.messages: list[str] = []
         self.loaded: dict[str, Unit] = {}
         self.blocks = 0
@@ -153,7 +155,7 @@ class Interpreter:
         m = self.machine
         metric = m.scale_m == 1e-3
         system = {v: k for k, v in SYSTEMS.items()}[int(self.params.get(P_SYSTEM, 1))]
-        motion = m.motion if isinstance(m.motion, int) else int(str(m.motion)[1:]) if m.motion else 80
+        motion = m.motion if isinstance(m.motion, int) else float(str(m.motion)[1:]) if m.motion else 80
         return {
             "_x": lambda: m.program_point()[0],
             "_y": lambda: m.program_point()[1],
@@ -167,7 +169,7 @@ class Interpreter:
             "_selected_tool": lambda: float(m.tool),
             "_line": lambda: float(self.number),
             "_call_level": lambda: float(len(self.frames) - 1),
-            "_motion_mode": lambda: float(motion * 10),
+            "_motion_mode": lambda: float(round(motion * 10)),  # G5.1: 51
         }[name]()
 
     # -- running -------------------------------------------------------------------------------------------

@@ -3,31 +3,41 @@
 Positions are machine coordinates in metres (the twin's: origin at the
 centre of the travel); the work coordinate systems are
 :mod:`~gantry_twin.gcode.offsets`'s. ``@`` ``^`` are polar coordinates
-(radius, angle in degrees) about the work origin (G90) or the current
-point (G91). G64 Q merges consecutive collinear-within-Q G1 lines (the
-naive CAM detector); G81-G89 drill at each X Y: the rapid there is a move,
-the Z part dropped (``drop_unsupported``) and counted.
+(radius, angle in degrees) about the program's XY zero, cumulative in
+G91 (LinuxCNC's). G64 Q merges consecutive collinear-within-Q G1 lines
+(the naive CAM detector); G81-G89 drill at each X Y: the rapid there is a
+move, the Z part dropped (``drop_unsupported``) and counted. Splines (G5,
+G5.1, G5.2 / G5.3) are :mod:`~gantry_twin.gcode.splines`'s. The feed is
+F units per minute (G94), F times the spindle speed S per revolution
+(G95), or F the inverse of the block's time in minutes (G93).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections import Counter
 from collections.abc import Callable
 
-from gantry_twin.gcode.arcs import MM_PER_INCH, arc_move
+from gantry_twin.gcode.arcs import MM_PER_INCH, arc_moves
 from gantry_twin.gcode.compensation import compensate
+from gantry_twin.gcode.feeds import FeedModes
 from gantry_twin.gcode.geometry import Dwell, Move
 from gantry_twin.gcode.offsets import P_SYSTEM, Offsets
-from gantry_twin.gcode.tools import Tool, tool_for_compensation
+from gantry_twin.gcode.splines import SplineMoves
+from gantry_twin.gcode.tools import Tool, tool_for_compensation, write_tool
 
 #: Words a two-axis gantry cannot do, by kind, dropped only on request.
 AXES = "ZABCUVW"
 DROPPABLE_M = {3: "spindle", 4: "spindle", 5: "spindle", 7: "coolant", 8: "coolant", 9: "coolant"}
 #: Modal codes that change nothing on this machine.
-NOOP_G = {"G49", "G80", "G90.1", "G91.1", "G94", "G97", "G98", "G99", "G17"}
+NOOP_G = {"G49", "G80", "G97", "G98", "G99", "G17", "G8"}
 MOTION = {"G0": 0, "G1": 1, "G2": 2, "G3": 3}
+SPLINES = {"G5", "G5.1", "G5.2"}
+FEED_MODES = {"G93", "G94", "G95"}
 CYCLES = {f"G{n}" for n in range(81, 90)}
+#: Motion modes whose axis words are not a plain move's (the fast path of :meth:`Machine.execute` skips them).
+NOT_STRAIGHT = frozenset(CYCLES | SPLINES)
 #: The letters of a block that only moves (the fast path of :meth:`Machine.execute`).
 SIMPLE = frozenset("XYF@^")
 #: Distinct lines kept for reuse (a program that loops over the same moves holds each once).
@@ -35,19 +45,21 @@ INTERNED = 4096
 SYSTEMS = {"G54": 1, "G55": 2, "G56": 3, "G57": 4, "G58": 5, "G59": 6, "G59.1": 7, "G59.2": 8, "G59.3": 9}
 COMPENSATION = {"G40", "G41", "G42", "G41.1", "G42.1"}
 MODAL_GROUPS = {
-    "motion": {"G0", "G1", "G2", "G3", "G80"} | CYCLES,
+    "motion": {"G0", "G1", "G2", "G3", "G80", "G5.3"} | CYCLES | SPLINES,
     "plane": {"G17", "G18", "G19"},
     "units": {"G20", "G21"},
     "distance": {"G90", "G91"},
+    "arc distance": {"G90.1", "G91.1"},
+    "feed mode": FEED_MODES,
     "path": {"G61", "G61.1", "G64"},
     "coordinate system": set(SYSTEMS),
     "cutter compensation": COMPENSATION,
     "non-modal": {"G4", "G10", "G28", "G28.1", "G30", "G30.1", "G53", "G92", "G92.1", "G92.2", "G92.3"},
 }
 #: Every G code read (the dialect table in docs/gcode.md is checked against it).
-READ_G = set(MOTION) | CYCLES | NOOP_G | set(SYSTEMS) | COMPENSATION | {
+READ_G = set(MOTION) | CYCLES | NOOP_G | set(SYSTEMS) | COMPENSATION | SPLINES | FEED_MODES | {
     "G4", "G10", "G20", "G21", "G28", "G28.1", "G30", "G30.1", "G53", "G61", "G61.1", "G64", "G90", "G91",
-    "G92", "G92.1", "G92.2", "G92.3",
+    "G92", "G92.1", "G92.2", "G92.3", "G5.3", "G90.1", "G91.1",
 }  # fmt: skip
 READ_M = {"M0", "M1", "M2", "M30", "M6", "M70", "M71", "M72", "M73"} | {f"M{n}" for n in DROPPABLE_M}
 REFUSED_G = {
@@ -57,11 +69,11 @@ REFUSED_G = {
     "G33.1": "spindle-synchronised motion: the gantry has no spindle",
     "G76": "spindle-synchronised motion (threading): the gantry has no spindle",
     "G7": "lathe diameter mode: the gantry is a mill's XY",
-    "G8": "lathe radius mode: the gantry is a mill's XY",
+    **{f"G38.{n}": "probing: the twin has no probe input" for n in range(2, 6)},
 }
 
 
-class Machine(Offsets):
+class Machine(Offsets, SplineMoves, FeedModes):
     """Modal state and the moves so far; ``params`` is the interpreter's numbered parameters (mm offsets)."""
 
     def __init__(
@@ -73,17 +85,23 @@ class Machine(Offsets):
         tools: dict[int, Tool] | None = None,
     ) -> None:
         self.params, self.drop, self.fail, self.check = params, drop, error, check
-        self.tools = tools or {}  # the tool table (gantry_twin.gcode.tools), for G41 / G42
+        self.tools = dict(tools or {})  # the tool table (gantry_twin.gcode.tools), for G41 / G42; G10 L1 writes it
         self.interned: dict[tuple, Move] = {}  # a loop's repeated lines are one object each
         self.items: list[Move | Dwell] = []
         self.programmed: list[Move] = []
         self.dropped: Counter[str] = Counter()
         self.merged = 0
+        self.merge = True  # G64 Q merges lines (False: every line kept, as LinuxCNC's interpreter emits them)
         self.position = (0.0, 0.0)
         self.start: tuple[float, float] | None = None
         self.motion: int | str | None = None
         self.scale_m = 1e-3  # G21
         self.incremental = False
+        self.absolute_centres = False  # G90.1 (LinuxCNC starts in G91.1)
+        self.feed_mode = "G94"
+        self.f_word = 0.0  # the last F, program units (G94: per minute, G95: per revolution)
+        self.spindle_rpm = 0.0  # the last S (G95's feed per revolution)
+        self.nurbs, self.nurbs_order, self.spline_ij = [], 3, (0.0, 0.0)
         self.exact_stop = False  # LinuxCNC starts in G64
         self.tolerance_m = math.inf
         self.naive_m = 0.0  # G64 Q: 0 = no merging
@@ -92,6 +110,7 @@ class Machine(Offsets):
         self.selected = 0  # M6
         self.compensation: tuple[str, float | None, int, int] | None = None  # side, radius, tool, G41 line
         self.compensated: list[Move | Dwell] = []
+        self.resume: tuple[float, float] | None = None  # where a run ended by G41 / G42 right after G40 left the tool
         self.chain: list[tuple[float, float]] = []  # the points of the last item's merged G1 lines
         self.column: dict[str, int] = {}
         self.axis_dropped = False
@@ -110,11 +129,11 @@ class Machine(Offsets):
     def snapshot(self) -> tuple:
         """The modal state M70 saves and M72 restores."""
         return (self.motion, self.scale_m, self.incremental, self.exact_stop, self.tolerance_m, self.naive_m,
-                self.feed_m_s, self.params.get(P_SYSTEM, 1))  # fmt: skip
+                self.feed_m_s, self.params.get(P_SYSTEM, 1), self.absolute_centres, self.feed_mode)  # fmt: skip
 
     def restore(self, state: tuple) -> None:
         (self.motion, self.scale_m, self.incremental, self.exact_stop, self.tolerance_m, self.naive_m,
-         self.feed_m_s, self.params[P_SYSTEM]) = state  # fmt: skip
+         self.feed_m_s, self.params[P_SYSTEM], self.absolute_centres, self.feed_mode) = state  # fmt: skip
 
     # -- one block -----------------------------------------------------------------------------------------
     def execute(self, words: dict[str, float], number: int, column: dict[str, int]) -> bool:
@@ -122,7 +141,8 @@ class Machine(Offsets):
         self.column, self.number = column, number
         extra = words.keys() - SIMPLE
         straight = not extra or (len(extra) == 1 and next(iter(extra)) in ("G0", "G1"))
-        if straight and self.motion not in CYCLES:  # the common block: axes and feed only, maybe with G0 / G1
+        if straight and self.motion not in NOT_STRAIGHT and self.feed_mode == "G94":
+            # the common block: axes and feed only, maybe with G0 / G1
             if extra:
                 self.motion = MOTION[next(iter(extra))]
             if ("@" in words or "^" in words) and ("X" in words or "Y" in words):
@@ -130,6 +150,7 @@ class Machine(Offsets):
             if "F" in words:
                 if words["F"] < 0.0:
                     raise self.error("F", "the feed must be >= 0")
+                self.f_word = words["F"]
                 self.feed_m_s = words["F"] * self.scale_m / 60.0
             if "X" in words or "Y" in words or "@" in words or "^" in words:
                 if "P" in words and self.motion not in (2, 3):
@@ -144,7 +165,11 @@ class Machine(Offsets):
                 raise self.error(code, "unsupported M code")
             self.unsupported(code, kind)
             del words[code]
-        for word, kind in (("G43", "tool length offset"), ("G96", "spindle speed mode"), ("S", "spindle speed"),
+        if "S" in words:
+            if words["S"] < 0.0:
+                raise self.error("S", "the spindle speed must be >= 0")
+            self.spindle_rpm = words.pop("S")
+        for word, kind in (("G43", "tool length offset"), ("G96", "spindle speed mode"),
                            ("H", "tool length offset"), ("$", "spindle number")):  # fmt: skip
             if word in words:
                 self.unsupported(word, kind)
@@ -159,6 +184,9 @@ class Machine(Offsets):
             if cycle in ("G82", "G89") or "P" in words:
                 words.pop("P", None)
         self.axis_dropped = False
+        if "G10" in words and words.get("L") in (1.0, 10.0, 11.0):
+            for letter in AXES:
+                words.pop(letter, None)  # a tool's offsets: read, not used (no tool length offset in XY)
         for letter in AXES:
             if letter in words:
                 self.unsupported(letter, f"{letter} axis")
@@ -178,8 +206,12 @@ class Machine(Offsets):
             self.scale_m = MM_PER_INCH * 1e-3
         if "G21" in words:
             self.scale_m = 1e-3
+        self.feed_mode = next((c for c in words if c in FEED_MODES), self.feed_mode)
         if "F" in words:
+            self.f_word = words["F"]
             self.feed_m_s = words["F"] * self.scale_m / 60.0
+        if "G90.1" in words or "G91.1" in words:
+            self.absolute_centres = "G90.1" in words
         if "G4" in words:
             if "P" not in words:
                 raise self.error("G4", "a dwell needs P (seconds)")
@@ -197,35 +229,56 @@ class Machine(Offsets):
         if "G91" in words:
             self.incremental = True
         if "G10" in words:
-            self.g10(words)
+            if words.get("L") in (1.0, 10.0, 11.0):
+                if "P" not in words or words["P"] < 1 or words["P"] != int(words["P"]):
+                    raise self.error("P", "G10 L1 / L10 / L11 need P, the tool number (a whole number >= 1)")
+                write_tool(self.tools, int(words["P"]), words, self.scale_m, self.error)
+            else:
+                self.g10(words)
             return "M2" in words or "M30" in words
         if any(c in words for c in ("G92", "G92.1", "G92.2", "G92.3")):
             self.g92(words)
-            return "M2" in words or "M30" in words
+            if "G92" in words:  # its X Y are the offset's; G92.1 / .2 / .3 leave them to the motion
+                return "M2" in words or "M30" in words
         home = next((c for c in ("G28", "G28.1", "G30", "G30.1") if c in words), None)
         if home is not None:
             self.home(home, words, number)
             return "M2" in words or "M30" in words
-        motion = next((c for c in words if c in MOTION or c in CYCLES), None) or ("G80" if "G80" in words else None)
+        motion = next((c for c in words if c in MOTION or c in CYCLES or c in SPLINES), None)
+        motion = motion or ("G80" if "G80" in words else None)
+        before = self.motion
         if motion is not None:
+            if motion != self.motion:
+                self.nurbs = []  # a new G5.2 curve
             self.motion = None if motion == "G80" else MOTION.get(motion, motion)
-        uses_p = "G4" in words or "G64" in words
+        if "G5.3" in words:
+            self.nurbs_end(words, number)
+            return "M2" in words or "M30" in words
+        uses_p = "G4" in words or "G64" in words or self.motion in SPLINES
         axes = any(letter in words for letter in "XY@^")
         arc_p = self.motion in (2, 3) and (axes or "I" in words or "J" in words)
+        if self.motion == "G5.2" and not axes and ("P" in words or "L" in words):
+            self.spline(words, number)  # the first control point's weight, the order
+            return "M2" in words or "M30" in words
         if "P" in words and not uses_p and not arc_p:
             raise self.error("P", "P only follows G4, G64, G10 or an arc (turns)")
         if not axes and any(letter in words for letter in "IJR"):
-            if self.motion in (2, 3) and "R" not in words:
-                axes = True  # a full circle: I J without X Y
+            if self.motion in (2, 3, "G5.1") and "R" not in words:
+                axes = True  # a full circle: I J without X Y (a G5.1 back to its start)
             else:
                 raise self.error(next(c for c in "IJR" if c in words), "needs an arc with X or Y")
         if axes:
             self.move(words, number)
         elif "G53" in words and not self.axis_dropped:
             raise self.error("G53", "needs X or Y on its line")
+        if self.motion in ("G5", "G5.1"):
+            self.motion = before  # LinuxCNC's: a G5 / G5.1 block leaves the motion mode as it was
         return "M2" in words or "M30" in words
 
     def check_words(self, words: dict[str, float]) -> None:
+        refused = next((word for word in words if word in REFUSED_G), None)
+        if refused is not None:  # the code's own reason first (G33 K: spindle-synchronised, not a plane)
+            raise self.error(refused, REFUSED_G[refused])
         if "K" in words:
             raise self.error("K", "not used in the XY plane (G17): arcs take I and J")
         allowed = set("XYIJRFNPTDLQ@^") | READ_G | READ_M
@@ -236,10 +289,12 @@ class Machine(Offsets):
                 if word.startswith("G"):
                     raise self.error(word, "unsupported G code")
                 raise self.error(word, "unsupported word")
+        spline = self.motion in SPLINES or any(c in words for c in SPLINES)
         if "L" in words and "G10" not in words and not (self.motion in CYCLES or any(c in words for c in CYCLES)):
-            raise self.error("L", "L only follows G10 or a drilling cycle (repeats)")
-        if "Q" in words and "G64" not in words:
-            raise self.error("Q", "Q only follows G64 (or a drilling cycle's peck)")
+            if not spline:
+                raise self.error("L", "L only follows G10, a drilling cycle (repeats) or G5.2 (the order)")
+        if "Q" in words and "G64" not in words and not spline and "G10" not in words:
+            raise self.error("Q", "Q only follows G64, G5 or G10 L1 (or a drilling cycle's peck)")
         if "D" in words and not any(c in words for c in ("G41", "G42", "G41.1", "G42.1")):
             raise self.error("D", "D only follows G41 / G42 (a tool) or G41.1 / G42.1 (a diameter)")
         if ("@" in words or "^" in words) and ("X" in words or "Y" in words):
@@ -270,7 +325,11 @@ class Machine(Offsets):
                 self.compensation = (*self.compensation[:3], -self.compensation[3])  # ends after the next move
             return
         if self.compensation is not None:
-            raise self.error(code, "cutter compensation is already on (G40 first)")
+            if self.compensation[3] > 0:
+                raise self.error(code, "cutter compensation is already on (G40 first)")
+            # G40, then G41 / G42 before a move: LinuxCNC ends the run where the tool is and goes on from there
+            self.finish_compensation()
+            self.resume = next((item.end_m for item in reversed(self.items) if isinstance(item, Move)), None)
         side = "left" if code.startswith("G41") else "right"
         if code.endswith(".1"):
             if "D" not in words or words["D"] < 0:
@@ -285,67 +344,39 @@ class Machine(Offsets):
         self.compensation = (side, None, tool, self.number)
 
     # -- moves ---------------------------------------------------------------------------------------------
-    def target(self, words: dict[str, float]) -> tuple[float, float]:
-        """The block's end point, machine m, from X Y (or @ ^) in the distance mode and system in force."""
-        s = self.scale_m
-        x, y = self.position
-        if "G53" in words:
-            if self.incremental:
-                raise self.error("G53", "machine coordinates need G90 (absolute)")
-            return (words["X"] * s if "X" in words else x), (words["Y"] * s if "Y" in words else y)
-        polar = "@" in words or "^" in words
-        wx, wy, gx, gy, c, sn = self.frame()
-        if sn == 0.0 and not polar:  # unrotated: an axis not given keeps its machine coordinate exactly
-            if self.incremental:
-                return x + words.get("X", 0.0) * s, y + words.get("Y", 0.0) * s
-            return (words["X"] * s + wx + gx if "X" in words else x), (words["Y"] * s + wy + gy if "Y" in words else y)
-        px, py = self.to_program(x, y)
-        if polar:
-            radius, angle = words.get("@", 0.0) * s, math.radians(words.get("^", 0.0))
-            dx, dy = radius * math.cos(angle), radius * math.sin(angle)
-            px, py = (px + dx, py + dy) if self.incremental else (dx, dy)
-        elif self.incremental:
-            px, py = px + words.get("X", 0.0) * s, py + words.get("Y", 0.0) * s
-        else:
-            px, py = (words["X"] * s if "X" in words else px), (words["Y"] * s if "Y" in words else py)
-        return self.to_machine(px, py)
-
     def move(self, words: dict[str, float], number: int) -> None:
         if self.motion is None:
             raise self.error("X" if "X" in words else "Y", "an axis word without G0, G1, G2, G3 or a cycle in force")
         if self.motion in CYCLES:
             self.drill(words, number)
             return
+        if self.motion in SPLINES:
+            self.spline(words, number)
+            return
         if "G53" in words and self.motion not in (0, 1):
             raise self.error("G53", "machine coordinates only with G0 or G1")
         end = self.target(words)
         rapid = self.motion == 0
-        if not rapid and not self.feed_m_s:
-            what = "F must be given before the first feed move" if self.feed_m_s is None else "F is 0"
-            raise self.error(f"G{self.motion}", f"no feed: {what}")
         if not self.items and not self.compensated and rapid and self.start is None and self.compensation is None:
             self.start = self.position = end  # the run starts at rest after its first G0
             return
-        if self.start is None:
-            self.start = self.position
-        common = dict(
-            feed_m_s=math.inf if rapid else self.feed_m_s, rapid=rapid, line=number,
-            exact_stop=self.exact_stop, tolerance_m=self.tolerance_m,
-        )  # fmt: skip
+        common = self.feed_common(words, number)
         if self.motion in (0, 1):
             if "I" in words or "J" in words or "R" in words:
                 raise self.error("I" if "I" in words else "J" if "J" in words else "R", "only arcs take it")
             if end != self.position:
-                self.emit(self.line(end, common))
+                line = self.line(end, common)
+                self.emit(self.timed([line], words)[0] if self.feed_mode == "G93" else line)
             self.position = end
             return
-        c, s = self.frame()[4:]
-        if s != 0.0 and ("I" in words or "J" in words):  # the centre's offset turns with the system
-            i, j = words.get("I", 0.0), words.get("J", 0.0)
-            words = {**words, "I": c * i - s * j, "J": s * i + c * j}
-        move = arc_move(words, self.position, end, self.scale_m, self.motion == 3, common, self.error)
-        self.emit(move)
-        self.position = move.end_m
+        if self.resume is not None and self.compensation is not None and not self.compensated:
+            raise self.error(f"G{self.motion}", "the move just after G40 must be a line (G0 or G1), not an arc "
+                             "(G41 / G42 again starts where the tool is)")  # fmt: skip
+        centre = self.arc_centre(words) if "R" not in words else None
+        moves = arc_moves(words, self.position, end, self.scale_m, self.motion == 3, common, self.error, centre)
+        for move in self.timed(moves, words):
+            self.emit(move)
+        self.position = end
 
     def line(self, end: tuple[float, float], common: dict) -> Move:
         """The line from the current point to ``end``; the same object for the same line (a loop's repeats)."""
@@ -378,24 +409,6 @@ class Machine(Offsets):
             self.emit(Move("line", self.position, end, math.inf, True, number, self.exact_stop, self.tolerance_m))
         self.position = end
 
-    def home(self, code: str, words: dict[str, float], number: int) -> None:
-        """G28 / G30: a rapid to the X Y given (if any, in the mode in force), then to the stored position
-        (parameters 5161-5162 / 5181-5182, machine mm) of the axes given, or of both when none is; G28.1 / G30.1
-        store the current point there (LinuxCNC's G28)."""
-        base = 5161 if code.startswith("G28") else 5181
-        if code.endswith(".1"):
-            self.params[base], self.params[base + 1] = self.position[0] * 1e3, self.position[1] * 1e3
-            return
-        given = ("X" in words, "Y" in words)
-        if not any(given) and self.axis_dropped:
-            return  # G28 Z0: only a dropped axis goes home
-        if any(given):
-            self.rapid_to(self.target(words), number)
-        stored = (self.params.get(base, 0.0) * 1e-3, self.params.get(base + 1, 0.0) * 1e-3)
-        both = not any(given)
-        end = tuple(stored[a] if both or given[a] else self.position[a] for a in (0, 1))
-        self.rapid_to((end[0], end[1]), number)
-
     def emit(self, item: Move | Dwell) -> None:
         """Append a move or a dwell: into the compensated run while G41 / G42 is on, else merged by G64 Q."""
         if isinstance(item, Move):
@@ -414,7 +427,9 @@ class Machine(Offsets):
     def merges(self, item: Move | Dwell) -> bool:
         """The naive CAM detector: the G1 line joins the previous one when every point of the chain stays within
         Q of the line from the chain's start to the new end and the new end goes on forward."""
-        if not (isinstance(item, Move) and item.kind == "line" and not item.rapid and self.naive_m > 0.0):
+        if not (
+            isinstance(item, Move) and item.kind == "line" and not item.rapid and self.naive_m > 0.0 and self.merge
+        ):
             return False
         if not self.chain or not self.items or not isinstance(self.items[-1], Move):
             return False
@@ -445,7 +460,9 @@ class Machine(Offsets):
         run, self.compensated, self.compensation = self.compensated, [], None
         moves = [item for item in run if isinstance(item, Move)]
         if moves:
-            centre = self.compensated_run(moves, side, radius_m, tool, abs(line), exit_move)
+            centre = list(self.compensated_run(moves, side, radius_m, tool, abs(line), exit_move))
+            if self.resume is not None and centre:  # the entry line starts where the run before ended
+                centre[0], self.resume = dataclasses.replace(centre[0], start_m=self.resume), None
             for move in centre:
                 self.items.append(move)
                 self.chain = []

@@ -3,7 +3,7 @@
 Every error is a :class:`GcodeError`, one line ``FILE:LINE:COLUMN: WORD: what
 is wrong`` (``FILE:LINE: WORD: ...`` where no column applies). Input is
 bounded: a regular file of at most ``MAX_FILE_BYTES``, lines of at most
-``MAX_LINE_CHARS``, ASCII only, read in one bounded read.
+``MAX_LINE_CHARS``, ASCII (UTF-8 only inside comments), read in one bounded read.
 """
 
 from __future__ import annotations
@@ -11,6 +11,8 @@ from __future__ import annotations
 import os
 import stat
 from dataclasses import dataclass, field
+
+import numpy as np
 
 from gantry_twin.gcode.geometry import Dwell, Move, bounding_box
 
@@ -92,11 +94,11 @@ def text_lines(data: bytes, name: str, max_line_chars: int = MAX_LINE_CHARS) -> 
         if len(raw) > max_line_chars + 1:
             raise GcodeError(name, number, "line", f"longer than {max_line_chars} characters")
         for column, byte in enumerate(raw.rstrip(b"\r"), start=1):
-            if byte >= 127 or (byte < 32 and byte != 9):
+            if byte == 127 or (byte < 32 and byte != 9):
                 raise GcodeError(
                     name, number, "line", f"byte 0x{byte:02x} at column {column}: not G-code text (binary?)"
                 )
-        text = raw.rstrip(b"\r").decode("ascii")
+        text = _ascii(raw.rstrip(b"\r"), name, number)
         stripped = text.strip()
         if stripped.startswith("%"):
             if out or percent_open:
@@ -111,13 +113,47 @@ def text_lines(data: bytes, name: str, max_line_chars: int = MAX_LINE_CHARS) -> 
     return out
 
 
+def _ascii(raw: bytes, name: str, number: int) -> str:
+    """A line's text: ASCII, or UTF-8 whose other characters are all in comments (LinuxCNC keeps a comment's
+    text as it is), each of those read as ``?``."""
+    if raw.isascii():
+        return raw.decode("ascii")
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as error:
+        byte = raw[error.start]
+        raise GcodeError(
+            name, number, "line", f"byte 0x{byte:02x} at column {error.start + 1}: not G-code text (binary?)"
+        ) from None
+    out, depth, rest = [], 0, False
+    for column, char in enumerate(text, start=1):
+        if not char.isascii():
+            if not (depth or rest):
+                raise GcodeError(name, number, "line", f"{char!r} at column {column}: not ASCII, and not in a comment")
+            char = "?"
+        elif char == "(" and not rest:
+            depth += 1
+        elif char == ")" and depth:
+            depth -= 1
+        elif char == ";" and not depth:
+            rest = True
+        out.append(char)
+    return "".join(out)
+
+
 def check_move(item: Move, half: tuple[float, float], name: str) -> None:
     """A move that leaves the travel (``half``: +- m per axis) is a :class:`GcodeError` at its line."""
     if item.centre_m is None:
         (x0, y0), (x1, y1) = item.start_m, item.end_m
         if abs(x0) <= half[0] and abs(x1) <= half[0] and abs(y0) <= half[1] and abs(y1) <= half[1]:
             return  # a line inside: its ends are (the common case, without numpy)
+    else:
+        (cx, cy), r = item.centre_m, item.radius_m
+        if abs(cx) + r <= half[0] and abs(cy) + r <= half[1]:
+            return  # an arc whose whole circle is inside (without numpy)
     lo, hi = bounding_box([item])
+    if not (np.isfinite(lo).all() and np.isfinite(hi).all()):
+        raise GcodeError(name, item.line, "move", "not a finite point (a number too large for the arithmetic)")
     for axis, letter in enumerate("XY"):
         if lo[axis] < -half[axis] - 1e-12 or hi[axis] > half[axis] + 1e-12:
             extreme = lo[axis] if lo[axis] < -half[axis] else hi[axis]

@@ -62,7 +62,8 @@ def read_program(
     ``options``: ``block_delete`` (default True: skip lines starting ``/``), ``max_blocks``,
     ``subroutine_path`` (directories searched for ``NAME.ngc`` before the program's own),
     ``work_offsets_mm`` ({1: (x, y), ...}: G54 ... G59.3's offsets at the start, mm), ``tools`` (the tool table
-    G41 / G42 take their tool's diameter from, :func:`gantry_twin.gcode.tools.read_tool_table`).
+    G41 / G42 take their tool's diameter from, :func:`gantry_twin.gcode.tools.read_tool_table`), ``merge_lines``
+    (:func:`parse_program`'s).
     """
     data = read_bytes(path, max_bytes)
     return parse_program(
@@ -83,14 +84,16 @@ def parse_program(
     subroutine_path: tuple[str | os.PathLike, ...] = (),
     work_offsets_mm: dict[int, tuple[float, float]] | None = None,
     tools: dict[int, Tool] | None = None,
+    merge_lines: bool = True,
 ) -> Program:
-    """Parse program text (str, or bytes that must be ASCII) into a :class:`Program`."""
+    """Parse program text (str, or bytes that must be ASCII) into a :class:`Program`; ``merge_lines`` False keeps
+    every G1 line G64 Q would merge (the path as LinuxCNC's interpreter emits it, before its canon merges)."""
     data = source.encode("utf-8") if isinstance(source, str) else bytes(source)
     unit = load_unit(name, data)
     interpreter = Interpreter(
         unit, drop_unsupported=drop_unsupported, block_delete=block_delete, max_blocks=max_blocks,
         subroutine_path=tuple(Path(p) for p in subroutine_path), work_offsets_mm=work_offsets_mm,
-        travel_half_m=travel_half_m, tools=tools,
+        travel_half_m=travel_half_m, tools=tools, merge_lines=merge_lines,
     )  # fmt: skip
     program = interpreter.run()
     _check_travel(program, travel_half_m)

@@ -162,3 +162,22 @@ def _lookup(tools: dict[int, Tool], number: int, file: str, line: int, word: str
     if tool.orientation not in (0, 9):
         raise GcodeError(file, line, word, f"tool {number} is a lathe tool (Q{tool.orientation}): no XZ plane here")
     return tool
+
+
+def write_tool(tools: dict[int, Tool], number: int, words: dict[str, float], scale_m: float, error) -> None:
+    """G10 L1 / L10 / L11 P``number``: write the tool's entry in ``tools`` (LinuxCNC's G10 L1): R its radius
+    (program units; the diameter is 2 R), Q its orientation; a tool not in the table is added (pocket = its
+    number). The offsets (X Y Z ..., and L10 / L11's from the current point) are read and not used: the tool
+    length offset (G43) is dropped on an XY machine. ``error(word, what)`` makes the one-line error."""
+    old = tools.get(number, Tool(number=number, pocket=number, diameter_m=0.0))
+    diameter_m = old.diameter_m
+    if "R" in words:
+        diameter_m = 2.0 * words["R"] * scale_m
+        if abs(diameter_m) * 1e3 > DIAMETER_MAX_MM:
+            raise error("R", f"the radius is at most {DIAMETER_MAX_MM / 2:g} mm, got {words['R']:g}")
+    orientation = old.orientation
+    if "Q" in words:
+        if words["Q"] != int(words["Q"]) or int(words["Q"]) not in ORIENTATIONS:
+            raise error("Q", f"the lathe orientation is a whole number 0 to {ORIENTATIONS[-1]}, got {words['Q']:g}")
+        orientation = int(words["Q"])
+    tools[number] = Tool(number, old.pocket, diameter_m, orientation, old.comment, old.line)

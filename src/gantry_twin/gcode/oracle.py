@@ -1,0 +1,264 @@
+"""LinuxCNC's standalone interpreter ``rs274`` as an oracle for the reader: the same program, the same XY path?
+
+``rs274 -b -g FILE`` (Debian's ``linuxcnc-uspace``; ``-b`` skips the lines
+starting ``/``, as the reader does by default) prints the canonical calls
+LinuxCNC's interpreter makes, in the program's units with 4 decimals, the
+moves in work coordinates and the offsets apart (``SET_G5X_OFFSET``,
+``SET_G92_OFFSET``, ``SET_XY_ROTATION``). :func:`rs274_path` reads that
+into machine coordinates, mm, as LinuxCNC's canon composes them::
+
+    machine = rotate(work + G92 offset, XY rotation) + G5x offset
+
+and :func:`compare` walks it beside the reader's moves (:func:`twin_path`):
+the end of every rapid, line and arc, and an arc's turns (direction and
+count) and centre (within what the end off its circle allows: the
+reader's arc runs through both ends, on the circle nearest the programmed
+centre; past a quarter turn it follows LinuxCNC's spiral in pieces and
+the centre is not compared), motion that leaves X Y where they are (Z only)
+dropped (an arc back to its start is a full circle), within 1 um (3 um where the program is in inches: rs274 prints
+0.1 mil). A spline prints as ``NURBS_FEED`` without its points: its end
+counts as whatever the reader's spline ends at, and the moves after it
+check it. Docs: docs/gcode.md ("LinuxCNC's interpreter as the oracle").
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import shutil
+import subprocess
+from dataclasses import dataclass
+from pathlib import Path
+
+from gantry_twin.gcode.geometry import Move, bounding_box
+from gantry_twin.gcode.program import Program
+
+#: Agreement: mm programs, inch programs (rs274 prints 4 decimals: 2.54 um in inches), mm.
+TOLERANCE_MM = {"mm": 1e-3, "in": 3e-3}
+#: Two points rs274 printed are one (4 decimals, offsets and rotation printed rounded apart), mm.
+SAME_POINT_MM = {"mm": 0.2e-3, "in": 3e-3}
+UNITS_MM = {"CANON_UNITS_MM": 1.0, "CANON_UNITS_INCHES": 25.4, "CANON_UNITS_CM": 10.0}
+_CALL = re.compile(r"^\s*\d+\s+N\S*\s+([A-Z_0-9]+)\((.*)\)\s*$")
+_NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
+#: Canonical calls that move and cannot be an XY gantry's (probing, spindle-synchronised and lathe motion).
+FOREIGN = {"STRAIGHT_PROBE": "probing", "RIGID_TAP": "spindle-synchronised motion (rigid tapping)"}
+
+
+@dataclass(frozen=True)
+class Point:
+    """One end point, machine mm: kind "rapid", "line", "arc" or "spline" (x, y None: rs274 does not print it);
+    ``unit`` the program's units when rs274 printed it ("mm" or "in"); ``line`` the rs274 output line (the
+    reader's: the program line); an arc's centre, turns and the slack its end off the circle gives."""
+
+    kind: str
+    x: float | None
+    y: float | None
+    unit: str = "mm"
+    line: int = 0
+    centre: tuple[float, float] | None = None  # an arc's (machine mm)
+    turns: int = 0  # an arc's: + counter-clockwise, the number of turns started (P)
+    slack: float = 0.0  # mm: how far the centre of the circle through both ends is from ``centre``
+
+
+@dataclass(frozen=True)
+class Rs274Path:
+    """What rs274 made of a program: ok (it ran to its end), its last message when not, the points, whether
+    every arc was in the XY plane, the moves' bounding box (mm: xmin, ymin, xmax, ymax), any foreign motion."""
+
+    ok: bool
+    message: str
+    points: tuple[Point, ...]
+    xy_plane: bool
+    extent_mm: tuple[float, float, float, float]
+    foreign: str = ""
+
+
+def rs274_available() -> str | None:
+    """The path of ``rs274``, or None where LinuxCNC is not installed."""
+    return shutil.which("rs274")
+
+
+def run_rs274(program: str | Path, tool_table: str | Path | None = None, timeout_s: float = 60.0) -> tuple[int, str]:
+    """Run ``rs274 -g`` on ``program`` (with ``-t`` the tool table) in the program's directory: its exit status
+    and output."""
+    exe = rs274_available()
+    if exe is None:
+        raise FileNotFoundError("rs274 is not installed (Debian: apt install linuxcnc-uspace)")
+    program = Path(program).resolve()
+    table = ["-t", str(Path(tool_table).resolve())] if tool_table is not None else []
+    command = [exe, *table, "-b", "-g", str(program)]  # -b: block delete on, as the reader's default
+    try:
+        done = subprocess.run(command, capture_output=True, text=True, timeout=timeout_s, stdin=subprocess.DEVNULL,
+                              errors="replace", check=False, cwd=program.parent)  # fmt: skip
+    except subprocess.TimeoutExpired:
+        return -1, f"rs274 did not finish within {timeout_s:g} s"
+    return done.returncode, done.stdout + done.stderr
+
+
+def _numbers(text: str) -> list[float]:
+    return [float(v) for v in _NUMBER.findall(text)]
+
+
+def rs274_path(returncode: int, output: str) -> Rs274Path:
+    """Read rs274's canonical calls into machine points (mm), as this module's docstring says."""
+    scale, unit = 1.0, "mm"
+    g5x, g92, rotation = (0.0, 0.0), (0.0, 0.0), 0.0
+    plane_xy, xy_plane, foreign = True, True, ""
+    points: list[Point] = []
+    moves: list[Move] = []
+    position = (0.0, 0.0)
+    message = ""
+    for number, raw in enumerate(output.splitlines(), start=1):
+        match = _CALL.match(raw)
+        if match is None:
+            if raw.strip() and raw.strip() != "executing":
+                message = raw.strip()
+            continue
+        call, args = match.groups()
+        if call == "USE_LENGTH_UNITS":
+            scale = UNITS_MM.get(args.strip(), 1.0)
+            unit = "in" if scale == 25.4 else "mm"
+        elif call == "SET_G5X_OFFSET":
+            values = _numbers(args)
+            g5x = (values[1] * scale, values[2] * scale)
+        elif call == "SET_G92_OFFSET":
+            values = _numbers(args)
+            g92 = (values[0] * scale, values[1] * scale)
+        elif call == "SET_XY_ROTATION":
+            rotation = _numbers(args)[0]
+        elif call == "SELECT_PLANE":
+            plane_xy = "XY" in args
+        elif call in FOREIGN:
+            foreign = foreign or FOREIGN[call]
+        elif call in ("STRAIGHT_TRAVERSE", "STRAIGHT_FEED", "ARC_FEED", "NURBS_FEED"):
+            if call == "NURBS_FEED":
+                points.append(Point("spline", None, None, unit, number))
+                continue
+            values = _numbers(args)
+            if call == "ARC_FEED" and not plane_xy:
+                xy_plane = False
+                continue
+            frame = (scale, g92, rotation, g5x)
+            end = _machine(values[0], values[1], *frame)
+            kind = {"STRAIGHT_TRAVERSE": "rapid", "STRAIGHT_FEED": "line", "ARC_FEED": "arc"}[call]
+            if kind != "arc":
+                points.append(Point(kind, end[0], end[1], unit, number))
+                moves.append(Move("line", position, end, 1.0, False, 0))
+            else:
+                centre = _machine(values[2], values[3], *frame)
+                turn = int(values[4])
+                chord = math.dist(position, end)
+                r1, r2 = math.dist(centre, position), math.dist(centre, end)
+                slack = abs(r2 * r2 - r1 * r1) / (2.0 * chord) if chord > 1e-9 else math.inf
+                points.append(Point(kind, end[0], end[1], unit, number, centre, turn, slack))
+                a0 = math.atan2(position[1] - centre[1], position[0] - centre[0])
+                a1 = math.atan2(end[1] - centre[1], end[0] - centre[0])
+                sweep = math.fmod((a1 - a0) * (1 if turn > 0 else -1), 2.0 * math.pi) % (2.0 * math.pi)
+                sweep = (sweep or 2.0 * math.pi) + 2.0 * math.pi * (abs(turn) - 1)
+                moves.append(Move("arc", position, end, 1.0, False, 0, centre_m=centre,
+                                  sweep_rad=math.copysign(sweep, turn)))  # fmt: skip
+            position = end
+    if moves:
+        lo, hi = bounding_box(moves)
+        extent = (float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1]))
+    else:
+        extent = (0.0, 0.0, 0.0, 0.0)
+    ok = returncode == 0
+    return Rs274Path(ok, "" if ok else message, tuple(points), xy_plane, extent, foreign)
+
+
+def _machine(
+    x: float, y: float, scale: float, g92: tuple[float, float], degrees: float, g5x: tuple[float, float]
+) -> tuple[float, float]:
+    """Work coordinates (program units) -> machine mm: rotate(work + G92, rotation) + G5x (LinuxCNC's canon)."""
+    c, s = math.cos(math.radians(degrees)), math.sin(math.radians(degrees))
+    wx, wy = x * scale + g92[0], y * scale + g92[1]
+    return c * wx - s * wy + g5x[0], s * wx + c * wy + g5x[1]
+
+
+def twin_path(program: Program) -> tuple[Point, ...]:
+    """The reader's path as points, machine mm: its start, then the end of every block's moves (the pieces of
+    a block split into several moves, a spline's arcs or an off-circle arc's, left out)."""
+    points = [Point("start", program.start_m[0] * 1e3, program.start_m[1] * 1e3)]
+    whole, sweep = True, 0.0  # the move is a whole block (not the last piece of one); the block's turn so far
+    for move in program.moves:
+        if move.kind == "line" and math.dist(move.start_m, move.end_m) < 1e-9:
+            continue  # shorter than 1 nm: rs274 prints no motion (4 decimals)
+        sweep += move.sweep_rad
+        if not move.piece:
+            kind = "rapid" if move.rapid else move.kind
+            centre, turns = None, 0
+            if move.centre_m is not None:
+                turns = int(math.copysign(math.ceil(abs(sweep) / (2.0 * math.pi) - 1e-3), sweep))  # 1e-3: pieces
+                centre = (move.centre_m[0] * 1e3, move.centre_m[1] * 1e3) if whole else None
+            points.append(Point(kind, move.end_m[0] * 1e3, move.end_m[1] * 1e3, line=move.line, centre=centre,
+                                turns=turns))  # fmt: skip
+            sweep = 0.0
+        whole = not move.piece
+    return tuple(points)
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """The walk of :func:`compare`: agreed, how many points matched, the worst distance of two ends (mm), and
+    where the two first disagree (empty when they agree)."""
+
+    agreed: bool
+    matched: int
+    worst_mm: float
+    disagreement: str = ""
+
+
+def compare(rs274: tuple[Point, ...], twin: tuple[Point, ...]) -> Comparison:
+    """Walk rs274's points beside the reader's (this module's docstring): same ends, same order, within
+    :data:`TOLERANCE_MM`."""
+    last: tuple[float, float] = (0.0, 0.0)  # rs274 starts at the origin, offsets 0
+    j, worst = 0, 0.0
+    if twin and math.dist((twin[0].x, twin[0].y), last) <= TOLERANCE_MM["mm"]:
+        j = 1  # the reader starts at the origin too
+    matched = 0
+    for point in rs274:
+        if point.x is None:  # a spline: its end is the reader's
+            if j >= len(twin):
+                return Comparison(False, matched, worst, f"rs274 line {point.line}: a spline the reader does not make")
+            last = (twin[j].x, twin[j].y)
+            j, matched = j + 1, matched + 1
+            continue
+        here = (point.x, point.y)
+        tolerance = TOLERANCE_MM[point.unit]
+        same = SAME_POINT_MM[point.unit]
+        if point.kind != "arc" and math.dist(here, last) <= same:
+            continue  # no XY motion (Z only, or a line to where it is; an arc back to its start is a circle)
+        while 0 < j < len(twin) and twin[j].kind != "arc" and math.dist(
+            (twin[j].x, twin[j].y), (twin[j - 1].x, twin[j - 1].y)) <= same:  # fmt: skip
+            j += 1  # a move of the reader's too short for rs274 to print
+        if j >= len(twin):
+            return Comparison(False, matched, worst, f"rs274 line {point.line}: {point.kind} to "
+                              f"({point.x:.4f}, {point.y:.4f}) mm; the reader has no more moves")  # fmt: skip
+        other = twin[j]
+        distance = math.dist(here, (other.x, other.y))
+        if distance > tolerance:
+            return Comparison(False, matched, max(worst, distance), (
+                f"rs274 line {point.line}: {point.kind} to ({point.x:.4f}, {point.y:.4f}) mm; the reader's "
+                f"{other.kind} of line {other.line} to ({other.x:.4f}, {other.y:.4f}) mm ({distance * 1e3:.1f} um)"
+            ))  # fmt: skip
+        if point.kind == "arc" and other.kind == "arc":
+            what = ""
+            if point.turns != other.turns:
+                what = f"turns {other.turns} (rs274: {point.turns}, + counter-clockwise)"
+            elif point.centre is not None and other.centre is not None:
+                miss = math.dist(point.centre, other.centre)
+                if miss > tolerance + point.slack:
+                    what = (f"centre ({other.centre[0]:.4f}, {other.centre[1]:.4f}) mm "
+                            f"({miss * 1e3:.1f} um from rs274's)")  # fmt: skip
+            if what:
+                return Comparison(False, matched, worst, f"rs274 line {point.line}: the reader's arc of line "
+                                  f"{other.line} has {what}")  # fmt: skip
+        worst = max(worst, distance)
+        last = here
+        j, matched = j + 1, matched + 1
+    if j < len(twin):
+        other = twin[j]
+        return Comparison(False, matched, worst, f"the reader's {other.kind} of line {other.line} to "
+                          f"({other.x:.4f}, {other.y:.4f}) mm: rs274 has no more moves")  # fmt: skip
+    return Comparison(True, matched, worst)
