@@ -5,6 +5,7 @@ Imported normally (``from .helpers import run``); fixtures stay in conftest.py.
 
 from __future__ import annotations
 
+import contextlib
 import math
 from collections import defaultdict
 from pathlib import Path
@@ -168,3 +169,30 @@ def read_rrd(path: Path) -> dict[str, dict[str, np.ndarray]]:
 def scalars(data: dict[str, dict], entity: str) -> np.ndarray:
     """The Scalars component of one entity of :func:`read_rrd`'s result, (N, k)."""
     return np.asarray(data[entity]["Scalars:scalars"], dtype=float)
+
+
+#: The abstract socket name the tests that run LinuxCNC take turns on: LinuxCNC's shared memory is the machine's,
+#: and a test that looks for LinuxCNC's processes (or kills one by name) must see its own only.
+LINUXCNC_TESTS_TURN = "\0gantry-twin-linuxcnc-tests"
+
+
+@contextlib.contextmanager
+def linuxcnc_turn(limit_s: float = 900.0):
+    """Hold the machine's turn for a test that runs LinuxCNC (the other pytest-xdist workers' wait)."""
+    import socket
+    import time
+
+    turn = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    deadline = time.monotonic() + limit_s
+    try:
+        while True:
+            try:
+                turn.bind(LINUXCNC_TESTS_TURN)
+                break
+            except OSError:
+                if time.monotonic() > deadline:
+                    raise TimeoutError(f"another test held LinuxCNC for {limit_s:g} s") from None
+                time.sleep(0.2)
+        yield
+    finally:
+        turn.close()

@@ -38,6 +38,7 @@ from gantry_twin.gcode.geometry import Move, MoveTable
 from gantry_twin.gcode.planner import default_limits
 from gantry_twin.gcode.program import TRAVEL_HALF_M, TRAVEL_MARGIN_M
 from gantry_twin.gcode.reader import read_program
+from .helpers import linuxcnc_turn
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / "tests" / "data" / "linuxcnc"
@@ -238,30 +239,38 @@ def test_concurrent_rs274_do_not_share_their_tool_table_map():
 # ---------------------------------------------------------------------------------------------- LinuxCNC runs
 
 
+@pytest.fixture
+def turn():
+    """This test's turn with LinuxCNC (tests/helpers.py: linuxcnc_turn)."""
+    with linuxcnc_turn():
+        yield
+
+
 @pytest.fixture(scope="module")
 def spline_run(tmp_path_factory):
-    """A program the twin's reader refuses (G93, G5.1) run by LinuxCNC and the twin, once for the module."""
+    """A program the twin's reader refuses (an XZ arc; with G93 and G5.1) run by LinuxCNC and the twin, once."""
     if MISSING is not None:
         pytest.skip(f"LinuxCNC is not installed here: {MISSING}")
     out = tmp_path_factory.mktemp("linuxcnc") / "run"
-    process = twin("run", str(SPLINE_PROGRAM), "--cnc", "linuxcnc", "--out", str(out), "--progress")
-    try:
-        stdout, stderr = process.communicate(timeout=240)
-    finally:
-        stop(process)
+    with linuxcnc_turn():
+        process = twin("run", str(SPLINE_PROGRAM), "--cnc", "linuxcnc", "--out", str(out), "--progress")
+        try:
+            stdout, stderr = process.communicate(timeout=240)
+        finally:
+            stop(process)
     return process.returncode, stdout, stderr, out
 
 
 @needs_linuxcnc
 def test_the_twins_reader_refuses_the_program_that_linuxcnc_runs(spline_run):
-    done = subprocess.run([sys.executable, "-m", "gantry_twin", "validate", str(SPLINE_PROGRAM)], capture_output=True,
-                          text=True, cwd=ROOT, timeout=120)  # fmt: skip
-    assert done.returncode == 2 and "G93" in done.stderr
+    done = subprocess.run([sys.executable, "-m", "gantry_twin", "validate", "--drop-unsupported", str(SPLINE_PROGRAM)],
+                          capture_output=True, text=True, cwd=ROOT, timeout=120)  # fmt: skip
+    assert done.returncode == 2 and "G18" in done.stderr  # another plane: the twin's reader refuses it
     code, stdout, stderr, out = spline_run
     assert code == 0, stderr
     summary = json.loads((out / "summary.json").read_text())
     assert summary["status"] == "ok"
-    assert summary["part_error"]["dropped"] == {"spline or other-plane moves not judged": 1}
+    assert summary["part_error"]["dropped"] == {"spline or other-plane moves not judged": 2}
     info = json.loads((out / "linuxcnc.json").read_text())
     assert info["cnc"] == "linuxcnc" and info["splines"] == 1 and info["program_time_s"] > 2.0
 
@@ -284,7 +293,8 @@ def test_the_twins_reference_is_linuxcncs_command_at_every_servo_instant(spline_
 def test_linuxcnc_moves_as_the_program_says(spline_run):
     """Independent of the twin: the program's own numbers. The G93 line (F30: 1/30 min) takes 2 s; the G5.1
     spline is the quadratic B-spline with control points (30, 0), (40, 0), (50, 20) mm, followed within the
-    program's blending tolerance (G64 P0.01) on each side; the program ends at the origin."""
+    program's blending tolerance (G64 P0.01) on each side; the XZ arc moves X to 60 mm; the program ends at the
+    origin."""
     _, _, _, out = spline_run
     commands = np.loadtxt(out / "linuxcnc_commands.csv", delimiter=",", skiprows=1)
     t, q = commands[:, 0], commands[:, 1:] * 1e3
@@ -298,11 +308,13 @@ def test_linuxcnc_moves_as_the_program_says(spline_run):
     assert last - first > 100
     off = np.min(np.linalg.norm(q[first : last + 1, None, :] - spline[None], axis=2), axis=1)
     assert off.max() < 2 * 0.01
+    # The XZ half circle (G18) moves X from 50 to 60 mm at Y 30 (and Z, which the twin ignores).
+    assert np.max(q[np.abs(q[:, 1] - 30.0) < 1e-6, 0]) == pytest.approx(60.0, abs=1e-6)
     assert np.allclose(q[-1], 0.0, atol=1e-6)
 
 
 @needs_linuxcnc
-def test_a_program_linuxcnc_refuses_exits_2_with_its_message_and_line(tmp_path):
+def test_a_program_linuxcnc_refuses_exits_2_with_its_message_and_line(turn, tmp_path):
     bad = tmp_path / "limit.ngc"
     bad.write_text("G21 G90\nG1 X10 Y10 F3000\nG1 X300 Y10\nM2\n")
     process = twin("run", str(bad), "--cnc", "linuxcnc", "--out", str(tmp_path / "run"))
@@ -332,7 +344,7 @@ def _started(process: subprocess.Popen, limit_s: float = 60.0) -> None:
 
 @needs_linuxcnc
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
-def test_a_stop_signal_stops_linuxcnc_and_leaves_nothing(tmp_path, signum):
+def test_a_stop_signal_stops_linuxcnc_and_leaves_nothing(turn, tmp_path, signum):
     program = tmp_path / "long.ngc"
     program.write_text(LONG_PROGRAM)
     process = twin("run", str(program), "--cnc", "linuxcnc", "--out", str(tmp_path / "run"))
@@ -349,7 +361,7 @@ def test_a_stop_signal_stops_linuxcnc_and_leaves_nothing(tmp_path, signum):
 
 @needs_linuxcnc
 @pytest.mark.parametrize("victim", ["rtapi_app", "linuxcnc"])
-def test_a_killed_linuxcnc_fails_the_run_in_one_line_and_leaves_nothing(tmp_path, victim):
+def test_a_killed_linuxcnc_fails_the_run_in_one_line_and_leaves_nothing(turn, tmp_path, victim):
     program = tmp_path / "long.ngc"
     program.write_text(LONG_PROGRAM)
     process = twin("run", str(program), "--cnc", "linuxcnc", "--out", str(tmp_path / "run"))
@@ -365,7 +377,7 @@ def test_a_killed_linuxcnc_fails_the_run_in_one_line_and_leaves_nothing(tmp_path
 
 
 @needs_linuxcnc
-def test_a_killed_twin_leaves_nothing_of_linuxcnc(tmp_path):
+def test_a_killed_twin_leaves_nothing_of_linuxcnc(turn, tmp_path):
     program = tmp_path / "long.ngc"
     program.write_text(LONG_PROGRAM)
     process = twin("run", str(program), "--cnc", "linuxcnc", "--out", str(tmp_path / "run"))
@@ -396,6 +408,6 @@ def test_validate_with_linuxcnc_reads_the_program_as_rs274_does():
     done = subprocess.run([sys.executable, "-m", "gantry_twin", "validate", str(SPLINE_PROGRAM), "--cnc", "linuxcnc"],
                           capture_output=True, text=True, cwd=ROOT, timeout=120)  # fmt: skip
     assert done.returncode == 0, done.stderr
-    # The program's own moves: G0, G1, G93 G1, G1, [G5.1 + G1: one stretch not judged], G0.
-    assert "reads 6 XY moves (2 rapid)" in done.stdout and "1 spline or other-plane stretches" in done.stdout
+    # The program's own moves: G0, G1, G93 G1, G1, [G5.1 + G1], [G18 G2 + G0]: two stretches not judged.
+    assert "reads 6 XY moves (1 rapid)" in done.stdout and "2 spline or other-plane stretches" in done.stdout
     assert "X -20.000 .. 50.000 mm, Y -20.000 .. 30.000 mm" in done.stdout

@@ -114,6 +114,8 @@ def main(argv):
         say("homed", joints=stat.joints)
         command.mode(linuxcnc.MODE_AUTO)
         command.wait_complete(5)
+        command.set_block_delete(1)  # skip the lines starting with "/", as rs274 -b and the twin's reader
+        command.wait_complete(5)
         command.program_open(program)
         command.wait_complete(10)
         wait("opening the program", lambda: True, 1)

@@ -24,9 +24,11 @@ check it. Docs: docs/gcode.md ("LinuxCNC's interpreter as the oracle").
 from __future__ import annotations
 
 import math
+import os
 import re
 import shutil
 import subprocess
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -38,7 +40,7 @@ TOLERANCE_MM = {"mm": 1e-3, "in": 3e-3}
 #: Two points rs274 printed are one (4 decimals, offsets and rotation printed rounded apart), mm.
 SAME_POINT_MM = {"mm": 0.2e-3, "in": 3e-3}
 UNITS_MM = {"CANON_UNITS_MM": 1.0, "CANON_UNITS_INCHES": 25.4, "CANON_UNITS_CM": 10.0}
-_CALL = re.compile(r"^\s*\d+\s+N\S*\s+([A-Z_0-9]+)\((.*)\)\s*$")
+_CALL = re.compile(r"^\s*(\d+)\s+N\S*\s+([A-Z_0-9]+)\((.*)\)\s*$")
 _NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
 #: Canonical calls that move and cannot be an XY gantry's (probing, spindle-synchronised and lathe motion).
 FOREIGN = {"STRAIGHT_PROBE": "probing", "RIGID_TAP": "spindle-synchronised motion (rigid tapping)"}
@@ -78,21 +80,81 @@ def rs274_available() -> str | None:
     return shutil.which("rs274")
 
 
-def run_rs274(program: str | Path, tool_table: str | Path | None = None, timeout_s: float = 60.0) -> tuple[int, str]:
-    """Run ``rs274 -g`` on ``program`` (with ``-t`` the tool table) in the program's directory: its exit status
-    and output."""
+def run_rs274(
+    program: str | Path, tool_table: str | Path | None = None, timeout_s: float = 60.0, block_delete: bool = True
+) -> tuple[int, str]:
+    """Run ``rs274 -g`` on ``program`` (with ``-t`` the tool table; ``-b``, block delete on, as the reader's
+    default, unless ``block_delete`` is False): its exit status and output (-1 and why, past ``timeout_s``).
+
+    Every LinuxCNC program that reads a program (``rs274`` here, :mod:`gantry_twin.cnc`) runs through this.
+    rs274 runs in a directory of its own that is also its HOME: it maps ``$HOME/.tool.mmap`` and writes its
+    parameter file there, and a dozen rs274 sharing one map crashed some with SIGBUS."""
     exe = rs274_available()
     if exe is None:
         raise FileNotFoundError("rs274 is not installed (Debian: apt install linuxcnc-uspace)")
     program = Path(program).resolve()
     table = ["-t", str(Path(tool_table).resolve())] if tool_table is not None else []
-    command = [exe, *table, "-b", "-g", str(program)]  # -b: block delete on, as the reader's default
-    try:
-        done = subprocess.run(command, capture_output=True, text=True, timeout=timeout_s, stdin=subprocess.DEVNULL,
-                              errors="replace", check=False, cwd=program.parent)  # fmt: skip
-    except subprocess.TimeoutExpired:
-        return -1, f"rs274 did not finish within {timeout_s:g} s"
+    command = [exe, *table, *(["-b"] if block_delete else []), "-g", str(program)]
+    with tempfile.TemporaryDirectory(prefix="gantry-twin-rs274-") as home:
+        env = {**os.environ, "HOME": home, "TMPDIR": home}
+        try:
+            done = subprocess.run(command, capture_output=True, text=True, timeout=timeout_s, errors="replace",
+                                  stdin=subprocess.DEVNULL, check=False, cwd=home, env=env)  # fmt: skip
+        except subprocess.TimeoutExpired:
+            return -1, f"rs274 did not finish within {timeout_s:g} s"
     return done.returncode, done.stdout + done.stderr
+
+
+@dataclass(frozen=True)
+class Call:
+    """One canonical call rs274 printed: its number in the listing, name, argument text and numbers, and the
+    state it was made in: the program's unit ("mm", "in"; ``scale`` mm per unit), the offsets (mm), the XY
+    rotation (degrees) and whether the plane is XY."""
+
+    number: int
+    name: str
+    args: str
+    values: tuple[float, ...]
+    unit: str
+    scale: float
+    g5x_mm: tuple[float, float]
+    g92_mm: tuple[float, float]
+    rotation_deg: float
+    plane_xy: bool
+
+    def machine_mm(self, x: float, y: float) -> tuple[float, float]:
+        """Work coordinates (program units) -> machine mm: rotate(work + G92, rotation) + G5x (LinuxCNC's canon)."""
+        return _machine(x, y, self.scale, self.g92_mm, self.rotation_deg, self.g5x_mm)
+
+
+def canonical_calls(output: str) -> tuple[list[Call], str]:
+    """rs274's output read once: every canonical call with the state it was made in (units, offsets, rotation
+    and plane follow USE_LENGTH_UNITS, SET_G5X_OFFSET, SET_G92_OFFSET, SET_XY_ROTATION and SELECT_PLANE as they
+    come), and the last line that is not a call (rs274's message when it stopped)."""
+    scale, unit = 1.0, "mm"
+    g5x, g92, rotation, plane_xy = (0.0, 0.0), (0.0, 0.0), 0.0, True
+    calls, message = [], ""
+    for raw in output.splitlines():
+        match = _CALL.match(raw)
+        if match is None:
+            if raw.strip() and raw.strip() != "executing":
+                message = raw.strip()
+            continue
+        number, call, args = int(match.group(1)), match.group(2), match.group(3)
+        values = tuple(_numbers(args))
+        if call == "USE_LENGTH_UNITS":
+            scale = UNITS_MM.get(args.strip(), 1.0)
+            unit = "in" if scale == 25.4 else "mm"
+        elif call == "SET_G5X_OFFSET":
+            g5x = (values[1] * scale, values[2] * scale)
+        elif call == "SET_G92_OFFSET":
+            g92 = (values[0] * scale, values[1] * scale)
+        elif call == "SET_XY_ROTATION":
+            rotation = values[0]
+        elif call == "SELECT_PLANE":
+            plane_xy = "XY" in args
+        calls.append(Call(number, call, args, values, unit, scale, g5x, g92, rotation, plane_xy))
+    return calls, message
 
 
 def _numbers(text: str) -> list[float]:
@@ -101,62 +163,35 @@ def _numbers(text: str) -> list[float]:
 
 def rs274_path(returncode: int, output: str) -> Rs274Path:
     """Read rs274's canonical calls into machine points (mm), as this module's docstring says."""
-    scale, unit = 1.0, "mm"
-    g5x, g92, rotation = (0.0, 0.0), (0.0, 0.0), 0.0
-    plane_xy, xy_plane, foreign = True, True, ""
+    xy_plane, foreign = True, ""
     points: list[Point] = []
     moves: list[Move] = []
     position = (0.0, 0.0)
-    message = ""
-    for number, raw in enumerate(output.splitlines(), start=1):
-        match = _CALL.match(raw)
-        if match is None:
-            if raw.strip() and raw.strip() != "executing":
-                message = raw.strip()
-            continue
-        call, args = match.groups()
-        if call == "USE_LENGTH_UNITS":
-            scale = UNITS_MM.get(args.strip(), 1.0)
-            unit = "in" if scale == 25.4 else "mm"
-        elif call == "SET_G5X_OFFSET":
-            values = _numbers(args)
-            g5x = (values[1] * scale, values[2] * scale)
-        elif call == "SET_G92_OFFSET":
-            values = _numbers(args)
-            g92 = (values[0] * scale, values[1] * scale)
-        elif call == "SET_XY_ROTATION":
-            rotation = _numbers(args)[0]
-        elif call == "SELECT_PLANE":
-            plane_xy = "XY" in args
-        elif call in FOREIGN:
-            foreign = foreign or FOREIGN[call]
-        elif call in ("STRAIGHT_TRAVERSE", "STRAIGHT_FEED", "ARC_FEED", "NURBS_FEED"):
-            if call == "NURBS_FEED":
-                points.append(Point("spline", None, None, unit, number))
-                continue
-            values = _numbers(args)
-            if call == "ARC_FEED" and not plane_xy:
+    calls, message = canonical_calls(output)
+    for c in calls:
+        if c.name in FOREIGN:
+            foreign = foreign or FOREIGN[c.name]
+        elif c.name == "NURBS_FEED":
+            points.append(Point("spline", None, None, c.unit, c.number))
+        elif c.name in ("STRAIGHT_TRAVERSE", "STRAIGHT_FEED", "ARC_FEED"):
+            values = c.values
+            if c.name == "ARC_FEED" and not c.plane_xy:
                 xy_plane = False
                 continue
-            frame = (scale, g92, rotation, g5x)
-            end = _machine(values[0], values[1], *frame)
-            kind = {"STRAIGHT_TRAVERSE": "rapid", "STRAIGHT_FEED": "line", "ARC_FEED": "arc"}[call]
+            end = c.machine_mm(values[0], values[1])
+            kind = {"STRAIGHT_TRAVERSE": "rapid", "STRAIGHT_FEED": "line", "ARC_FEED": "arc"}[c.name]
             if kind != "arc":
-                points.append(Point(kind, end[0], end[1], unit, number))
+                points.append(Point(kind, end[0], end[1], c.unit, c.number))
                 moves.append(Move("line", position, end, 1.0, False, 0))
             else:
-                centre = _machine(values[2], values[3], *frame)
+                centre = c.machine_mm(values[2], values[3])
                 turn = int(values[4])
                 chord = math.dist(position, end)
                 r1, r2 = math.dist(centre, position), math.dist(centre, end)
                 slack = abs(r2 * r2 - r1 * r1) / (2.0 * chord) if chord > 1e-9 else math.inf
-                points.append(Point(kind, end[0], end[1], unit, number, centre, turn, slack))
-                a0 = math.atan2(position[1] - centre[1], position[0] - centre[0])
-                a1 = math.atan2(end[1] - centre[1], end[0] - centre[0])
-                sweep = math.fmod((a1 - a0) * (1 if turn > 0 else -1), 2.0 * math.pi) % (2.0 * math.pi)
-                sweep = (sweep or 2.0 * math.pi) + 2.0 * math.pi * (abs(turn) - 1)
+                points.append(Point(kind, end[0], end[1], c.unit, c.number, centre, turn, slack))
                 moves.append(Move("arc", position, end, 1.0, False, 0, centre_m=centre,
-                                  sweep_rad=math.copysign(sweep, turn)))  # fmt: skip
+                                  sweep_rad=arc_sweep(position, end, centre, turn)))  # fmt: skip
             position = end
     if moves:
         lo, hi = bounding_box(moves)
@@ -165,6 +200,16 @@ def rs274_path(returncode: int, output: str) -> Rs274Path:
         extent = (0.0, 0.0, 0.0, 0.0)
     ok = returncode == 0
     return Rs274Path(ok, "" if ok else message, tuple(points), xy_plane, extent, foreign)
+
+
+def arc_sweep(start: tuple[float, float], end: tuple[float, float], centre: tuple[float, float], turn: int) -> float:
+    """The signed sweep (rad, + counter-clockwise) of ARC_FEED's arc from ``start`` to ``end`` about ``centre``
+    with rs274's turn count ``turn`` (+ counter-clockwise; |turn| - 1 extra full turns)."""
+    a0 = math.atan2(start[1] - centre[1], start[0] - centre[0])
+    a1 = math.atan2(end[1] - centre[1], end[0] - centre[0])
+    sweep = math.fmod((a1 - a0) * (1 if turn > 0 else -1), 2.0 * math.pi) % (2.0 * math.pi)
+    sweep = (sweep or 2.0 * math.pi) + 2.0 * math.pi * (abs(turn) - 1)
+    return math.copysign(sweep, turn)
 
 
 def _machine(
