@@ -38,6 +38,7 @@ from gantry_twin.gcode.geometry import Move, MoveTable
 from gantry_twin.gcode.planner import default_limits
 from gantry_twin.gcode.program import TRAVEL_HALF_M, TRAVEL_MARGIN_M
 from gantry_twin.gcode.reader import read_program
+
 from .helpers import linuxcnc_turn
 
 ROOT = Path(__file__).resolve().parents[1]
