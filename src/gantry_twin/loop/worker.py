@@ -155,8 +155,11 @@ class WorkerLoop:
 
     def run(self, start: int, stop: int) -> tuple[int, SimulationError | None]:
         """Samples [start, stop) in the worker; their rows copied into this trace (as :meth:`_Loop.run`)."""
-        self._send(("run", start, stop))
-        done, failure, recorded, logged = self._answer("chunk")
+        try:
+            self._send(("run", start, stop))
+            done, failure, recorded, logged = self._answer("chunk")
+        except SimulationError as error:  # the worker ended, hung or grew: nothing of this chunk came back
+            return start, error
         rows = self.trace.rows(start, done)
         for name, values in zip(("q_m", "q_meas_m", "u_v"), recorded, strict=True):
             getattr(self.trace, name)[rows] = values
@@ -175,6 +178,8 @@ class WorkerLoop:
         try:
             self._send(("close",))
             why = self._answer("closed")
+        except SimulationError as error:
+            why = error.detail
         finally:
             self.stop()
         if why is not None:
@@ -223,7 +228,7 @@ class WorkerLoop:
             if iso.progress[PROGRESS_SAMPLES] != seen:
                 seen, since = iso.progress[PROGRESS_SAMPLES], now
             elif now - since > iso.call_timeout_s:
-                self._fail(f"did not return within {iso.call_timeout_s:g} s (the call's time limit); stopped")
+                self._fail("", f" did not return within {iso.call_timeout_s:g} s (its time limit); stopped")
             self._check_memory()
 
     def _check_memory(self) -> None:
@@ -232,9 +237,9 @@ class WorkerLoop:
         limit = self.isolation.memory_limit_bytes
         if resident > limit:
             self._fail(
-                f"its process passed its memory limit of {limit / 2**20:.0f} MB ({resident / 2**20:.0f} MB "
-                f"resident); stopped",
-                after_call=True,
+                f"its process passed its memory limit of {limit / 2**20:.0f} MiB ({resident / 2**20:.0f} MiB "
+                f"resident) in ",
+                "; stopped",
             )
 
     def _ended(self) -> None:
@@ -247,10 +252,11 @@ class WorkerLoop:
             how = f"its process was killed by {signal.Signals(number).name} ({signal.strsignal(number)})"
         else:
             how = f"its process exited with status {os.waitstatus_to_exitcode(status)}"
-        self._fail(how, after_call=True)
+        self._fail(f"{how} in ")
 
-    def _fail(self, what: str, after_call: bool = False) -> None:
-        """Stop the worker and raise the run's error at the sample the controller was in."""
+    def _fail(self, before: str, after: str = "") -> None:
+        """Stop the worker and raise the run's error at the sample the controller was in: ``before``, the call it
+        was in, ``after``; the error's ``detail`` is the FMU's part of the line."""
         self.stop()
         call, t_s = self.isolation.where()
         trace = self.trace
@@ -258,10 +264,10 @@ class WorkerLoop:
         k = trace.filled if not np.isfinite(t_s) or ts <= 0 else int(round(t_s / ts))
         k = min(max(k, trace.filled), trace.first + trace.t_s.size - 1)
         t_k = float(trace.t_s[trace.rows(k, k + 1)][0])
-        in_call = call or "its first call"
-        detail = f"{what} in {in_call}" if after_call else f"{in_call} {what}"
-        message = f"the controller failed at t = {t_k:.4f} s (step {k}): {self.isolation.name}: {detail}"
-        raise SimulationError(message, t_k, k)
+        detail = f"{self.isolation.name}: {before}{call or 'its first call'}{after}"
+        error = SimulationError(f"the controller failed at t = {t_k:.4f} s (step {k}): {detail}", t_k, k)
+        error.detail = detail
+        raise error
 
     def __del__(self) -> None:
         if getattr(self, "pid", 0) > 0:
