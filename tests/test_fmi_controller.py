@@ -212,7 +212,7 @@ class _Unpacked:
         pass
 
     def on_chunk(self, trace, start, stop):
-        self.seen = max(self.seen, len(list(self.root.glob("gantry-twin-fmu-*"))))
+        self.seen = max(self.seen, len(list(self.root.glob("**/gantry-twin-fmu-*"))))  # in the worker's directory
 
     def on_end(self, trace):
         pass
@@ -252,10 +252,10 @@ def test_the_unpacked_fmu_is_removed_on_sigint(fmus, tmp_path):
         running = False  # the run's instance: a directory that stays (the build's trial start removes its own at once)
         while not running and time.monotonic() < deadline and child.poll() is None:
             time.sleep(0.5)
-            running = bool(list(root.glob("gantry-twin-fmu-*")))
+            running = bool(list(root.glob("**/gantry-twin-fmu-*")))  # the worker's own directory holds it
             if running:
                 time.sleep(1.0)
-                running = bool(list(root.glob("gantry-twin-fmu-*")))
+                running = bool(list(root.glob("**/gantry-twin-fmu-*")))
         assert running, "the FMU was never unpacked for the run"
         child.send_signal(signal.SIGINT)
         _, err = child.communicate(timeout=60)

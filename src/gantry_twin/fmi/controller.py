@@ -298,7 +298,7 @@ def fmu_controller(
     for name, value in (("call_timeout_s", call_timeout_s), ("memory_limit_mb", memory_limit_mb)):
         low, high = LIMITS[name]
         if isinstance(value, bool) or not isinstance(value, int | float) or not low <= value <= high:
-            raise ValueError(f"controller.options.{name}: must be a number in [{low:g}, {high:g}], got {value!r}")
+            raise ValueError(f"controller.options.{name}: must be a number in [{low:.10g}, {high:.10g}], got {value!r}")
     checked = read_controller(fmu, variables, parameters, tuple(log_variables))
     trial_start(checked)  # a binary that does not load is bad input too: refused before the run, as the rest
     limits = (float(call_timeout_s), int(memory_limit_mb * 2**20))
