@@ -66,7 +66,7 @@ from gantry_twin.loop.sample import (
     run_chunk,
 )
 from gantry_twin.loop.trace import Observer, RunInfo, SimulationError, Trace
-from gantry_twin.loop.worker import WorkerLoop, isolation_of
+from gantry_twin.loop.worker import WorkerLoop, isolation_of, shared_full
 from gantry_twin.numerics.jit import is_cached, specialise
 from gantry_twin.numerics.jit import reference as uncompiled
 from gantry_twin.paths.contours import Contour, Reference, ReferenceStream, TimingLaw, contour_error
@@ -196,7 +196,9 @@ def simulate(
             dist = np.zeros((t.size, 2)) if disturbance is None else np.asarray(disturbance(t), dtype=float)
             if dist.shape != (t.size, 2):
                 raise ValueError(f"disturbance must give shape ({t.size}, 2) volts, got {dist.shape}")
-            trace = Trace.allocate(ref, np.ascontiguousarray(dist), true_theta, first, ts)
+            # A worker's first piece is recorded in memory it shares with this process: no copy of it comes back.
+            full = shared_full if loop is None and isolation_of(controller) is not None else np.full
+            trace = Trace.allocate(ref, np.ascontiguousarray(dist), true_theta, first, ts, full)
             if moving:
                 trace.true_theta_t = _as_before(model, saved, changes.true_parameters_over_time, plant, t, operating)
                 if first == 0:

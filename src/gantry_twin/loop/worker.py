@@ -25,9 +25,11 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import faulthandler
+import gc
 import mmap
 import os
 import resource
+import select
 import shutil
 import signal
 import socket
@@ -52,6 +54,14 @@ MEMORY_LIMIT_BYTES = 2048 << 20
 #: The signals the command turns into an exception; the worker ignores them (the command ends it).
 _STOP_SIGNALS = tuple(getattr(signal, n) for n in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, n))
 _PR_SET_PDEATHSIG = 1
+
+
+def shared_full(shape: tuple[int, ...], value: float) -> np.ndarray:
+    """A float64 array of ``shape`` filled with ``value``, in memory shared with a worker forked later."""
+    n = int(np.prod(shape))
+    array = np.frombuffer(mmap.mmap(-1, max(8 * n, 8)), dtype=np.float64, count=n).reshape(shape)
+    array.fill(value)
+    return array
 
 
 def shared_progress() -> np.ndarray:
@@ -129,12 +139,15 @@ class WorkerLoop:
         ours, theirs = socket.socketpair()
         try:
             isolation.progress[:] = (0.0, np.nan, 0.0)
+            gc.freeze()
             self.pid = os.fork()
             if self.pid == 0:  # the worker: never returns
                 ours.close()
                 _worker(Connection(theirs.detach()), make_loop, isolation, trace, rows, self.scratch)
             theirs.close()
             self.conn = Connection(ours.detach())
+            self._poller = select.poll()  # one, for every wait (Connection.poll makes a selector each time)
+            self._poller.register(self.conn.fileno(), select.POLLIN)
             self._answer("ready")
         except BaseException:
             ours.close()
@@ -161,8 +174,9 @@ class WorkerLoop:
         except SimulationError as error:  # the worker ended, hung or grew: nothing of this chunk came back
             return start, error
         rows = self.trace.rows(start, done)
-        for name, values in zip(("q_m", "q_meas_m", "u_v"), recorded, strict=True):
-            getattr(self.trace, name)[rows] = values
+        if recorded is not None:
+            for name, values in zip(("q_m", "q_meas_m", "u_v"), recorded, strict=True):
+                getattr(self.trace, name)[rows] = values
         state = self.trace.controller_state
         for key, values in logged.items():
             if key not in state:
@@ -197,6 +211,7 @@ class WorkerLoop:
             self.conn.close()
             self.conn = None
         shutil.rmtree(self.scratch, ignore_errors=True)
+        gc.unfreeze()
 
     # -- watching ------------------------------------------------------------------------------------------------
 
@@ -211,7 +226,7 @@ class WorkerLoop:
         iso = self.isolation
         seen, since = iso.progress[PROGRESS_SAMPLES], time.monotonic()
         while True:
-            if self.conn.poll(WATCH_S):
+            if self._poller.poll(WATCH_S * 1000):
                 try:
                     got, value = self.conn.recv()
                 except (EOFError, OSError):
@@ -311,7 +326,9 @@ def _worker(
                 start, stop = message[1:]
                 done, error = loop.run(start, stop)
                 piece, at = loop.trace, loop.trace.rows(start, done)
-                recorded = tuple(np.ascontiguousarray(a[at]) for a in (piece.q_m, piece.q_meas_m, piece.u_v))
+                recorded = None  # the first piece's are in shared memory (simulate allocates it with shared_full)
+                if piece is not trace:
+                    recorded = tuple(np.ascontiguousarray(a[at]) for a in (piece.q_m, piece.q_meas_m, piece.u_v))
                 logged = {key: np.ascontiguousarray(v[at]) for key, v in piece.controller_state.items()}
                 failure = None if error is None else (str(error), error.time_s, error.step)
                 conn.send(("chunk", (done, failure, recorded, logged)))
@@ -338,6 +355,7 @@ def _worker(
 def _become_worker(isolation: Isolation, scratch: str) -> None:
     """Stop signals ignored (the command ends the worker), ended with the command, no stack dump on a crash (the
     command says what happened, in one line), temporary files in ``scratch``, address space bounded."""
+    gc.disable()
     for number in _STOP_SIGNALS:
         signal.signal(number, signal.SIG_IGN)
     with contextlib.suppress(OSError, AttributeError):
