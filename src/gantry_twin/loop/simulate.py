@@ -262,6 +262,8 @@ def _make_loop(
         if compiled is None or isolation.placeholders is None:
             return
         function = _chunk_for(compiled)
+        if getattr(function, "signatures", None):
+            return  # loaded already (one signature serves every FMU: the addresses are arguments)
         recording = Recording(
             trace.first,
             trace.t_s,

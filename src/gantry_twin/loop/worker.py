@@ -48,6 +48,8 @@ from gantry_twin.loop.trace import SimulationError, Trace
 PROGRESS_CALL, PROGRESS_T_S, PROGRESS_SAMPLES = 0, 1, 2
 #: How often the command's process looks at a worker that has not answered, s (the stop signals are seen at once).
 WATCH_S = 0.02
+#: How often, at least, a worker that answers is asked its memory, s (one that does not: every WATCH_S).
+MEMORY_CHECK_S = 0.1
 #: Defaults of a hosted controller's limits: wall time per call, s; resident memory, bytes (docs/fmi.md).
 CALL_TIMEOUT_S = 10.0
 MEMORY_LIMIT_BYTES = 2048 << 20
@@ -236,7 +238,7 @@ class WorkerLoop:
                     raise value
                 if got != kind:
                     raise RuntimeError(f"the loop's worker answered {got!r} to {kind!r}")
-                if time.monotonic() - self._checked > WATCH_S:
+                if time.monotonic() - self._checked > MEMORY_CHECK_S:
                     self._check_memory()
                 return value
             now = time.monotonic()
