@@ -176,6 +176,15 @@ class FmuStep:
             fmu.path.name, call_timeout_s, memory_limit_bytes, self._progress, CALLS, self._placeholders()
         )
 
+    def __setstate__(self, state: dict) -> None:
+        """A copy (pickled, deep-copied) gets a progress row of its own in shared memory: a copied array would be
+        private, and the process watching the loop's worker would not see the worker's progress."""
+        self.__dict__.update(state)
+        self._progress = shared_progress()
+        self._state = self._state._replace(progress=self._progress)
+        placeholders = self._placeholders()
+        self.isolation = self.isolation._replace(progress=self._progress, placeholders=placeholders)
+
     def _fresh_state(self) -> FmuState:
         f = self.fmu
         return FmuState(

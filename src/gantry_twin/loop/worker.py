@@ -48,6 +48,9 @@ from gantry_twin.loop.trace import SimulationError, Trace
 PROGRESS_CALL, PROGRESS_T_S, PROGRESS_SAMPLES = 0, 1, 2
 #: How often the command's process looks at a worker that has not answered, s (the stop signals are seen at once).
 WATCH_S = 0.02
+#: The time limit of the controller's start in the worker (an FMU unpacked and instantiated), s, if longer than
+#: its call's limit.
+START_TIMEOUT_S = 60.0
 #: How often, at least, a worker that answers is asked its memory, s (one that does not: every WATCH_S).
 MEMORY_CHECK_S = 0.1
 #: Defaults of a hosted controller's limits: wall time per call, s; resident memory, bytes (docs/fmi.md).
@@ -97,9 +100,10 @@ class Isolation(NamedTuple):
 
 
 def isolation_of(controller: object) -> Isolation | None:
-    """The controller's :class:`Isolation` (its ``isolation`` attribute), None to run in the command's process."""
+    """The controller's :class:`Isolation` (its ``isolation`` attribute), None to run in the command's process
+    (also where processes cannot be forked)."""
     found = getattr(controller, "isolation", None)
-    return found if isinstance(found, Isolation) else None
+    return found if isinstance(found, Isolation) and hasattr(os, "fork") else None
 
 
 class ChunkLoop(Protocol):
@@ -150,7 +154,7 @@ class WorkerLoop:
             self.conn = Connection(ours.detach())
             self._poller = select.poll()  # one, for every wait (Connection.poll makes a selector each time)
             self._poller.register(self.conn.fileno(), select.POLLIN)
-            self._answer("ready")
+            self._answer("ready", max(isolation.call_timeout_s, START_TIMEOUT_S))
         except BaseException:
             ours.close()
             theirs.close()
@@ -223,9 +227,11 @@ class WorkerLoop:
         except OSError:  # the worker is gone: say how
             self._ended()
 
-    def _answer(self, kind: str) -> Any:
-        """The worker's answer ``(kind, value)``; raised here: its exception, or why it ended, hung or grew."""
+    def _answer(self, kind: str, limit_s: float | None = None) -> Any:
+        """The worker's answer ``(kind, value)``; raised here: its exception, or why it ended, hung (no sample
+        started for ``limit_s``, the call's time limit by default) or grew."""
         iso = self.isolation
+        limit_s = iso.call_timeout_s if limit_s is None else limit_s
         seen, since = iso.progress[PROGRESS_SAMPLES], time.monotonic()
         while True:
             if self._poller.poll(WATCH_S * 1000):
@@ -244,8 +250,8 @@ class WorkerLoop:
             now = time.monotonic()
             if iso.progress[PROGRESS_SAMPLES] != seen:
                 seen, since = iso.progress[PROGRESS_SAMPLES], now
-            elif now - since > iso.call_timeout_s:
-                self._fail("", f" did not return within {iso.call_timeout_s:g} s (its time limit); stopped")
+            elif now - since > limit_s:
+                self._fail("", f" did not return within {limit_s:g} s (its time limit); stopped")
             self._check_memory()
 
     def _check_memory(self) -> None:
