@@ -360,6 +360,11 @@ def _make_case(case: str, directory: Path, build) -> str:
         members["binaries/linux64/pd.so"] = zipfile.ZipFile(
             build(directory / "terminate", defines=("TERMINATE_STATUS=fmi2Error",))
         ).read("binaries/linux64/pd.so")
+    elif case in ("fmu_segfault_on_start", "fmu_exit_on_start"):  # pd.c's MISBEHAVE: 1 a null write, 3 exit(3)
+        kind = "1" if case == "fmu_segfault_on_start" else "3"
+        members["binaries/linux64/pd.so"] = zipfile.ZipFile(
+            build(directory / "start", defines=("MISBEHAVE_ON_START=1", f"MISBEHAVE={kind}"))
+        ).read("binaries/linux64/pd.so")
     elif case == "fmu_mapped_variable_missing":
         options += ", variables: {pos_x: x_m}"
     elif case == "fmu_mapped_to_no_signal":

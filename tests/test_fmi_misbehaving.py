@@ -156,6 +156,36 @@ def test_an_endless_call_stops_within_2_s_of_sigint(misbehaving, tmp_path):
     assert _left_behind(tmp_path) == []
 
 
+def test_an_endless_trial_start_stops_within_2_s_of_sigint(tmp_path):
+    """An FMU whose fmi2Instantiate never returns: the trial start (in a worker) waits up to 60 s; SIGINT ends
+    it within 2 s, exit 130, nothing left (docs/hostile-input.md, "Controller FMUs")."""
+    fmu = _builder().build_fmu(tmp_path / "fmu", defines=("MISBEHAVE_ON_START=1", f"MISBEHAVE={KINDS['endless']}"))
+    where = tmp_path / "run"
+    where.mkdir()
+    child, tmp = _start(fmu, where)
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and child.poll() is None:  # the trial start's worker unpacked the FMU
+            if list(tmp.glob("gantry-twin-worker-*/gantry-twin-fmu-*/binaries")):
+                break
+            time.sleep(0.1)
+        time.sleep(1.0)
+        assert child.poll() is None, child.communicate()[1]
+        sent = time.monotonic()
+        child.send_signal(signal.SIGINT)
+        _, err = child.communicate(timeout=30)
+        took_s = time.monotonic() - sent
+    finally:
+        if child.poll() is None:
+            child.kill()
+            child.wait()
+    assert child.returncode == 130, err
+    assert took_s < 2.0
+    assert err.strip().splitlines() == ["gantry-twin: interrupted (SIGINT)"]
+    assert list(tmp.iterdir()) == [] and not (where / "out").exists()
+    assert _left_behind(where) == []
+
+
 def test_the_limits_are_checked_before_the_run(misbehaving, tmp_path):
     """``--fmu-timeout 0`` and a memory limit below 64 MiB are refused in one line, exit 2, nothing run."""
     for flags, message in (

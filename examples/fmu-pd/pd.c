@@ -12,7 +12,8 @@ enum { X_M, Y_M, DX_M_S, DY_M_S, X_D_M, Y_D_M, DX_D_M_S, DY_D_M_S, DDX_D_M_S2, D
 static const double START[N_VARS] = {[KP_X] = 1e4, [KP_Y] = 1e4, [KD_X] = 100, [KD_Y] = 100,
                                      [KV_X] = 0.5, [KV_Y] = 0.7, [KA_X] = 0.12, [KA_Y] = 0.5};
 
-#ifdef MISBEHAVE_AT_S /* the tests' misbehaving controllers (docs/fmi.md): doStep from MISBEHAVE_AT_S on */
+#if defined(MISBEHAVE_AT_S) || defined(MISBEHAVE_ON_START) /* the tests' misbehaving controllers (docs/fmi.md):
+   doStep from MISBEHAVE_AT_S on, or fmi2Instantiate */
 #include <string.h>
 #define SEGFAULT 1 /* MISBEHAVE: what doStep does */
 #define ABORT 2
@@ -59,6 +60,9 @@ fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t n,
 }
 fmi2Component fmi2Instantiate(fmi2String name, fmi2Type type, fmi2String guid, fmi2String resources,
                               const fmi2CallbackFunctions *functions, fmi2Boolean visible, fmi2Boolean loggingOn) {
+#ifdef MISBEHAVE_ON_START
+    misbehave();
+#endif
     double *v = calloc(N_VARS, sizeof(double));
     for (int i = 0; v && i < N_VARS; i++) v[i] = START[i];
     return v;

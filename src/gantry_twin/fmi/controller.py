@@ -309,8 +309,8 @@ def fmu_controller(
         if isinstance(value, bool) or not isinstance(value, int | float) or not low <= value <= high:
             raise ValueError(f"controller.options.{name}: must be a number in [{low:.10g}, {high:.10g}], got {value!r}")
     checked = read_controller(fmu, variables, parameters, tuple(log_variables))
-    trial_start(checked)  # a binary that does not load is bad input too: refused before the run, as the rest
     limits = (float(call_timeout_s), int(memory_limit_mb * 2**20))
+    trial_start(checked, *limits)  # a binary that does not load is bad input too: refused before the run
     if checked.needs_python:
         return PythonFmuController(checked, *limits)
     cls = (

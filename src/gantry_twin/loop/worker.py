@@ -28,6 +28,7 @@ import faulthandler
 import gc
 import mmap
 import os
+import pickle
 import resource
 import select
 import shutil
@@ -146,10 +147,11 @@ class WorkerLoop:
         try:
             isolation.progress[:] = (0.0, np.nan, 0.0)
             gc.freeze()
+            parent = os.getpid()
             self.pid = os.fork()
             if self.pid == 0:  # the worker: never returns
                 ours.close()
-                _worker(Connection(theirs.detach()), make_loop, isolation, trace, rows, self.scratch)
+                _worker(Connection(theirs.detach()), make_loop, isolation, trace, rows, self.scratch, parent)
             theirs.close()
             self.conn = Connection(ours.detach())
             self._poller = select.poll()  # one, for every wait (Connection.poll makes a selector each time)
@@ -269,13 +271,7 @@ class WorkerLoop:
         """The worker ended without answering: wait for it, and fail the run saying how."""
         pid, self.pid = self.pid, 0
         status = os.waitpid(pid, 0)[1] if pid > 0 else 0
-        self.pid = 0
-        if os.WIFSIGNALED(status):
-            number = os.WTERMSIG(status)
-            how = f"its process was killed by {signal.Signals(number).name} ({signal.strsignal(number)})"
-        else:
-            how = f"its process exited with status {os.waitstatus_to_exitcode(status)}"
-        self._fail(f"{how} in ")
+        self._fail(f"{_how_it_ended(status)} in ")
 
     def _fail(self, before: str, after: str = "") -> None:
         """Stop the worker and raise the run's error at the sample the controller was in: ``before``, the call it
@@ -295,6 +291,81 @@ class WorkerLoop:
     def __del__(self) -> None:
         if getattr(self, "pid", 0) > 0:
             self.stop()
+
+
+def _how_it_ended(status: int) -> str:
+    """'its process was killed by SIGSEGV (Segmentation fault)', or 'its process exited with status 3'."""
+    if os.WIFSIGNALED(status):
+        number = os.WTERMSIG(status)
+        return f"its process was killed by {signal.Signals(number).name} ({signal.strsignal(number)})"
+    return f"its process exited with status {os.waitstatus_to_exitcode(status)}"
+
+
+class WorkerEnded(RuntimeError):
+    """A worker of :func:`call_in_worker` crashed, exited, hung past its limit or passed its memory limit."""
+
+
+def call_in_worker(function: Callable[[], Any], limit_s: float, memory_limit_bytes: int = MEMORY_LIMIT_BYTES) -> Any:
+    """``function()`` in a forked worker process, watched as a :class:`WorkerLoop` is: its value (it must pickle),
+    or its exception raised here; :class:`WorkerEnded` ("its process was killed by SIGSEGV (...)", "did not
+    return within S s", ...) if it crashes, exits, takes more than ``limit_s`` of wall time or passes
+    ``memory_limit_bytes`` resident. A stop signal here kills it at once. Run in this process where processes
+    cannot be forked."""
+    if not hasattr(os, "fork"):
+        return function()
+    scratch = tempfile.mkdtemp(prefix="gantry-twin-worker-")
+    ours, theirs = socket.socketpair()
+    pid = 0
+    try:
+        parent = os.getpid()
+        pid = os.fork()
+        if pid == 0:
+            code = 0
+            try:
+                ours.close()
+                _become_worker(memory_limit_bytes, scratch, parent)
+                theirs.sendall(pickle.dumps(("done", function())))
+            except BaseException as exc:  # noqa: BLE001 -- the worker's errors are the caller's to raise
+                with contextlib.suppress(BaseException):
+                    theirs.sendall(pickle.dumps(("raise", _sendable(exc))))
+                code = 1
+            finally:
+                os._exit(code)
+        theirs.close()
+        deadline = time.monotonic() + limit_s
+        answer = b""
+        while True:
+            ready = select.select([ours], [], [], WATCH_S)[0]
+            if ready:
+                data = ours.recv(1 << 16)
+                if data:
+                    answer += data
+                    continue
+                break  # the worker closed its end: done, or gone
+            if time.monotonic() > deadline:
+                raise WorkerEnded(f"did not return within {limit_s:g} s (its time limit); stopped")
+            if (resident := _resident_bytes(pid)) > memory_limit_bytes:
+                raise WorkerEnded(
+                    f"its process passed its memory limit of {memory_limit_bytes / 2**20:.0f} MiB "
+                    f"({resident / 2**20:.0f} MiB resident); stopped"
+                )
+        status = os.waitpid(pid, 0)[1]
+        pid = 0
+        if not answer:
+            raise WorkerEnded(_how_it_ended(status))
+        kind, value = pickle.loads(answer)
+        if kind == "raise":
+            raise value
+        return value
+    finally:
+        ours.close()
+        theirs.close()
+        if pid > 0:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGKILL)
+            with contextlib.suppress(ChildProcessError):
+                os.waitpid(pid, 0)
+        shutil.rmtree(scratch, ignore_errors=True)
 
 
 def _resident_bytes(pid: int) -> int:
@@ -321,11 +392,12 @@ def _worker(
     trace: Trace,
     rows: np.ndarray,
     scratch: str,
+    parent: int,
 ) -> None:
     """The worker process: reset, then chunks on request, then close; ends with os._exit, never returns."""
     code = 0
     try:
-        _become_worker(isolation, scratch)
+        _become_worker(isolation.memory_limit_bytes, scratch, parent)
         loop = make_loop()
         conn.send(("ready", None))
         while True:
@@ -360,20 +432,20 @@ def _worker(
         os._exit(code)
 
 
-def _become_worker(isolation: Isolation, scratch: str) -> None:
-    """Stop signals ignored (the command ends the worker), ended with the command, no stack dump on a crash (the
-    command says what happened, in one line), temporary files in ``scratch``, address space bounded."""
+def _become_worker(memory_limit_bytes: int, scratch: str, parent: int) -> None:
+    """Stop signals ignored (the command, ``parent``, ends the worker), ended with the command, no stack dump on a
+    crash (the command says what happened, in one line), temporary files in ``scratch``, address space bounded."""
     gc.disable()
     for number in _STOP_SIGNALS:
         signal.signal(number, signal.SIG_IGN)
     with contextlib.suppress(OSError, AttributeError):
         ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
-    if os.getppid() == 1:
+    if os.getppid() != parent:  # the command ended before the death signal was asked for
         os._exit(1)
     faulthandler.disable()
     tempfile.tempdir = scratch
     os.environ["TMPDIR"] = scratch
-    limit = _address_space_bytes() + 2 * isolation.memory_limit_bytes
+    limit = _address_space_bytes() + 2 * memory_limit_bytes
     with contextlib.suppress(ValueError, OSError):
         soft, hard = resource.getrlimit(resource.RLIMIT_AS)
         if hard == resource.RLIM_INFINITY or hard > limit:
@@ -403,8 +475,6 @@ def _piece(first: int, t_s: np.ndarray, rows: np.ndarray, disturbance_v: np.ndar
 
 def _sendable(exc: BaseException) -> BaseException:
     """``exc`` if it pickles whole (a ScenarioError, an FmuError), else a RuntimeError with its line."""
-    import pickle
-
     try:
         pickle.loads(pickle.dumps(exc))
         return exc
