@@ -140,7 +140,7 @@ class WorkerLoop:
         if warm is not None:
             warm()
         self.isolation, self.trace, self._first, self._layout = isolation, trace, (trace, rows), layout
-        self.pid = 0
+        self.pid, self._streamed = 0, 0
         self.scratch = tempfile.mkdtemp(prefix="gantry-twin-worker-")
         self._checked = 0.0
         ours, theirs = socket.socketpair()
@@ -175,9 +175,15 @@ class WorkerLoop:
         self._first = None
 
     def run(self, start: int, stop: int) -> tuple[int, SimulationError | None]:
-        """Samples [start, stop) in the worker; their rows copied into this trace (as :meth:`_Loop.run`)."""
+        """Samples [start, stop) in the worker; their rows copied into this trace (as :meth:`_Loop.run`).
+
+        The first chunk of a piece asks the worker for the whole piece in chunks of this size: it runs ahead
+        and hands each chunk over as it finishes (one message a chunk, none back), while this process shows the
+        one before to the observers."""
         try:
-            self._send(("run", start, stop))
+            if start >= self._streamed:
+                self._streamed = self.trace.first + self.trace.t_s.size
+                self._send(("run", start, self._streamed, stop - start))
             done, failure, recorded, logged = self._answer("chunk")
         except SimulationError as error:  # the worker ended, hung or grew: nothing of this chunk came back
             return start, error
@@ -402,16 +408,11 @@ def _worker(
         conn.send(("ready", None))
         while True:
             message = conn.recv()
-            if message[0] == "run":
-                start, stop = message[1:]
-                done, error = loop.run(start, stop)
-                piece, at = loop.trace, loop.trace.rows(start, done)
-                recorded = None  # the first piece's are in shared memory (simulate allocates it with shared_full)
-                if piece is not trace:
-                    recorded = tuple(np.ascontiguousarray(a[at]) for a in (piece.q_m, piece.q_meas_m, piece.u_v))
-                logged = {key: np.ascontiguousarray(v[at]) for key, v in piece.controller_state.items()}
-                failure = None if error is None else (str(error), error.time_s, error.step)
-                conn.send(("chunk", (done, failure, recorded, logged)))
+            if message[0] == "run":  # [start, end) in chunks of ``size``, each handed over as it finishes
+                start, end, size = message[1:]
+                for first in range(start, end, size):
+                    if not _chunk(conn, loop, first, min(end, first + size), trace):
+                        break
             elif message[0] == "hold":
                 loop.hold(*((trace, rows) if len(message) == 1 else _piece(*message[1:])))
             else:
@@ -430,6 +431,20 @@ def _worker(
         code = 1
     finally:
         os._exit(code)
+
+
+def _chunk(conn: Connection, loop: ChunkLoop, start: int, stop: int, trace: Trace) -> bool:
+    """Run samples [start, stop) and hand them over: the rows recorded (none for the first piece ``trace``: in
+    shared memory, simulate allocates it with shared_full), the logged values, the failure; False if it failed."""
+    done, error = loop.run(start, stop)
+    piece, at = loop.trace, loop.trace.rows(start, done)
+    recorded = None
+    if piece is not trace:
+        recorded = tuple(np.ascontiguousarray(a[at]) for a in (piece.q_m, piece.q_meas_m, piece.u_v))
+    logged = {key: np.ascontiguousarray(v[at]) for key, v in piece.controller_state.items()}
+    failure = None if error is None else (str(error), error.time_s, error.step)
+    conn.send(("chunk", (done, failure, recorded, logged)))
+    return error is None
 
 
 def _become_worker(memory_limit_bytes: int, scratch: str, parent: int) -> None:
