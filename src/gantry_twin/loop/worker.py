@@ -146,7 +146,6 @@ class WorkerLoop:
         ours, theirs = socket.socketpair()
         try:
             isolation.progress[:] = (0.0, np.nan, 0.0)
-            gc.freeze()
             parent = os.getpid()
             self.pid = os.fork()
             if self.pid == 0:  # the worker: never returns
@@ -225,7 +224,6 @@ class WorkerLoop:
             self.conn.close()
             self.conn = None
         shutil.rmtree(self.scratch, ignore_errors=True)
-        gc.unfreeze()
 
     # -- watching ------------------------------------------------------------------------------------------------
 
