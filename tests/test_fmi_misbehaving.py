@@ -97,6 +97,48 @@ def _matches(documented_line: str, line: str, out: Path) -> bool:
     return re.fullmatch(pattern, line) is not None
 
 
+class _Chunks:
+    """An observer that keeps a copy of every chunk's positions, commands and logged values, as they come."""
+
+    def __init__(self) -> None:
+        self.q, self.u, self.logged = [], [], []
+
+    def on_start(self, run, trace):
+        pass
+
+    def on_chunk(self, trace, start, stop):
+        rows = trace.rows(start, stop)
+        self.q.append(trace.q_m[rows].copy())
+        self.u.append(trace.u_v[rows].copy())
+        self.logged.append(trace.controller_state["fmu_u_x_v"][rows].copy())
+
+    def on_end(self, trace):
+        pass
+
+
+def test_a_run_in_pieces_in_the_worker_is_the_run_in_process(misbehaving, tmp_path):
+    """Held in pieces (the first recorded in shared memory, the others handed over chunk by chunk) with a logged
+    variable: the observers see, chunk by chunk, what the same FMU run in this process gives, to the bit."""
+    fmu = _builder().build_fmu(tmp_path / "pd")
+    runs = []
+    for isolated in (True, False):
+        controller = fmu_controller(fmu, parameters=GAINS, log_variables=("u_x_v",))
+        assert controller.isolation is not None
+        if not isolated:
+            controller.isolation = None
+        chunks = _Chunks()
+        trace = simulate(
+            Plant(), circle(), TimingLaw(2.0, "on_path"), controller, 0.5, observers=[chunks], chunk_s=0.03, hold_s=0.2
+        )
+        runs.append((chunks, trace))
+    (worker, last_w), (here, last_h) = runs
+    assert len(worker.q) == len(here.q) >= 3 * 3  # three pieces of several chunks
+    for got, want in ((worker.q, here.q), (worker.u, here.u), (worker.logged, here.logged)):
+        assert np.array_equal(np.concatenate(got), np.concatenate(want))
+    assert np.array_equal(np.concatenate(worker.logged), np.concatenate(worker.u)[:, 0])  # the FMU's u_x_v
+    assert last_w.first == last_h.first > 0 and np.array_equal(last_w.q_m, last_h.q_m)
+
+
 def test_every_misbehaviour_is_documented():
     assert set(CASES) == {f"fmu_{kind}" for kind in KINDS}
 
