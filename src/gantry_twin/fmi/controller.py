@@ -35,9 +35,8 @@ from gantry_twin.controllers.base import (
 from gantry_twin.fmi.calls import FMI2_WARNING, do_step, get_real, set_real
 from gantry_twin.fmi.description import INPUT_SIGNALS, ControllerFmu, read_controller
 from gantry_twin.fmi.instance import Instance, trial_start
+from gantry_twin.loop.process import CALL_TIMEOUT_S, MEMORY_LIMIT_BYTES
 from gantry_twin.loop.worker import (
-    CALL_TIMEOUT_S,
-    MEMORY_LIMIT_BYTES,
     PROGRESS_CALL,
     PROGRESS_SAMPLES,
     PROGRESS_T_S,

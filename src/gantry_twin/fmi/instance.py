@@ -19,7 +19,7 @@ from typing import Any
 
 from gantry_twin.fmi.calls import FMI2_ERROR, FMI2_FATAL, status_name
 from gantry_twin.fmi.description import ControllerFmu, FmuError
-from gantry_twin.loop.worker import (
+from gantry_twin.loop.process import (
     CALL_TIMEOUT_S,
     MEMORY_LIMIT_BYTES,
     START_TIMEOUT_S,
@@ -140,7 +140,7 @@ def trial_start(
 ) -> None:
     """Unpack, load, instantiate and initialise the FMU at t = 0, then end it and remove its files: FmuError if
     any of it fails (a binary that does not load, an instantiation or initialisation that fails), before a run.
-    In a worker process (:func:`gantry_twin.loop.worker.call_in_worker`): an FMU that crashes, exits, hangs (past
+    In a worker process (:func:`gantry_twin.loop.process.call_in_worker`): an FMU that crashes, exits, hangs (past
     ``call_timeout_s`` or 60 s, the longer) or leaks there is refused the same way."""
     try:
         call_in_worker(lambda: Instance(fmu, 0.0).close(), max(call_timeout_s, START_TIMEOUT_S), memory_limit_bytes)

@@ -23,18 +23,12 @@ twice; the chunk kernel is loaded in the command's process before the fork (``Is
 from __future__ import annotations
 
 import contextlib
-import ctypes
-import faulthandler
-import gc
 import mmap
 import os
-import pickle
-import resource
 import select
 import shutil
 import signal
 import socket
-import tempfile
 import time
 from collections.abc import Callable
 from multiprocessing.connection import Connection
@@ -42,24 +36,22 @@ from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 
+from gantry_twin.loop.process import (
+    START_TIMEOUT_S,
+    WATCH_S,
+    become_worker,
+    how_it_ended,
+    resident_bytes,
+    scratch_directory,
+    sendable,
+)
 from gantry_twin.loop.trace import SimulationError, Trace
 
 #: The shared progress row a hosted controller's step writes (:func:`shared_progress`): the call it is in (an index
 #: into ``Isolation.calls``), the time s of the sample it is in, and how many samples it has started.
 PROGRESS_CALL, PROGRESS_T_S, PROGRESS_SAMPLES = 0, 1, 2
-#: How often the command's process looks at a worker that has not answered, s (the stop signals are seen at once).
-WATCH_S = 0.02
-#: The time limit of the controller's start in the worker (an FMU unpacked and instantiated), s, if longer than
-#: its call's limit.
-START_TIMEOUT_S = 60.0
 #: How often, at least, a worker that answers is asked its memory, s (one that does not: every WATCH_S).
 MEMORY_CHECK_S = 0.1
-#: Defaults of a hosted controller's limits: wall time per call, s; resident memory, bytes (docs/fmi.md).
-CALL_TIMEOUT_S = 10.0
-MEMORY_LIMIT_BYTES = 2048 << 20
-#: The signals the command turns into an exception; the worker ignores them (the command ends it).
-_STOP_SIGNALS = tuple(getattr(signal, n) for n in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, n))
-_PR_SET_PDEATHSIG = 1
 
 
 def shared_full(shape: tuple[int, ...], value: float) -> np.ndarray:
@@ -141,7 +133,7 @@ class WorkerLoop:
             warm()
         self.isolation, self.trace, self._first, self._layout = isolation, trace, (trace, rows), layout
         self.pid, self._streamed = 0, 0
-        self.scratch = tempfile.mkdtemp(prefix="gantry-twin-worker-")
+        self.scratch = scratch_directory()
         self._checked = 0.0
         ours, theirs = socket.socketpair()
         try:
@@ -262,7 +254,7 @@ class WorkerLoop:
 
     def _check_memory(self) -> None:
         self._checked = time.monotonic()
-        resident = _resident_bytes(self.pid)
+        resident = resident_bytes(self.pid)
         limit = self.isolation.memory_limit_bytes
         if resident > limit:
             self._fail(
@@ -275,7 +267,7 @@ class WorkerLoop:
         """The worker ended without answering: wait for it, and fail the run saying how."""
         pid, self.pid = self.pid, 0
         status = os.waitpid(pid, 0)[1] if pid > 0 else 0
-        self._fail(f"{_how_it_ended(status)} in ")
+        self._fail(f"{how_it_ended(status)} in ")
 
     def _fail(self, before: str, after: str = "") -> None:
         """Stop the worker and raise the run's error at the sample the controller was in: ``before``, the call it
@@ -297,95 +289,6 @@ class WorkerLoop:
             self.stop()
 
 
-def _how_it_ended(status: int) -> str:
-    """'its process was killed by SIGSEGV (Segmentation fault)', or 'its process exited with status 3'."""
-    if os.WIFSIGNALED(status):
-        number = os.WTERMSIG(status)
-        return f"its process was killed by {signal.Signals(number).name} ({signal.strsignal(number)})"
-    return f"its process exited with status {os.waitstatus_to_exitcode(status)}"
-
-
-class WorkerEnded(RuntimeError):
-    """A worker of :func:`call_in_worker` crashed, exited, hung past its limit or passed its memory limit."""
-
-
-def call_in_worker(function: Callable[[], Any], limit_s: float, memory_limit_bytes: int = MEMORY_LIMIT_BYTES) -> Any:
-    """``function()`` in a forked worker process, watched as a :class:`WorkerLoop` is: its value (it must pickle),
-    or its exception raised here; :class:`WorkerEnded` ("its process was killed by SIGSEGV (...)", "did not
-    return within S s", ...) if it crashes, exits, takes more than ``limit_s`` of wall time or passes
-    ``memory_limit_bytes`` resident. A stop signal here kills it at once. Run in this process where processes
-    cannot be forked."""
-    if not hasattr(os, "fork"):
-        return function()
-    scratch = tempfile.mkdtemp(prefix="gantry-twin-worker-")
-    ours, theirs = socket.socketpair()
-    pid = 0
-    try:
-        parent = os.getpid()
-        pid = os.fork()
-        if pid == 0:
-            code = 0
-            try:
-                ours.close()
-                _become_worker(memory_limit_bytes, scratch, parent)
-                theirs.sendall(pickle.dumps(("done", function())))
-            except BaseException as exc:  # noqa: BLE001 -- the worker's errors are the caller's to raise
-                with contextlib.suppress(BaseException):
-                    theirs.sendall(pickle.dumps(("raise", _sendable(exc))))
-                code = 1
-            finally:
-                os._exit(code)
-        theirs.close()
-        deadline = time.monotonic() + limit_s
-        answer = b""
-        while True:
-            ready = select.select([ours], [], [], WATCH_S)[0]
-            if ready:
-                data = ours.recv(1 << 16)
-                if data:
-                    answer += data
-                    continue
-                break  # the worker closed its end: done, or gone
-            if time.monotonic() > deadline:
-                raise WorkerEnded(f"did not return within {limit_s:g} s (its time limit); stopped")
-            if (resident := _resident_bytes(pid)) > memory_limit_bytes:
-                raise WorkerEnded(
-                    f"its process passed its memory limit of {memory_limit_bytes / 2**20:.0f} MiB "
-                    f"({resident / 2**20:.0f} MiB resident); stopped"
-                )
-        status = os.waitpid(pid, 0)[1]
-        pid = 0
-        if not answer:
-            raise WorkerEnded(_how_it_ended(status))
-        kind, value = pickle.loads(answer)
-        if kind == "raise":
-            raise value
-        return value
-    finally:
-        ours.close()
-        theirs.close()
-        if pid > 0:
-            with contextlib.suppress(ProcessLookupError):
-                os.kill(pid, signal.SIGKILL)
-            with contextlib.suppress(ChildProcessError):
-                os.waitpid(pid, 0)
-        shutil.rmtree(scratch, ignore_errors=True)
-
-
-def _resident_bytes(pid: int) -> int:
-    """The resident memory of process ``pid``, bytes (0 if it is gone)."""
-    try:
-        with open(f"/proc/{pid}/statm", "rb") as fh:
-            return int(fh.read().split()[1]) * mmap.PAGESIZE
-    except (OSError, IndexError, ValueError):
-        return 0
-
-
-def _address_space_bytes() -> int:
-    with open("/proc/self/statm", "rb") as fh:
-        return int(fh.read().split()[0]) * mmap.PAGESIZE
-
-
 # -- the worker ----------------------------------------------------------------------------------------------------
 
 
@@ -401,7 +304,7 @@ def _worker(
     """The worker process: reset, then chunks on request, then close; ends with os._exit, never returns."""
     code = 0
     try:
-        _become_worker(isolation.memory_limit_bytes, scratch, parent)
+        become_worker(isolation.memory_limit_bytes, scratch, parent)
         loop = make_loop()
         conn.send(("ready", None))
         while True:
@@ -425,7 +328,7 @@ def _worker(
         code = 1
     except BaseException as exc:  # noqa: BLE001 -- the worker's errors are the command's to raise
         with contextlib.suppress(BaseException):
-            conn.send(("raise", _sendable(exc)))
+            conn.send(("raise", sendable(exc)))
         code = 1
     finally:
         os._exit(code)
@@ -443,26 +346,6 @@ def _chunk(conn: Connection, loop: ChunkLoop, start: int, stop: int, trace: Trac
     failure = None if error is None else (str(error), error.time_s, error.step)
     conn.send(("chunk", (done, failure, recorded, logged)))
     return error is None
-
-
-def _become_worker(memory_limit_bytes: int, scratch: str, parent: int) -> None:
-    """Stop signals ignored (the command, ``parent``, ends the worker), ended with the command, no stack dump on a
-    crash (the command says what happened, in one line), temporary files in ``scratch``, address space bounded."""
-    gc.disable()
-    for number in _STOP_SIGNALS:
-        signal.signal(number, signal.SIG_IGN)
-    with contextlib.suppress(OSError, AttributeError):
-        ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
-    if os.getppid() != parent:  # the command ended before the death signal was asked for
-        os._exit(1)
-    faulthandler.disable()
-    tempfile.tempdir = scratch
-    os.environ["TMPDIR"] = scratch
-    limit = _address_space_bytes() + 2 * memory_limit_bytes
-    with contextlib.suppress(ValueError, OSError):
-        soft, hard = resource.getrlimit(resource.RLIMIT_AS)
-        if hard == resource.RLIM_INFINITY or hard > limit:
-            resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
 
 
 def _piece(first: int, t_s: np.ndarray, rows: np.ndarray, disturbance_v: np.ndarray, true_theta: np.ndarray):
@@ -484,13 +367,3 @@ def _piece(first: int, t_s: np.ndarray, rows: np.ndarray, disturbance_v: np.ndar
         first=first,
     )
     return piece, rows
-
-
-def _sendable(exc: BaseException) -> BaseException:
-    """``exc`` if it pickles whole (a ScenarioError, an FmuError), else a RuntimeError with its line."""
-    try:
-        pickle.loads(pickle.dumps(exc))
-        return exc
-    except Exception:  # noqa: BLE001 -- anything that does not survive the pipe
-        text = str(exc).splitlines()[0] if str(exc) else ""
-        return RuntimeError(f"{type(exc).__name__}: {text}" if text else type(exc).__name__)
