@@ -132,7 +132,7 @@ class WorkerLoop:
         if warm is not None:
             warm()
         self.isolation, self.trace, self._first, self._layout = isolation, trace, (trace, rows), layout
-        self.pid, self._streamed = 0, 0
+        self.pid, self._streamed, self._gone = 0, 0, None
         self.scratch = scratch_directory()
         self._checked = 0.0
         ours, theirs = socket.socketpair()
@@ -159,11 +159,16 @@ class WorkerLoop:
         self.trace = trace
         if self._layout:
             trace.allocate_log(self._layout)
-        if self._first is not None and trace is self._first[0]:
-            self._send(("hold",))
-        else:
-            self._send(("hold", trace.first, trace.t_s, rows, trace.disturbance_v, trace.true_theta))
+        message = (
+            ("hold",)
+            if self._first is not None and trace is self._first[0]
+            else ("hold", trace.first, trace.t_s, rows, trace.disturbance_v, trace.true_theta)
+        )
         self._first = None
+        try:
+            self._send(message)
+        except SimulationError as error:  # the worker is gone: the piece's first chunk says so
+            self._gone = error
 
     def run(self, start: int, stop: int) -> tuple[int, SimulationError | None]:
         """Samples [start, stop) in the worker; their rows copied into this trace (as :meth:`_Loop.run`).
@@ -171,6 +176,8 @@ class WorkerLoop:
         The first chunk of a piece asks the worker for the whole piece in chunks of this size: it runs ahead
         and hands each chunk over as it finishes (one message a chunk, none back), while this process shows the
         one before to the observers."""
+        if self._gone is not None:
+            return start, self._gone
         try:
             if start >= self._streamed:
                 self._streamed = self.trace.first + self.trace.t_s.size
