@@ -212,7 +212,7 @@ class _Unpacked:
         pass
 
     def on_chunk(self, trace, start, stop):
-        self.seen = max(self.seen, len(list(self.root.glob("gantry-twin-fmu-*"))))
+        self.seen = max(self.seen, len(list(self.root.glob("**/gantry-twin-fmu-*"))))  # in the worker's directory
 
     def on_end(self, trace):
         pass
@@ -252,10 +252,10 @@ def test_the_unpacked_fmu_is_removed_on_sigint(fmus, tmp_path):
         running = False  # the run's instance: a directory that stays (the build's trial start removes its own at once)
         while not running and time.monotonic() < deadline and child.poll() is None:
             time.sleep(0.5)
-            running = bool(list(root.glob("gantry-twin-fmu-*")))
+            running = bool(list(root.glob("**/gantry-twin-fmu-*")))  # the worker's own directory holds it
             if running:
                 time.sleep(1.0)
-                running = bool(list(root.glob("gantry-twin-fmu-*")))
+                running = bool(list(root.glob("**/gantry-twin-fmu-*")))
         assert running, "the FMU was never unpacked for the run"
         child.send_signal(signal.SIGINT)
         _, err = child.communicate(timeout=60)
@@ -359,6 +359,11 @@ def _make_case(case: str, directory: Path, build) -> str:
     elif case == "fmu_terminate_fails":
         members["binaries/linux64/pd.so"] = zipfile.ZipFile(
             build(directory / "terminate", defines=("TERMINATE_STATUS=fmi2Error",))
+        ).read("binaries/linux64/pd.so")
+    elif case in ("fmu_segfault_on_start", "fmu_exit_on_start"):  # pd.c's MISBEHAVE: 1 a null write, 3 exit(3)
+        kind = "1" if case == "fmu_segfault_on_start" else "3"
+        members["binaries/linux64/pd.so"] = zipfile.ZipFile(
+            build(directory / "start", defines=("MISBEHAVE_ON_START=1", f"MISBEHAVE={kind}"))
         ).read("binaries/linux64/pd.so")
     elif case == "fmu_mapped_variable_missing":
         options += ", variables: {pos_x: x_m}"

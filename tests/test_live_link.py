@@ -671,19 +671,68 @@ def test_an_operator_stops_and_starts_the_twin_and_nobody_else_can(tmp_path):
     assert stopped.failure.time_s < 3.0 and second.status == "ok" and second.duration_s == 3.0
 
 
-def test_sigterm_stops_serve_as_it_stops_run(tmp_path):
-    """The sessions are closed and the process ends; the interrupted pass leaves what `run` leaves (nothing)."""
+@pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGTERM], ids=["sigint", "sigterm"])
+def test_a_stopped_serve_keeps_what_it_served(tmp_path, stop):
+    """``serve --loop`` stopped by SIGINT or SIGTERM 20 s (simulated) into a pass: exit 130 / 143, the sessions
+    closed, and the pass's directory kept with summary.json ``status: stopped`` and a trace that holds at least every
+    sample a subscriber had received (docs/live-link.md)."""
+    import asyncio
+    import threading
+
+    from gantry_twin.link.blocks import decode
+    from gantry_twin.link.client import asyncua_client
+
     out = tmp_path / "run"
-    serve, endpoint = _start_serve(tmp_path, "no_load_circle", "--set", "duration_s=30", "--out", str(out))
+    serve, endpoint = _start_serve(
+        tmp_path,
+        "no_load_circle",
+        *("--set", "duration_s=30", "--loop", "--realtime", "8", "--wait-subscribers", "1", "--out", str(out)),
+    )
+    received: list[int] = []  # the end index of each block received
+    quit_ = threading.Event()
+
+    class Blocks:
+        def datachange_notification(self, node, value, data):
+            if (block := decode(value)) is not None:
+                received.append(block.first_index + block.samples)
+
+    async def subscribe():
+        client = asyncua_client(endpoint, 10.0)
+        await client.connect()
+        ns = await client.get_namespace_index("urn:gantry-twin:opcua")
+        sub = await client.create_subscription(50, Blocks())
+        await sub.subscribe_data_change([client.get_node(f"ns={ns};s=GantryTwin.SampleBlock")], queuesize=1000)
+        while not quit_.is_set():
+            await asyncio.sleep(0.05)
+        with contextlib.suppress(Exception):
+            await client.disconnect()
+
+    subscriber = threading.Thread(target=asyncio.run, args=(subscribe(),), daemon=True)
+    subscriber.start()
     try:
-        time.sleep(1.5)  # into the pass (real time)
-        serve.send_signal(signal.SIGTERM)
+        deadline = time.monotonic() + WAIT_S
+        while (max(received, default=0) < 100_000) and time.monotonic() < deadline and serve.poll() is None:
+            time.sleep(0.05)  # 20 s of the pass (at 8 times real time) reached the subscriber
+        assert max(received, default=0) >= 100_000, serve.stderr.read() if serve.poll() is not None else ""
+        serve.send_signal(stop)
         serve.wait(60)
+        had = max(received)
     finally:
+        quit_.set()
         _stop(serve)
+        subscriber.join(30)
     err = serve.stderr.read().strip().splitlines()
-    assert serve.returncode == 128 + signal.SIGTERM and err[-1] == "gantry-twin: interrupted (SIGTERM)", err
-    assert not out.exists() and sorted(p.name for p in tmp_path.iterdir()) == []
+    assert serve.returncode == 128 + stop and err[-1] == f"gantry-twin: interrupted ({stop.name})", err
+    passes = sorted(out.iterdir())
+    assert [p.name for p in passes] == ["pass-0001"]
+    summary = RunSummary.read(passes[0] / "summary.json")
+    rows = pq.read_metadata(passes[0] / "trace.parquet").num_rows
+    assert summary.status == "stopped" and summary.failed and summary.steps == rows
+    assert summary.failure.error.startswith(f"stopped by {stop.name} at t = ")
+    assert rows >= had >= 100_000 and rows < 150_000  # at least what was served; 30 s is 150 000
+    t = pq.read_table(passes[0] / "trace.parquet").column("t_s").to_numpy()
+    assert np.all(np.diff(t) > 0) and t[0] == 0.0
+    assert not list(passes[0].glob(".*.part"))
 
 
 def test_shadow_reads_scalar_values_a_sample_per_source_time(tmp_path, capsys):

@@ -12,10 +12,37 @@ enum { X_M, Y_M, DX_M_S, DY_M_S, X_D_M, Y_D_M, DX_D_M_S, DY_D_M_S, DDX_D_M_S2, D
 static const double START[N_VARS] = {[KP_X] = 1e4, [KP_Y] = 1e4, [KD_X] = 100, [KD_Y] = 100,
                                      [KV_X] = 0.5, [KV_Y] = 0.7, [KA_X] = 0.12, [KA_Y] = 0.5};
 
+#if defined(MISBEHAVE_AT_S) || defined(MISBEHAVE_ON_START) /* the tests' misbehaving controllers (docs/fmi.md):
+   doStep from MISBEHAVE_AT_S on, or fmi2Instantiate */
+#include <string.h>
+#define SEGFAULT 1 /* MISBEHAVE: what doStep does */
+#define ABORT 2
+#define EXIT 3
+#define ENDLESS 4
+#define LEAK 5
+static void *volatile leaked;
+static void misbehave(void) {
+#if MISBEHAVE == SEGFAULT
+    *(volatile int *)0 = 1;
+#elif MISBEHAVE == ABORT
+    abort();
+#elif MISBEHAVE == EXIT
+    exit(3);
+#elif MISBEHAVE == ENDLESS
+    for (volatile int spin = 1; spin;) {}
+#elif MISBEHAVE == LEAK /* 1 MiB a step, written and never freed */
+    leaked = memset(malloc(1 << 20), 1, 1 << 20);
+#endif
+}
+#endif
+
 fmi2Status fmi2DoStep(fmi2Component c, fmi2Real t, fmi2Real h, fmi2Boolean noSetPrior) {
     double *v = c;
 #ifdef FAIL_AT_S /* the tests' failing controller: doStep returns FAIL_STATUS from FAIL_AT_S on */
     if (t >= FAIL_AT_S) return FAIL_STATUS;
+#endif
+#ifdef MISBEHAVE_AT_S
+    if (t >= MISBEHAVE_AT_S) misbehave();
 #endif
     for (int i = 0; i < 2; i++) {
         double e = v[X_M + i] - v[X_D_M + i], de = v[DX_M_S + i] - v[DX_D_M_S + i];
@@ -33,6 +60,9 @@ fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t n,
 }
 fmi2Component fmi2Instantiate(fmi2String name, fmi2Type type, fmi2String guid, fmi2String resources,
                               const fmi2CallbackFunctions *functions, fmi2Boolean visible, fmi2Boolean loggingOn) {
+#ifdef MISBEHAVE_ON_START
+    misbehave();
+#endif
     double *v = calloc(N_VARS, sizeof(double));
     for (int i = 0; v && i < N_VARS; i++) v[i] = START[i];
     return v;

@@ -190,7 +190,11 @@ class RunWriter:
         return [SwallowedInterrupt(), self.metrics, self.travel, *extra]
 
     def run(
-        self, observers: Sequence[Observer] = (), hold_s: float | None = HOLD_S, chunk_s: float | None = None
+        self,
+        observers: Sequence[Observer] = (),
+        hold_s: float | None = HOLD_S,
+        chunk_s: float | None = None,
+        keep_stopped: bool = False,
     ) -> RunOutcome:
         """Simulate the scenario holding ``hold_s`` of it in memory, writing it as it goes, and :meth:`finish`.
         ``chunk_s``: simulated seconds between two calls of the observers (None: the loop's default).
@@ -198,14 +202,23 @@ class RunWriter:
         A run stopped by a :class:`SimulationError` is written too (the trace
         up to the fault, ``status: failed``); any other error, or an
         interrupt, is raised (and the ``with`` block leaves nothing of the run).
+        ``keep_stopped``: an interrupt (a stop signal) is raised only after the run is written as it stands, the
+        trace up to the last chunk the observers saw and ``status: stopped`` (``serve``: what was served).
         """
         started = time.perf_counter()
         failure, fault = None, None
+        seen = _LastChunk()
         try:
-            trace: Trace | None = _simulate(self.built, [*self.observers(), *observers], hold_s, chunk_s)
+            trace: Trace | None = _simulate(self.built, [*self.observers(), *observers, seen], hold_s, chunk_s)
         except SimulationError as error:
             trace, fault = error.trace, error
             failure = Failure(error.time_s, error.step, f"{type(error).__name__}: {error}")
+        except KeyboardInterrupt as interrupt:
+            if not keep_stopped or seen.trace is None:
+                self.discard()
+                raise
+            self._write_stopped(seen, interrupt, time.perf_counter() - started)
+            raise
         except BaseException:
             self.discard()
             raise
@@ -213,6 +226,17 @@ class RunWriter:
         compile_s = sum(getattr(observer, "compile_s", 0.0) for observer in observers)
         wall_time_s = time.perf_counter() - started - compile_s
         return self.finish(trace, wall_time_s, failure, compile_s)._replace(error=fault)
+
+    def _write_stopped(self, seen: _LastChunk, interrupt: KeyboardInterrupt, wall_time_s: float) -> None:
+        """The run as far as its observers saw it, ``status: stopped`` (the interrupt's signal named)."""
+        trace = seen.trace
+        trace.filled = seen.stop  # what every observer saw (a chunk recorded after it was not handed over)
+        for observer in self.observers():
+            if not isinstance(observer, SwallowedInterrupt):  # the interrupt is being handled
+                observer.on_end(trace)
+        t_s = seen.stop * trace.sample_period_s
+        what = f"stopped by {interrupt.args[0] if interrupt.args else 'SIGINT'} at t = {t_s:.4f} s (step {seen.stop})"
+        self.finish(trace, wall_time_s, Failure(t_s, seen.stop, what, stopped=True))
 
     def finish(
         self, trace: Trace | None, wall_time_s: float, failure: Failure | None = None, compile_s: float = 0.0
@@ -291,6 +315,23 @@ class RunWriter:
     def __exit__(self, exc_type, exc, tb) -> None:
         if exc_type is not None:
             self.discard()
+
+
+class _LastChunk:
+    """The last chunk every other observer has seen (an Observer, the last of a run's): its trace and end."""
+
+    def __init__(self) -> None:
+        self.trace: Trace | None = None
+        self.stop = 0
+
+    def on_start(self, run: object, trace: Trace) -> None:
+        self.trace, self.stop = trace, trace.first
+
+    def on_chunk(self, trace: Trace, start: int, stop: int) -> None:
+        self.trace, self.stop = trace, stop
+
+    def on_end(self, trace: Trace) -> None:
+        pass
 
 
 def run_and_write(

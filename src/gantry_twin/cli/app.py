@@ -143,6 +143,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_strict(run)
     program_command.add_arguments(run)
     fmu_command.add_log_argument(run)
+    fmu_command.add_limit_arguments(run)
     add_progress_arguments(run)
     add_telemetry_arguments(run)
 
@@ -164,6 +165,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     _add_strict(monitor)
     fmu_command.add_log_argument(monitor)
+    fmu_command.add_limit_arguments(monitor)
     add_progress_arguments(monitor)
     add_telemetry_arguments(monitor)
     shadow_command.add_arguments(monitor)
@@ -429,6 +431,7 @@ def _run(args: argparse.Namespace) -> int:
     scenario = fmu_command.with_logged_variables(
         load_scenario(path, overrides, args.controller), args.log_fmu_variables
     )
+    scenario = fmu_command.with_limits(scenario, args.fmu_timeout, args.fmu_memory)
     linuxcnc_command.announce(scenario, progress_wanted(args))
     try:
         built = build(scenario, str(path))

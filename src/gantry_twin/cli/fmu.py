@@ -53,6 +53,58 @@ def add_log_argument(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def add_limit_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--fmu-timeout S`` and ``--fmu-memory MIB``: a controller FMU's limits (``run``, ``monitor``)."""
+    from gantry_twin.fmi.controller import LIMITS
+
+    low, high = LIMITS["call_timeout_s"]
+    parser.add_argument(
+        "--fmu-timeout",
+        metavar="S",
+        type=_number_in(low, high, "s"),
+        help=f"wall time a controller FMU's calls of one sample may take before the run fails ({low:g} to "
+        f"{high:g} s; default 10; controller.options.call_timeout_s)",
+    )
+    low, high = LIMITS["memory_limit_mb"]
+    parser.add_argument(
+        "--fmu-memory",
+        metavar="MIB",
+        type=_number_in(low, high, "MiB"),
+        help=f"resident memory of the process hosting a controller FMU before the run fails ({low:.10g} to {high:.10g} "
+        "MiB; default 2048; controller.options.memory_limit_mb)",
+    )
+
+
+def _number_in(low: float, high: float, unit: str):  # noqa: ANN202 -- an argparse type
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number of {unit}, got {text!r}") from None
+        if not low <= value <= high:
+            raise argparse.ArgumentTypeError(f"must be in [{low:.10g}, {high:.10g}] {unit}, got {text}")
+        return value
+
+    return parse
+
+
+def with_limits(scenario: Scenario, timeout_s: float | None, memory_mib: float | None) -> Scenario:
+    """The scenario with ``--fmu-timeout`` and ``--fmu-memory`` in its FMU controller's options; BadInput if one is
+    given and its controller is not ``fmu``."""
+    given = {"call_timeout_s": timeout_s, "memory_limit_mb": memory_mib}
+    given = {name: value for name, value in given.items() if value is not None}
+    if not given:
+        return scenario
+    controller = scenario.controller
+    if controller.name != "fmu":
+        flags = " and ".join(
+            f for f, v in (("--fmu-timeout", timeout_s), ("--fmu-memory", memory_mib)) if v is not None
+        )
+        raise BadInput(f"{flags}: the controller is {controller.name}, not fmu (docs/fmi.md)")
+    options = {**controller.options, **given}
+    return scenario.model_copy(update={"controller": controller.model_copy(update={"options": options})})
+
+
 def _names(text: str) -> tuple[str, ...]:
     names = tuple(n.strip() for n in text.split(",") if n.strip())
     if not names:

@@ -123,7 +123,8 @@ def command(args: argparse.Namespace) -> int:
                 pace = 0.0 if math.isinf(args.realtime) else args.realtime
                 link = LinkObserver(server, index, offset_s, _describe(scenario), pace)
                 pacer = [] if math.isinf(args.realtime) else [RealtimePacer(args.realtime)]
-                outcome = writer.run([link, *pacer], chunk_s=SERVE_CHUNK_S if pacer else None)
+                # Ctrl-C or SIGTERM keeps the pass as served so far (status: stopped), then stops serve
+                outcome = writer.run([link, *pacer], chunk_s=SERVE_CHUNK_S if pacer else None, keep_stopped=True)
             index, offset_s = link.end_index, offset_s + (link.end_index - link.first_index) * built.plant.timestep_s
             hand_over_s += link.cpu_s
             if args.out is None:

@@ -30,19 +30,37 @@ from gantry_twin.controllers.base import (
     Measurement,
     ReferenceSample,
     RunContext,
+    compiled_step_of,
 )
 from gantry_twin.fmi.calls import FMI2_WARNING, do_step, get_real, set_real
 from gantry_twin.fmi.description import INPUT_SIGNALS, ControllerFmu, read_controller
 from gantry_twin.fmi.instance import Instance, trial_start
+from gantry_twin.loop.process import CALL_TIMEOUT_S, MEMORY_LIMIT_BYTES
+from gantry_twin.loop.worker import (
+    PROGRESS_CALL,
+    PROGRESS_SAMPLES,
+    PROGRESS_T_S,
+    Isolation,
+    shared_progress,
+)
 from gantry_twin.numerics.jit import kernel
 from gantry_twin.numerics.jit import reference as uncompiled
 
 #: A logged FMU variable's key in the trace (and its trace.parquet column): ``fmu_<name>``, apart from the
 #: trace's own columns (an FMU's ``u_x_v`` is ``fmu_u_x_v``).
 LOG_PREFIX = "fmu_"
-#: Which call failed (FmuState.failed[1]).
-CALLS = ("", "fmi2SetReal", "fmi2DoStep", "fmi2GetReal")
-CALL_SET_REAL, CALL_DO_STEP, CALL_GET_REAL = 1, 2, 3
+#: Which call failed (FmuState.failed[1]), and which the FMU is in (its progress row, gantry_twin.loop.worker).
+CALLS = (
+    "",
+    "fmi2SetReal",
+    "fmi2DoStep",
+    "fmi2GetReal",
+    "its start (fmi2Instantiate to initialisation)",
+    "fmi2Terminate",
+)
+CALL_SET_REAL, CALL_DO_STEP, CALL_GET_REAL, CALL_START, CALL_TERMINATE = 1, 2, 3, 4, 5
+#: The allowed range of each limit option: call_timeout_s (s), memory_limit_mb (MiB).
+LIMITS = {"call_timeout_s": (0.01, 86400.0), "memory_limit_mb": (64.0, 1048576.0)}
 
 
 class FmuParams(NamedTuple):
@@ -63,11 +81,20 @@ class FmuParams(NamedTuple):
 
 class FmuState(NamedTuple):
     """signals (11,): the sample's signal row; inputs (n,): the bound inputs' values; failed (2,) int64: the status
-    of the call that failed and which (:data:`CALLS`), zeros while none has."""
+    of the call that failed and which (:data:`CALLS`), zeros while none has; progress (3,): the call the FMU is in,
+    the sample's time s and the samples started (:func:`gantry_twin.loop.worker.shared_progress`, shared with the
+    process that watches the loop's worker)."""
 
     signals: np.ndarray
     inputs: np.ndarray
     failed: np.ndarray
+    progress: np.ndarray
+
+
+@kernel(inline=True, internal=True, nrt=False)
+def _entering(state, call):
+    """The FMU is entering ``call`` (:data:`CALLS`): written where the watching process reads it."""
+    state.progress[PROGRESS_CALL] = call
 
 
 @kernel(inline=True, internal=True, nrt=False)
@@ -84,6 +111,8 @@ def fmu_step(params, state, t_s, q_m, dq_m_s, ref, u_v):
     """Set the bound inputs, fmi2DoStep(t_s, Ts), read u_x_v, u_y_v into u_v (2,) volts; NaN if a call failed."""
     s = state.signals
     s[0] = t_s
+    state.progress[PROGRESS_T_S] = t_s
+    state.progress[PROGRESS_SAMPLES] += 1.0
     for i in range(2):
         s[1 + i] = q_m[i]
         s[3 + i] = dq_m_s[i]
@@ -94,14 +123,17 @@ def fmu_step(params, state, t_s, q_m, dq_m_s, ref, u_v):
     for j in range(n):
         state.inputs[j] = s[params.input_signal[j]]
     if n > 0:
+        _entering(state, CALL_SET_REAL)
         status = set_real(params.set_real, params.component, params.input_vr, n, state.inputs)
         if status > FMI2_WARNING:
             _fail(state, CALL_SET_REAL, status, u_v)
             return
+    _entering(state, CALL_DO_STEP)
     status = do_step(params.do_step, params.component, t_s, params.step_s)
     if status > FMI2_WARNING:
         _fail(state, CALL_DO_STEP, status, u_v)
         return
+    _entering(state, CALL_GET_REAL)
     status = get_real(params.get_real, params.component, params.output_vr, 2, u_v)
     if status > FMI2_WARNING:
         _fail(state, CALL_GET_REAL, status, u_v)
@@ -112,6 +144,7 @@ def fmu_log(params, state, out):
     """The logged variables' values after the sample's step into ``out`` (NaN if fmi2GetReal fails)."""
     m = params.log_vr.shape[0]
     if m > 0:
+        _entering(state, CALL_GET_REAL)
         status = get_real(params.get_real, params.component, params.log_vr, m, out)
         if status > FMI2_WARNING:
             for i in range(m):
@@ -121,19 +154,54 @@ def fmu_log(params, state, out):
 class FmuStep:
     """A controller FMU through the plug-in protocol, on the Python loop (:func:`fmu_step` uncompiled).
 
+    Its ``isolation`` asks the loop to run it in a worker process (:mod:`gantry_twin.loop.worker`): a crash, an
+    ``exit``, a call that exceeds ``call_timeout_s`` s or a worker past ``memory_limit_bytes`` of resident memory
+    ends the run as failed, the trace up to the last finished chunk kept (docs/fmi.md).
+
     The FMU is read and checked when made (:func:`gantry_twin.fmi.description.read_controller`), unpacked and
     instantiated by :meth:`reset`, ended by :meth:`close`.
     """
 
-    def __init__(self, fmu: ControllerFmu) -> None:
+    def __init__(
+        self, fmu: ControllerFmu, call_timeout_s: float = CALL_TIMEOUT_S, memory_limit_bytes: int = MEMORY_LIMIT_BYTES
+    ) -> None:
         self.fmu = fmu
         self.instance: Instance | None = None
         self._params: FmuParams | None = None
-        self._state = FmuState(np.zeros(len(INPUT_SIGNALS)), np.zeros(len(fmu.inputs)), np.zeros(2, dtype=np.int64))
+        self._progress = shared_progress()
+        self._state = self._fresh_state()
+        #: The run goes in a worker process that the command's watches (gantry_twin.loop.worker; docs/fmi.md).
+        self.isolation = Isolation(
+            fmu.path.name, call_timeout_s, memory_limit_bytes, self._progress, CALLS, self._placeholders()
+        )
+
+    def __setstate__(self, state: dict) -> None:
+        """A copy (pickled, deep-copied) gets a progress row of its own in shared memory: a copied array would be
+        private, and the process watching the loop's worker would not see the worker's progress."""
+        self.__dict__.update(state)
+        self._progress = shared_progress()
+        self._state = self._state._replace(progress=self._progress)
+        placeholders = self._placeholders()
+        self.isolation = self.isolation._replace(progress=self._progress, placeholders=placeholders)
+
+    def _fresh_state(self) -> FmuState:
+        f = self.fmu
+        return FmuState(
+            np.zeros(len(INPUT_SIGNALS)), np.zeros(len(f.inputs)), np.zeros(2, dtype=np.int64), self._progress
+        )
+
+    def _placeholders(self) -> tuple[FmuParams, FmuState] | None:
+        """(params, state) of the compiled step's types, no FMU behind them: the chunk kernel is loaded with them
+        before the worker starts (on an empty chunk, which calls nothing)."""
+        if compiled_step_of(self) is None:
+            return None
+        none = np.zeros(0, dtype=np.uint32)
+        return FmuParams(0, 0, 0, 0, none, np.zeros(0, dtype=np.int64), none, none, 0.0), self._fresh_state()
 
     def reset(self, context: RunContext) -> None:
         """A fresh instance at the first measurement's time, the communication step the sample period."""
         self.close()
+        self._progress[PROGRESS_CALL] = CALL_START
         self.instance = Instance(self.fmu, float(context.initial_measurement.t_s))
         f = self.fmu
         self._params = FmuParams(
@@ -144,7 +212,7 @@ class FmuStep:
             np.array([v.value_reference for v in f.logged], dtype=np.uint32),
             float(context.sample_period_s),
         )
-        self._state = FmuState(np.zeros(len(INPUT_SIGNALS)), np.zeros(len(f.inputs)), np.zeros(2, dtype=np.int64))
+        self._state = self._fresh_state()
 
     def kernel_arguments(self) -> tuple[FmuParams, FmuState]:
         """(params, state) of :func:`fmu_step` (after :meth:`reset`)."""
@@ -187,6 +255,7 @@ class FmuStep:
         instance, self.instance = self.instance, None
         self._params = None
         if instance is not None:
+            self._progress[PROGRESS_CALL] = CALL_TERMINATE
             instance.failed_status = max(instance.failed_status, int(self._state.failed[0]))  # what FMI then forbids
             instance.close()
 
@@ -220,21 +289,30 @@ def fmu_controller(
     variables: dict[str, str] | None = None,
     parameters: dict[str, float] | None = None,
     log_variables: tuple[str, ...] = (),
+    call_timeout_s: float = CALL_TIMEOUT_S,
+    memory_limit_mb: float = MEMORY_LIMIT_BYTES / 2**20,
 ) -> Controller:
     """The controller of a co-simulation FMU (the factory of ``controller: {name: fmu}``; docs/fmi.md).
 
     fmu: the .fmu file (a scenario's is relative to the scenario file). variables: {FMU variable: signal} for
     variables not named as the convention's signals. parameters: {FMU parameter: value}, set before
     initialisation. log_variables: FMU variables recorded every sample into the trace, as a plug-in's state.
-    FmuError (a ValueError) naming the file if the FMU cannot run: checked, then started once and ended.
+    call_timeout_s: wall time a sample's FMU calls may take, s (then the run fails, naming the call);
+    memory_limit_mb: resident memory of the process that hosts the FMU, MiB (then the run fails); both in
+    :data:`LIMITS`. FmuError (a ValueError) naming the file if the FMU cannot run: checked, then started once and ended.
     """
     if fmu is None:
         raise ValueError("no FMU: give controller.options.fmu, the .fmu file (docs/fmi.md)")
+    for name, value in (("call_timeout_s", call_timeout_s), ("memory_limit_mb", memory_limit_mb)):
+        low, high = LIMITS[name]
+        if isinstance(value, bool) or not isinstance(value, int | float) or not low <= value <= high:
+            raise ValueError(f"controller.options.{name}: must be a number in [{low:.10g}, {high:.10g}], got {value!r}")
     checked = read_controller(fmu, variables, parameters, tuple(log_variables))
-    trial_start(checked)  # a binary that does not load is bad input too: refused before the run, as the rest
+    limits = (float(call_timeout_s), int(memory_limit_mb * 2**20))
+    trial_start(checked, *limits)  # a binary that does not load is bad input too: refused before the run
     if checked.needs_python:
-        return PythonFmuController(checked)
+        return PythonFmuController(checked, *limits)
     cls = (
         _with_log_layout(tuple((LOG_PREFIX + v.name, ()) for v in checked.logged)) if checked.logged else FmuController
     )
-    return cls(checked)
+    return cls(checked, *limits)

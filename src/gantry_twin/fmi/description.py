@@ -58,6 +58,9 @@ class FmuError(ValueError):
         super().__init__(f"{Path(path).name}: {what}")
         self.path, self.what = str(path), what
 
+    def __reduce__(self) -> tuple:  # pickled whole: raised again in the process that watches a worker
+        return (type(self), (self.path, self.what))
+
 
 def this_platform() -> tuple[str, str]:
     """fmpy's name of this platform (``linux64``) and its shared library suffix (``.so``)."""

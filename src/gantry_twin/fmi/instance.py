@@ -19,6 +19,13 @@ from typing import Any
 
 from gantry_twin.fmi.calls import FMI2_ERROR, FMI2_FATAL, status_name
 from gantry_twin.fmi.description import ControllerFmu, FmuError
+from gantry_twin.loop.process import (
+    CALL_TIMEOUT_S,
+    MEMORY_LIMIT_BYTES,
+    START_TIMEOUT_S,
+    WorkerEnded,
+    call_in_worker,
+)
 from gantry_twin.settings import shorten
 
 #: How many of the FMU's log messages are kept for an error message.
@@ -65,7 +72,7 @@ class Instance:
                 instanceName="controller",
             )
         except Exception as exc:  # a library that does not load, or lacks an FMI function
-            why = _first_line(exc).replace(f"{Path(self.directory).resolve()}/", "").replace(f"{self.directory}/", "")
+            why = _first_line(exc, unpacked=self.directory)
             raise FmuError(fmu.path, f"its binary cannot be loaded ({shorten(why.split('. ')[-1], 70)})") from None
         self.callbacks = fmi2CallbackFunctions()
         self.callbacks.logger = fmi2CallbackLoggerTYPE(self._log)
@@ -128,12 +135,25 @@ class Instance:
             raise FmuError(self.fmu.path, problem)
 
 
-def trial_start(fmu: ControllerFmu) -> None:
+def trial_start(
+    fmu: ControllerFmu, call_timeout_s: float = CALL_TIMEOUT_S, memory_limit_bytes: int = MEMORY_LIMIT_BYTES
+) -> None:
     """Unpack, load, instantiate and initialise the FMU at t = 0, then end it and remove its files: FmuError if
-    any of it fails (a binary that does not load, an instantiation or initialisation that fails), before a run."""
-    Instance(fmu, 0.0).close()
+    any of it fails (a binary that does not load, an instantiation or initialisation that fails), before a run.
+    In a worker process (:func:`gantry_twin.loop.process.call_in_worker`): an FMU that crashes, exits, hangs (past
+    ``call_timeout_s`` or 60 s, the longer) or leaks there is refused the same way."""
+    try:
+        call_in_worker(lambda: Instance(fmu, 0.0).close(), max(call_timeout_s, START_TIMEOUT_S), memory_limit_bytes)
+    except WorkerEnded as exc:
+        raise FmuError(fmu.path, f"its trial start (fmi2Instantiate to fmi2Terminate): {exc}") from None
 
 
-def _first_line(exc: BaseException) -> str:
+def _first_line(exc: BaseException, unpacked: str | None = None) -> str:
+    """The exception's first line, the ``unpacked`` directory's path taken out of it, shortened."""
     text = str(exc).strip()
-    return shorten(text.splitlines()[0], 160) if text else type(exc).__name__
+    if not text:
+        return type(exc).__name__
+    line = text.splitlines()[0]
+    if unpacked is not None:
+        line = line.replace(f"{Path(unpacked).resolve()}/", "").replace(f"{unpacked}/", "")
+    return shorten(line, 160)

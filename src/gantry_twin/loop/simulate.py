@@ -66,6 +66,7 @@ from gantry_twin.loop.sample import (
     run_chunk,
 )
 from gantry_twin.loop.trace import Observer, RunInfo, SimulationError, Trace
+from gantry_twin.loop.worker import WorkerLoop, isolation_of, shared_full
 from gantry_twin.numerics.jit import is_cached, specialise
 from gantry_twin.numerics.jit import reference as uncompiled
 from gantry_twin.paths.contours import Contour, Reference, ReferenceStream, TimingLaw, contour_error
@@ -195,7 +196,9 @@ def simulate(
             dist = np.zeros((t.size, 2)) if disturbance is None else np.asarray(disturbance(t), dtype=float)
             if dist.shape != (t.size, 2):
                 raise ValueError(f"disturbance must give shape ({t.size}, 2) volts, got {dist.shape}")
-            trace = Trace.allocate(ref, np.ascontiguousarray(dist), true_theta, first, ts)
+            # A worker's first piece is recorded in memory it shares with this process: no copy of it comes back.
+            full = shared_full if loop is None and isolation_of(controller) is not None else np.full
+            trace = Trace.allocate(ref, np.ascontiguousarray(dist), true_theta, first, ts, full)
             if moving:
                 trace.true_theta_t = _as_before(model, saved, changes.true_parameters_over_time, plant, t, operating)
                 if first == 0:
@@ -209,8 +212,13 @@ def simulate(
                 info = RunInfo(plant, path, timing, ref if piece == n else None, duration_s, name, n)
                 for observer in observers:
                     observer.on_start(info, trace)
-                loop = _Loop(plant, encoder, controller, trace, schedule, compiled_step if compiled else None)
-            loop.hold(trace, np.ascontiguousarray(ref.packed()))
+                rows = np.ascontiguousarray(ref.packed())
+                loop = _make_loop(
+                    plant, encoder, controller, trace, rows, schedule, compiled_step if compiled else None
+                )
+            else:
+                rows = np.ascontiguousarray(ref.packed())
+            loop.hold(trace, rows)
             for start in range(first, first + t.size, chunk):
                 stop, error = loop.run(start, min(first + t.size, start + chunk))
                 if stop > start:
@@ -226,18 +234,67 @@ def simulate(
             observer.on_end(trace)
     except BaseException:
         _restore(model, saved)
-        _close(controller, None)  # the run's own error (or the interrupt) is what is raised
+        if isinstance(loop, WorkerLoop):
+            loop.stop()  # the worker, and what the controller holds in it, gone at once
+        _close(controller if loop is None else loop, None)  # the run's own error (or the interrupt) is what is raised
         raise
     _restore(model, saved)
-    _close(controller, trace)
+    _close(loop, trace)
     return trace
 
 
-def _close(controller: Controller, trace: Trace | None) -> None:
-    """The controller's optional ``close()`` (it releases what ``reset`` took: an FMU's instance, its files).
-    After a run that went well (``trace``) an exception from it fails the run at its last sample; after a run
-    that failed, the run's own error stands."""
-    close = getattr(controller, "close", None)
+def _make_loop(
+    plant: Plant,
+    encoder: Encoder,
+    controller: Controller,
+    trace: Trace,
+    rows: np.ndarray,
+    changes: ChangeSchedule,
+    compiled: CompiledStep | None,
+) -> _Loop | WorkerLoop:
+    """The run's loop: in this process, or in a worker process when the controller hosts foreign code
+    (:mod:`gantry_twin.loop.worker`; the chunk kernel loaded here first, on an empty chunk)."""
+    isolation = isolation_of(controller)
+    if isolation is None:
+        return _Loop(plant, encoder, controller, trace, changes, compiled)
+
+    def warm() -> None:
+        if compiled is None or isolation.placeholders is None:
+            return
+        function = _chunk_for(compiled)
+        if getattr(function, "signatures", None):
+            return  # loaded already (one signature serves every FMU: the addresses are arguments)
+        recording = Recording(
+            trace.first,
+            trace.t_s,
+            rows,
+            trace.disturbance_v,
+            trace.q_m,
+            trace.q_meas_m,
+            trace.u_v,
+            np.zeros(0),
+            np.zeros(0, dtype=np.int64),
+        )
+        sample = SampleWork(*(np.zeros(2) for _ in range(5)), np.zeros(compiled.log_size))
+        arguments = (plant_io(plant), encoder.state, recording, sample, changes, *isolation.placeholders)
+        try:
+            function(0, 0, *arguments)
+        except Exception as exc:
+            if not needs_reference_counting(exc):
+                raise
+            chunk_kernel(compiled, nrt=True)(0, 0, *arguments)
+
+    layout = compiled.layout if compiled is not None else ()
+    return WorkerLoop(
+        lambda: _Loop(plant, encoder, controller, trace, changes, compiled), isolation, trace, rows, warm, layout
+    )
+
+
+def _close(loop: _Loop | WorkerLoop | Controller | None, trace: Trace | None) -> None:
+    """The controller's optional ``close()`` (it releases what ``reset`` took: an FMU's instance, its files),
+    through the loop that runs it. After a run that went well (``trace``) an exception from it fails the run at its
+    last sample; after a run that failed, the run's own error stands."""
+    close = getattr(loop, "close", None)
     if not callable(close):
         return
     try:
@@ -318,6 +375,12 @@ class _Loop:
             log_row = np.zeros(0)
             self.function = _python_chunk(plant, controller, self)
         self.sample = SampleWork(np.zeros(2), np.zeros(2), np.zeros(2), np.zeros(2), np.zeros(2), log_row)
+
+    def close(self) -> None:
+        """The controller's optional ``close()``."""
+        close = getattr(self.controller, "close", None)
+        if callable(close):
+            close()
 
     def hold(self, trace: Trace, rows: np.ndarray) -> None:
         """Record into ``trace`` from now on; rows: the packed reference of its samples."""

@@ -7,6 +7,7 @@ importing the loop.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -85,19 +86,20 @@ class Trace:
         true_theta: np.ndarray,
         first: int = 0,
         timestep_s: float | None = None,
+        full: Callable[[tuple[int, ...], float], np.ndarray] = np.full,
     ) -> Trace:
-        """A trace of the samples of ``ref`` (samples [first, first + N) of the run), NaN until recorded."""
+        """A trace of the samples of ``ref`` (samples [first, first + N) of the run), NaN until recorded;
+        ``full(shape, value)`` makes each recorded array (numpy's, or one in memory shared with a worker)."""
         n = ref.t_s.size
-        nan2 = np.full((n, 2), np.nan)
         return cls(
             t_s=ref.t_s,
-            q_m=nan2.copy(),
-            q_meas_m=nan2.copy(),
+            q_m=full((n, 2), np.nan),
+            q_meas_m=full((n, 2), np.nan),
             q_d_m=ref.q_d,
-            e_m=nan2.copy(),
-            eps_n_m=np.full(n, np.nan),
-            eps_c_m=np.full(n, np.nan),
-            u_v=nan2.copy(),
+            e_m=full((n, 2), np.nan),
+            eps_n_m=full((n,), np.nan),
+            eps_c_m=full((n,), np.nan),
+            u_v=full((n, 2), np.nan),
             disturbance_v=disturbance_v,
             true_theta=true_theta,
             filled=first,

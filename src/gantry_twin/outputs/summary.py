@@ -225,7 +225,7 @@ class RunSummary(Model):
     duration_s: float
     sample_period_s: float
     steps: int
-    status: Literal["ok", "failed"]
+    status: Literal["ok", "failed", "stopped"]
     failure: FailureRecord | None = None
     contour_error_um: ContourError | None = None
     whole_run: WholeRun | None = None
@@ -297,11 +297,13 @@ class SummaryError(ValueError):
 
 @dataclass(frozen=True)
 class Failure:
-    """Why a run stopped before its end: at time_s, sample ``step`` (None if before the first), the error text."""
+    """Why a run stopped before its end: at time_s, sample ``step`` (None if before the first), the error text;
+    ``stopped``: a stop signal ended it (summary.json's status ``stopped``), not a fault (``failed``)."""
 
     time_s: float | None
     step: int | None
     error: str
+    stopped: bool = False
 
 
 def run_summary(
@@ -331,7 +333,7 @@ def run_summary(
         "duration_s": scenario.duration_s,
         "sample_period_s": sample_period_s,
         "steps": int(steps),
-        "status": "ok" if failure is None else "failed",
+        "status": "ok" if failure is None else "stopped" if failure.stopped else "failed",
     }
     if failure is not None:
         out["failure"] = {"time_s": failure.time_s, "step": failure.step, "error": failure.error}
