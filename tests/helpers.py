@@ -5,7 +5,6 @@ Imported normally (``from .helpers import run``); fixtures stay in conftest.py.
 
 from __future__ import annotations
 
-import contextlib
 import math
 from collections import defaultdict
 from pathlib import Path
@@ -176,23 +175,8 @@ def scalars(data: dict[str, dict], entity: str) -> np.ndarray:
 LINUXCNC_TESTS_TURN = "\0gantry-twin-linuxcnc-tests"
 
 
-@contextlib.contextmanager
 def linuxcnc_turn(limit_s: float = 900.0):
     """Hold the machine's turn for a test that runs LinuxCNC (the other pytest-xdist workers' wait)."""
-    import socket
-    import time
+    from gantry_twin.cnc.session import turn
 
-    turn = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-    deadline = time.monotonic() + limit_s
-    try:
-        while True:
-            try:
-                turn.bind(LINUXCNC_TESTS_TURN)
-                break
-            except OSError:
-                if time.monotonic() > deadline:
-                    raise TimeoutError(f"another test held LinuxCNC for {limit_s:g} s") from None
-                time.sleep(0.2)
-        yield
-    finally:
-        turn.close()
+    return turn(LINUXCNC_TESTS_TURN, limit_s, "another test that runs LinuxCNC")

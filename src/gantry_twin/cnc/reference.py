@@ -126,11 +126,7 @@ class CncPath:
         return tuple(self._spline(t, order) for order in range(4))  # type: ignore[return-value]
 
     def reference(self, t_s: np.ndarray) -> Reference:
-        s = self.sample(t_s)
-        return Reference(
-            t_s=s.t_s, phi=s.t_s.copy(), dphi=np.ones_like(s.t_s), q_d=s.q_m, dq_d=s.v_m_s, ddq_d=s.a_m_s2,
-            alpha=s.alpha_rad, dalpha=s.dalpha_rad_s, ddalpha=s.ddalpha_rad_s2,
-        )  # fmt: skip
+        return self.sample(t_s).reference()
 
     def contour_error(self, q_m: np.ndarray, phi_guess: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """eps_c against the commanded path (:func:`~gantry_twin.gcode.sampling.timed_contour_error`)."""

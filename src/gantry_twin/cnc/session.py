@@ -71,23 +71,28 @@ def missing() -> str | None:
 
 
 @contextlib.contextmanager
-def machine_lock(timeout_s: float = 600.0) -> Iterator[None]:
-    """Hold the machine's LinuxCNC turn, waiting at most ``timeout_s`` for it: an abstract Unix socket's name
-    (:data:`LOCK_NAME`) that one process at a time can bind, released when it ends however it ends, no file."""
+def turn(name: str, timeout_s: float, what: str) -> Iterator[None]:
+    """Hold a machine-wide turn: an abstract Unix socket's ``name`` that one process at a time can bind, released
+    when it ends however it ends, no file; :class:`LinuxCncError` naming ``what`` after ``timeout_s`` of waiting."""
     lock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
     try:
         deadline = time.monotonic() + timeout_s
         while True:
             try:
-                lock.bind(LOCK_NAME)
+                lock.bind(name)
                 break
             except OSError:
                 if time.monotonic() > deadline:
-                    raise LinuxCncError(f"another gantry-twin LinuxCNC session ran for {timeout_s:g} s") from None
+                    raise LinuxCncError(f"{what} held the machine's turn for {timeout_s:g} s") from None
                 time.sleep(0.1)
         yield
     finally:
         lock.close()
+
+
+def machine_lock(timeout_s: float = 600.0) -> contextlib.AbstractContextManager[None]:
+    """Hold the machine's LinuxCNC turn (:data:`LOCK_NAME`), waiting at most ``timeout_s`` for it."""
+    return turn(LOCK_NAME, timeout_s, "another gantry-twin LinuxCNC session")
 
 
 def shm_segments() -> dict[int, tuple[int, int]]:

@@ -38,6 +38,13 @@ class Samples:
     ddalpha_rad_s2: np.ndarray
     move: np.ndarray  # index of the latest move started (0 before the first)
 
+    def reference(self) -> Reference:
+        """These samples as the loop's :class:`~gantry_twin.paths.contours.Reference` (phi = t, phi' = 1)."""
+        return Reference(
+            t_s=self.t_s, phi=self.t_s.copy(), dphi=np.ones_like(self.t_s), q_d=self.q_m, dq_d=self.v_m_s,
+            ddq_d=self.a_m_s2, alpha=self.alpha_rad, dalpha=self.dalpha_rad_s, ddalpha=self.ddalpha_rad_s2,
+        )  # fmt: skip
+
 
 @runtime_checkable
 class ProgramPath(Protocol):
@@ -103,11 +110,7 @@ class Plan:
 
     def reference(self, t_s: np.ndarray) -> Reference:
         """The loop's reference at times t_s (phi = t)."""
-        s = self.sample(t_s)
-        return Reference(
-            t_s=s.t_s, phi=s.t_s.copy(), dphi=np.ones_like(s.t_s), q_d=s.q_m, dq_d=s.v_m_s, ddq_d=s.a_m_s2,
-            alpha=s.alpha_rad, dalpha=s.dalpha_rad_s, ddalpha=s.ddalpha_rad_s2,
-        )  # fmt: skip
+        return self.sample(t_s).reference()
 
     def contour_error(
         self,
