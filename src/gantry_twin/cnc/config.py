@@ -234,7 +234,8 @@ def live_hal_text(twin_command: str) -> str:
     error back into the command, growing with the delay), motion runs, and ``sampler.0`` takes the new
     commands for the twin. ``gantry-twin-run`` enables the sampler and the streamer in the same period (the twin
     sets it once its readers run and the streamer holds its prefill). LinuxCNC's estop chain is closed only while
-    the twin says it is ok and HAL's ``watchdog`` sees its heartbeat toggle (a dead twin stops the heartbeat)."""
+    the twin says it is ok and HAL's ``watchdog`` sees its heartbeat toggle (a dead twin stops the heartbeat; the
+    watchdog starts on the ok bit's rising edge, and once tripped it stays so: LinuxCNC must be restarted)."""
     lines = [
         "# HAL of gantry-twin's live mode (written by `gantry-twin linuxcnc config --live`): the twin is the machine.",
         "# Commands go to the twin through sampler.0 -> halsampler; the twin's errors come back through",
@@ -246,11 +247,12 @@ def live_hal_text(twin_command: str) -> str:
         "loadrt sum2 count=2",
         "loadrt mux2 count=2",
         "loadrt watchdog num_inputs=1",
-        "loadrt and2 count=1",
+        "loadrt and2 count=2",
         "addf streamer.0 servo-thread",
         "addf watchdog.set-timeouts servo-thread",
         "addf watchdog.process servo-thread",
         "addf and2.0 servo-thread",
+        "addf and2.1 servo-thread",
         "addf sum2.0 servo-thread",
         "addf sum2.1 servo-thread",
         "addf mux2.0 servo-thread",
@@ -275,10 +277,11 @@ def live_hal_text(twin_command: str) -> str:
         "net motion-enabled motion.motion-enabled => mux2.0.sel mux2.1.sel sampler.0.pin.3",
         "net z-loop joint.2.motor-pos-cmd => joint.2.motor-pos-fb",
         "net estop-out iocontrol.0.user-enable-out => and2.0.in0 sampler.0.pin.2",
-        "net twin-ok streamer.0.pin.4 => watchdog.enable-in",
+        "net twin-ok streamer.0.pin.4 => and2.0.in1 watchdog.enable-in",
         "net twin-heartbeat streamer.0.pin.5 => watchdog.input-0",
-        "net twin-alive watchdog.ok-out => and2.0.in1",
-        "net estop-in and2.0.out => iocontrol.0.emc-enable-in",
+        "net estop-and-twin-ok and2.0.out => and2.1.in0",
+        "net twin-alive watchdog.ok-out => and2.1.in1",
+        "net estop-in and2.1.out => iocontrol.0.emc-enable-in",
         "net twin-tag streamer.0.pin.6 => sampler.0.pin.4",
         "net tool-prep-loop iocontrol.0.tool-prepare => iocontrol.0.tool-prepared",
         "net tool-change-loop iocontrol.0.tool-change => iocontrol.0.tool-changed",

@@ -16,7 +16,7 @@ programs, never its library (the twin stays a separate program):
   through every command, its velocity is continuous, its acceleration and
   jerk are its exact derivatives (piecewise linear and constant). It is
   causal with a lookahead of :data:`LOOKAHEAD_PERIODS` servo periods: the
-  reference up to t needs the commands up to t + 2T, so the twin's time
+  reference on [kT, (k+1)T) needs the commands up to k + 2, so the twin's time
   trails LinuxCNC's by that and by a chunk of the loop (:data:`CHUNK_S`).
   While motion is disabled, LinuxCNC copies its feedback (then the twin's
   measured position) into its command: the twin holds the last enabled
@@ -70,7 +70,7 @@ CHUNK_S = 0.02
 #: The contour error's search about the desired time (window, coarse step, fine step; s): the twin trails its
 #: command by far less than the window (its tracking error over the speed).
 SEARCH_S = (0.005, 1e-3, 2e-4)
-#: Servo periods of commands the reference at t needs beyond t (Catmull-Rom: the command after next).
+#: The reference on [kT, (k+1)T) needs the commands up to k + LOOKAHEAD_PERIODS (Catmull-Rom: the one after next).
 LOOKAHEAD_PERIODS = 2
 #: Below this speed of the reference, alpha holds its last value (m/s).
 DIRECTION_SPEED_M_S = 0.005
@@ -272,7 +272,7 @@ class LiveCommands:
     # ------------------------------------------------------------------ the loop's reference
     def reference(self, t_s: np.ndarray) -> Reference:
         t = np.asarray(t_s, dtype=float)
-        self._need(int(math.ceil(t[-1] / self.period_s - 1e-9)) + LOOKAHEAD_PERIODS)
+        self._need(int(math.floor(t[-1] / self.period_s + 1e-9)) + LOOKAHEAD_PERIODS)
         q, v, a, j = self._hermite(t)
         speed2 = np.einsum("ij,ij->i", v, v)
         moving = speed2 >= DIRECTION_SPEED_M_S**2

@@ -101,7 +101,7 @@ def main(argv):
                 wait("the estop", lambda: stat.task_state == linuxcnc.STATE_ESTOP, wait_s)
             except RuntimeError:
                 pass
-        say("end", estop=stat.task_state == linuxcnc.STATE_ESTOP,
+        say("end", estop=stat.task_state == linuxcnc.STATE_ESTOP, hal=halcmd("show", "pin", "watchdog", "streamer"),
             enable_in=bool(hal.get_value("iocontrol.0.emc-enable-in")), messages=said)  # fmt: skip
         return 0
     except Exception as exc:
