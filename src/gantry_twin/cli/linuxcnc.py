@@ -45,7 +45,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                              "each time LinuxCNC starts)")  # fmt: skip
     config.add_argument("--delay-periods", type=int, default=None, metavar="N",
                         help="--live: rows prefilled into HAL's streamer: the feedback's delay, servo periods "
-                             "(default 40)")  # fmt: skip
+                             "(default 100)")  # fmt: skip
     config.set_defaults(func=command)
     machine = actions.add_parser(
         "machine", help="the twin as LinuxCNC's machine (loaded by the --live configuration's HAL file)"
@@ -106,7 +106,15 @@ def command(args: argparse.Namespace) -> int:
 
 def machine_command(args: argparse.Namespace) -> int:
     """The twin as LinuxCNC's machine until LinuxCNC ends or estops (0) or the twin faults (1)."""
-    from gantry_twin.cnc.live import CHUNK_S, DELAY_PERIODS, LiveCommands, LiveError, LiveFeedback, LiveFifos
+    from gantry_twin.cnc.live import (
+        CHUNK_S,
+        DELAY_PERIODS,
+        LIVE_FILE,
+        LiveCommands,
+        LiveError,
+        LiveFeedback,
+        LiveFifos,
+    )
     from gantry_twin.loop.simulate import simulate
     from gantry_twin.outputs.rundirs import new_run_dir
     from gantry_twin.outputs.tracefile import TraceParts
@@ -161,8 +169,15 @@ def machine_command(args: argparse.Namespace) -> int:
         parts.flush()
         fifos.close()
     info = commands.info()
+    if (out / LIVE_FILE).exists():  # again, with the twin's CPU, counted once its HAL programs ended
+        atomic_write_text(out / LIVE_FILE, commands.run_files()[LIVE_FILE])
+    delay, cpu = info["delay_ms"], fifos.cpu
+    measured = (
+        f"feedback delay median {delay['median']:g} ms, p99 {delay['p99']:g} ms" if delay else "no delay measured"
+    )
+    load = f"; the twin's CPU {100 * cpu['cpu_fraction']:.1f} % of a core" if cpu else ""
     say(f"{PROG}: the twin followed LinuxCNC for {commands.duration_s:.3f} s ({commands.count} commands); ended by "
-        f"{info['ended_by']}; feedback delay {info['delay_ms']} ms; results in {out}/")  # fmt: skip
+        f"{info['ended_by']}; {measured}{load}; results in {out}/")  # fmt: skip
     return EXIT_RUN_FAILED if feedback.fault is not None else EXIT_OK
 
 

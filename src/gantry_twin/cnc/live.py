@@ -66,10 +66,10 @@ from gantry_twin.paths.contours import Reference, ReferenceEnded
 from gantry_twin.plant.model import AXES, Plant
 
 #: The loop's chunk in the live mode, s: the errors go back after each.
-CHUNK_S = 0.02
+CHUNK_S = 0.05
 #: The contour error's search about the desired time (window, coarse step, fine step; s): the twin trails its
 #: command by far less than the window (its tracking error over the speed).
-SEARCH_S = (0.005, 1e-3, 2e-4)
+SEARCH_S = (0.003, 1e-3, 5e-4)
 #: The reference on [kT, (k+1)T) needs the commands up to k + LOOKAHEAD_PERIODS (Catmull-Rom: the one after next).
 LOOKAHEAD_PERIODS = 2
 #: Below this speed of the reference, alpha holds its last value (m/s).
@@ -77,7 +77,7 @@ DIRECTION_SPEED_M_S = 0.005
 #: Servo periods of commands held (the reference and the contour error look back less than a second).
 HISTORY_PERIODS = 4096
 #: Default rows prefilled into the streamer (the delay of the twin's errors, servo periods).
-DELAY_PERIODS = 60
+DELAY_PERIODS = 100
 #: Wall seconds the twin waits for a command before it says LinuxCNC stalled and ends.
 STALL_S = 30.0
 #: Largest delay histogram bin, servo periods.
@@ -101,6 +101,8 @@ class LiveFifos:
         self._buffer = b""
         self._selector = selectors.DefaultSelector()
         self.heartbeat = 0
+        self._started: tuple[float, float] | None = None  # (wall s, CPU s) when the commands began to flow
+        self.cpu: dict[str, float] = {}
 
     def start(self) -> None:
         """Start both programs, prefill the streamer and enable the sampler and the streamer in one period."""
@@ -116,10 +118,12 @@ class LiveFifos:
                 raise LiveError(f"HAL's streamer did not take the {self.delay_periods} prefilled rows")
             time.sleep(0.01)
         subprocess.run([HALCMD, "sets", "gantry-twin-run", "1"], check=True, capture_output=True, timeout=10)
+        self._started = (time.monotonic(), _cpu_s())
 
     def write(self, rows) -> None:
         """Rows (e_x, e_y, p_x, p_y mm, ok, tag) to the streamer, each with the next heartbeat."""
-        assert self.streamer is not None and self.streamer.stdin is not None
+        if self.streamer is None or self.streamer.stdin is None:
+            return  # not started
         lines = []
         for ex, ey, px, py, ok, tag in rows:
             self.heartbeat ^= 1
@@ -158,6 +162,16 @@ class LiveFifos:
         if self.sampler is not None:
             _end(self.sampler)
         self._selector.close()
+        if self._started is not None:  # the children are reaped: their CPU is counted in the process's times
+            wall, cpu = time.monotonic() - self._started[0], _cpu_s() - self._started[1]
+            self.cpu = {"wall_s": wall, "cpu_s": cpu, "cpu_fraction": cpu / wall if wall > 0 else 0.0}
+
+
+def _cpu_s() -> float:
+    """CPU seconds of this process (every thread) and of its children that were waited for (halsampler,
+    halstreamer), user and system."""
+    times = os.times()
+    return times.user + times.system + times.children_user + times.children_system
 
 
 def _end(process: subprocess.Popen) -> None:
@@ -367,6 +381,7 @@ class LiveCommands:
             "delay_periods": delay,
             "delay_ms": {k: v * self.period_s * 1e3 for k, v in delay.items() if k != "periods_measured"},
             "sampler_overruns": self.overruns,
+            "twin_cpu": self.fifos.cpu,  # from the commands' start to the end; filled once the link is closed
         }
 
 
