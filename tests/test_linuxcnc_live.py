@@ -139,6 +139,9 @@ class ListedFifos:
     def write(self, rows):
         pass
 
+    def mark_end(self):
+        pass
+
 
 def _commands(n: int = 400) -> np.ndarray:
     t = np.arange(n) * 1e-3

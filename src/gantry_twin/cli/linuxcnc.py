@@ -109,7 +109,6 @@ def machine_command(args: argparse.Namespace) -> int:
     from gantry_twin.cnc.live import (
         CHUNK_S,
         DELAY_PERIODS,
-        LIVE_FILE,
         LiveCommands,
         LiveError,
         LiveFeedback,
@@ -169,8 +168,6 @@ def machine_command(args: argparse.Namespace) -> int:
         parts.flush()
         fifos.close()
     info = commands.info()
-    if (out / LIVE_FILE).exists():  # again, with the twin's CPU, counted once its HAL programs ended
-        atomic_write_text(out / LIVE_FILE, commands.run_files()[LIVE_FILE])
     delay, cpu = info["delay_ms"], fifos.cpu
     measured = (
         f"feedback delay median {delay['median']:g} ms, p99 {delay['p99']:g} ms" if delay else "no delay measured"

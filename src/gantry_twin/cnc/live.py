@@ -54,6 +54,7 @@ import os
 import selectors
 import subprocess
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -118,7 +119,26 @@ class LiveFifos:
                 raise LiveError(f"HAL's streamer did not take the {self.delay_periods} prefilled rows")
             time.sleep(0.01)
         subprocess.run([HALCMD, "sets", "gantry-twin-run", "1"], check=True, capture_output=True, timeout=10)
-        self._started = (time.monotonic(), _cpu_s())
+        self._started = (time.monotonic(), self._cpu_s())
+
+    def _cpu_s(self) -> float:
+        """CPU seconds so far, user and system, of this process (every thread) and of its HAL programs (read from
+        /proc while they run or before they are reaped)."""
+        times = os.times()
+        total = times.user + times.system
+        for process in (self.sampler, self.streamer):
+            try:
+                fields = Path(f"/proc/{process.pid}/stat").read_text().rsplit(")", 1)[1].split()
+                total += (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+            except (AttributeError, OSError, IndexError, ValueError):
+                continue
+        return total
+
+    def mark_end(self) -> None:
+        """The commands stopped: the twin's CPU from their start to here (:attr:`cpu`), once."""
+        if self._started is not None and not self.cpu:
+            wall, cpu = time.monotonic() - self._started[0], self._cpu_s() - self._started[1]
+            self.cpu = {"wall_s": wall, "cpu_s": cpu, "cpu_fraction": cpu / wall if wall > 0 else 0.0}
 
     def write(self, rows) -> None:
         """Rows (e_x, e_y, p_x, p_y mm, ok, tag) to the streamer, each with the next heartbeat."""
@@ -152,6 +172,7 @@ class LiveFifos:
 
     def close(self) -> None:
         """Stop both programs (the streamer after its last rows are in the FIFO)."""
+        self.mark_end()
         if self.streamer is not None:
             try:
                 if self.streamer.stdin is not None:
@@ -162,16 +183,6 @@ class LiveFifos:
         if self.sampler is not None:
             _end(self.sampler)
         self._selector.close()
-        if self._started is not None:  # the children are reaped: their CPU is counted in the process's times
-            wall, cpu = time.monotonic() - self._started[0], _cpu_s() - self._started[1]
-            self.cpu = {"wall_s": wall, "cpu_s": cpu, "cpu_fraction": cpu / wall if wall > 0 else 0.0}
-
-
-def _cpu_s() -> float:
-    """CPU seconds of this process (every thread) and of its children that were waited for (halsampler,
-    halstreamer), user and system."""
-    times = os.times()
-    return times.user + times.system + times.children_user + times.children_system
 
 
 def _end(process: subprocess.Popen) -> None:
@@ -228,10 +239,9 @@ class LiveCommands:
     def _need(self, index: int) -> None:
         """Read until command ``index`` is in, or raise ReferenceEnded (LinuxCNC ended, its estop, a fault)."""
         while self.count <= index:
-            if self.stop_reason is not None:
-                raise ReferenceEnded(self.stop_reason)
-            if self.ended_by is not None:
-                raise ReferenceEnded(self.ended_by)
+            if self.stop_reason is not None or self.ended_by is not None:
+                self.fifos.mark_end()
+                raise ReferenceEnded(self.stop_reason or self.ended_by)
             lines, ended = self.fifos.read(STALL_S)
             if lines:
                 self._take(lines)
@@ -240,6 +250,7 @@ class LiveCommands:
             else:
                 self.ended_by = f"no command from LinuxCNC for {STALL_S:g} s"
         if self.stop_reason is not None:
+            self.fifos.mark_end()
             raise ReferenceEnded(self.stop_reason)
 
     def _take(self, lines: list[bytes]) -> None:
@@ -381,7 +392,7 @@ class LiveCommands:
             "delay_periods": delay,
             "delay_ms": {k: v * self.period_s * 1e3 for k, v in delay.items() if k != "periods_measured"},
             "sampler_overruns": self.overruns,
-            "twin_cpu": self.fifos.cpu,  # from the commands' start to the end; filled once the link is closed
+            "twin_cpu": self.fifos.cpu,  # from the commands' start to their end
         }
 
 
