@@ -68,7 +68,7 @@ def leftovers(before: dict[int, tuple[int, int]], marker: str) -> list[str]:
 
 
 def run_live(
-    tmp_path: Path, program: str = "", wait_s: float = 0.0, scenario: Path | None = None, during=None
+    tmp_path: Path, program: str = "", wait_s: float = 0.0, scenario: Path | None = None, during=None, estop=False
 ) -> tuple[list[dict], Path, str]:
     """One LinuxCNC session of the live configuration with the tests' display: (its events, the twin's run
     directory, LinuxCNC's output). ``during(events_path)`` runs while LinuxCNC does. Nothing is left after it."""
@@ -89,6 +89,7 @@ def run_live(
             events = directory / "events.jsonl"
             with open(directory / "gantry-twin.ini", "a", encoding="utf-8") as ini:
                 ini.write(f"[GANTRY_TWIN_TEST]\nPROGRAM = {program}\nEVENTS = {events}\nWAIT_S = {wait_s}\n")
+                ini.write(f"ESTOP = {int(estop)}\n")
             session.start()
             if during is not None:
                 during(events)
@@ -327,15 +328,41 @@ def test_a_twin_fault_puts_linuxcnc_in_estop(tmp_path):
 
 
 @needs_linuxcnc
+def test_linuxcncs_estop_ends_the_twins_run_cleanly(tmp_path):
+    events, run_dir, _ = run_live(tmp_path, "", 3.0, estop=True)
+    assert event(events, "end")["estop"]
+    info = json.loads((run_dir / "linuxcnc_live.json").read_text())
+    assert info["ended_by"] == "LinuxCNC's estop (iocontrol.0.user-enable-out fell)"
+    assert json.loads((run_dir / "summary.json").read_text())["status"] == "ok"
+
+
+def _twin_pid(run_dir: Path, events: Path) -> int:
+    """The twin's pid (its log's first line), once the display has homed."""
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and '"homed"' not in (events.read_text() if events.exists() else ""):
+        time.sleep(0.1)
+    time.sleep(1.5)  # a trace part (1 s of the twin) written before it is stopped
+    log = (run_dir / "linuxcnc_live.log").read_text()
+    return int(log.split("(pid ")[1].split(")")[0])
+
+
+@needs_linuxcnc
+def test_a_stopped_twin_says_why_and_puts_linuxcnc_in_estop(tmp_path):
+    def stop_the_twin(events: Path) -> None:
+        os.kill(_twin_pid(tmp_path / "run", events), signal.SIGTERM)
+
+    events, run_dir, _ = run_live(tmp_path, "", 20.0, during=stop_the_twin)
+    end = event(events, "end")
+    assert end["estop"] and not end["enable_in"]
+    log = (run_dir / "linuxcnc_live.log").read_text()
+    assert "the twin's fault raises LinuxCNC's estop: the twin stopped:" in log
+    assert len(trace(run_dir)["t_s"]) > 0
+
+
+@needs_linuxcnc
 def test_a_killed_twin_puts_linuxcnc_in_estop(tmp_path):
     def kill_the_twin(events: Path) -> None:
-        deadline = time.monotonic() + 120
-        while time.monotonic() < deadline and '"homed"' not in (events.read_text() if events.exists() else ""):
-            time.sleep(0.1)
-        time.sleep(1.5)  # a trace part (1 s of the twin) written before the kill
-        log = (tmp_path / "run" / "linuxcnc_live.log").read_text()
-        pid = int(log.split("(pid ")[1].split(")")[0])
-        os.kill(pid, signal.SIGKILL)
+        os.kill(_twin_pid(tmp_path / "run", events), signal.SIGKILL)
 
     events, run_dir, _ = run_live(tmp_path, "", 20.0, during=kill_the_twin)
     end = event(events, "end")

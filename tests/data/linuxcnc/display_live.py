@@ -5,6 +5,7 @@ Python (it has LinuxCNC's ``linuxcnc`` and ``hal`` modules). Settings, in the IN
     PROGRAM    the part program to run (none: only wait, with the machine on, for the estop)
     EVENTS     a file of JSON lines this program appends to (flushed per line)
     WAIT_S     with a PROGRAM: seconds to stay on after it (a fault may come); without: seconds to wait for the estop
+    ESTOP      1: press the estop (after the program, if any) before that wait
 
 It waits until HAL's watchdog sees the twin (``watchdog.ok-out``: the twin streams, ok), resets the estop, turns
 the machine on, homes, runs the program while it watches LinuxCNC's following error, says what HAL's pins hold,
@@ -96,6 +97,10 @@ def main(argv):
             say("pins", show=halcmd("show", "pin", "joint.0.motor-pos"),
                 fb=[float(halcmd("getp", f"joint.{j}.motor-pos-fb")) for j in range(2)],
                 cmd=[float(halcmd("getp", f"joint.{j}.motor-pos-cmd")) for j in range(2)])  # fmt: skip
+        if ini.find("GANTRY_TWIN_TEST", "ESTOP") == "1":  # the operator's estop: the twin's run ends with it
+            command.state(linuxcnc.STATE_ESTOP)
+            command.wait_complete(5)
+            say("estop_pressed")
         if wait_s > 0:
             try:
                 wait("the estop", lambda: stat.task_state == linuxcnc.STATE_ESTOP, wait_s)
