@@ -205,6 +205,19 @@ def test_the_live_config_closes_the_estop_chain_only_through_the_twin(tmp_path):
     assert bad.returncode == 2 and "--delay-periods 0" in bad.stderr and len(bad.stderr.strip().splitlines()) == 1
 
 
+@pytest.mark.skipif(shutil.which("halcmd") is None, reason="LinuxCNC's halcmd is not installed (linuxcnc-uspace)")
+def test_the_twin_outside_linuxcnc_is_refused_in_one_line(tmp_path):
+    out = tmp_path / "config"
+    twin = [sys.executable, "-m", "gantry_twin", "linuxcnc"]
+    config = [*twin, "config", "--live", "--out", str(out), "--run-dir", str(tmp_path / "run")]
+    subprocess.run(config, check=True, capture_output=True, timeout=120, cwd=ROOT)
+    machine = [*twin, "machine", "--ini", str(out / "gantry-twin.ini")]
+    done = subprocess.run(machine, capture_output=True, text=True, timeout=120, cwd=ROOT)
+    assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1, done.stderr
+    assert "no HAL session of the live configuration runs here" in done.stderr
+    assert not (tmp_path / "run").exists()
+
+
 # ---------------------------------------------------------------------------------------------- LinuxCNC runs
 
 

@@ -130,6 +130,10 @@ def machine_command(args: argparse.Namespace) -> int:
         delay = int(twin.get("DELAY_PERIODS") or DELAY_PERIODS)
     except ValueError:
         raise BadInput(f"{args.ini}: [EMCMOT] SERVO_PERIOD or [GANTRY_TWIN] DELAY_PERIODS: not a number") from None
+    try:
+        LiveFifos.check()
+    except LiveError as exc:
+        raise BadInput(f"linuxcnc machine: {exc}") from None
     path = resolve_scenario(twin.get("SCENARIO") or "no_load_circle")
     scenario = load_scenario(path, shlex.split(twin.get("SET", "")))
     d = DURATION_MAX_S  # the longest live run; LinuxCNC's exit or estop ends it before
@@ -162,7 +166,8 @@ def machine_command(args: argparse.Namespace) -> int:
         if outcome.error is not None:
             feedback.set_fault(str(outcome.error))
     except BaseException as exc:
-        feedback.set_fault(f"the twin stopped: {type(exc).__name__}: {exc}")
+        if fifos.started:
+            feedback.set_fault(f"the twin stopped: {type(exc).__name__}: {exc}")
         raise
     finally:
         parts.flush()

@@ -105,6 +105,24 @@ class LiveFifos:
         self._started: tuple[float, float] | None = None  # (wall s, CPU s) when the commands began to flow
         self.cpu: dict[str, float] = {}
 
+    @staticmethod
+    def check() -> None:
+        """LiveError unless a HAL session of the live configuration runs (its streamer and sampler exist)."""
+        for pin in ("streamer.0.curr-depth", "sampler.0.curr-depth"):
+            try:
+                done = subprocess.run([HALCMD, "getp", pin], capture_output=True, text=True, timeout=10)
+            except (OSError, subprocess.TimeoutExpired) as exc:
+                raise LiveError(f"HAL's halcmd cannot run ({exc})") from None
+            if done.returncode:
+                raise LiveError(
+                    f"no HAL session of the live configuration runs here (halcmd getp {pin} failed): the live "
+                    "configuration's HAL file starts this command when LinuxCNC starts"
+                )
+
+    @property
+    def started(self) -> bool:
+        return self._started is not None
+
     def start(self) -> None:
         """Start both programs, prefill the streamer and enable the sampler and the streamer in one period."""
         self.sampler = subprocess.Popen(
