@@ -155,6 +155,7 @@ def machine_command(args: argparse.Namespace) -> int:
 
     feedback = LiveFeedback(commands, built.plant, say)
     parts = TraceParts(out / "trace")
+    alarms = _AlarmPrinter(built.monitor, say)
     try:
         with RunWriter(out, built) as writer:
             try:
@@ -162,7 +163,7 @@ def machine_command(args: argparse.Namespace) -> int:
             except (LiveError, OSError) as exc:
                 raise BadInput(f"the live link to LinuxCNC's HAL: {exc}") from None
             say(f"{PROG}: the twin is LinuxCNC's machine (pid {os.getpid()}); run directory {out}")
-            outcome = writer.run([feedback, parts], hold_s=CHUNK_S, chunk_s=CHUNK_S)
+            outcome = writer.run([feedback, parts, alarms], hold_s=CHUNK_S, chunk_s=CHUNK_S)
         if outcome.error is not None:
             feedback.set_fault(str(outcome.error))
     except BaseException as exc:
@@ -181,6 +182,26 @@ def machine_command(args: argparse.Namespace) -> int:
     say(f"{PROG}: the twin followed LinuxCNC for {commands.duration_s:.3f} s ({commands.count} commands); ended by "
         f"{info['ended_by']}; {measured}{load}; results in {out}/")  # fmt: skip
     return EXIT_RUN_FAILED if feedback.fault is not None else EXIT_OK
+
+
+class _AlarmPrinter:
+    """An observer that says each new alarm of the scenario's health monitor as it is raised (on LinuxCNC's output
+    and in the live run's log: readable after any kill), as the shadow monitor prints its own."""
+
+    def __init__(self, monitor, say) -> None:
+        self.monitor, self.say, self.seen = monitor, say, 0
+
+    def on_start(self, run, trace) -> None:
+        pass
+
+    def on_chunk(self, trace, start: int, stop: int) -> None:
+        if self.monitor is not None:
+            for alarm in self.monitor.alarms[self.seen :]:
+                self.say(f"{PROG}: alarm: {alarm.describe()}")
+            self.seen = len(self.monitor.alarms)
+
+    def on_end(self, trace) -> None:
+        pass
 
 
 def announce(scenario: object, wanted: bool) -> None:
