@@ -27,6 +27,8 @@ from gantry_twin.cnc import session as cnc_session
 from gantry_twin.cnc.live import LOOKAHEAD_PERIODS, LiveCommands
 from gantry_twin.cnc.session import Session, machine_lock
 
+from .helpers import read_rrd, scalars
+
 ROOT = Path(__file__).resolve().parents[1]
 DISPLAY = ROOT / "tests" / "data" / "linuxcnc" / "display_live.py"
 MISSING = cnc_session.missing()
@@ -68,7 +70,13 @@ def leftovers(before: dict[int, tuple[int, int]], marker: str) -> list[str]:
 
 
 def run_live(
-    tmp_path: Path, program: str = "", wait_s: float = 0.0, scenario: Path | None = None, during=None, estop=False
+    tmp_path: Path,
+    program: str = "",
+    wait_s: float = 0.0,
+    scenario: Path | None = None,
+    during=None,
+    estop=False,
+    telemetry: str = "",
 ) -> tuple[list[dict], Path, str]:
     """One LinuxCNC session of the live configuration with the tests' display: (its events, the twin's run
     directory, LinuxCNC's output). ``during(events_path)`` runs while LinuxCNC does. Nothing is left after it."""
@@ -85,6 +93,8 @@ def run_live(
                       "--run-dir", str(run_dir), "--display", str(display)]  # fmt: skip
             if scenario is not None:
                 config.insert(5, str(scenario))
+            if telemetry:
+                config.append(f"--telemetry={telemetry}")
             subprocess.run(config, check=True, capture_output=True, timeout=120, cwd=ROOT)
             events = directory / "events.jsonl"
             with open(directory / "gantry-twin.ini", "a", encoding="utf-8") as ini:
@@ -341,12 +351,18 @@ def test_a_twin_fault_puts_linuxcnc_in_estop(tmp_path):
 
 
 @needs_linuxcnc
-def test_linuxcncs_estop_ends_the_twins_run_cleanly(tmp_path):
-    events, run_dir, _ = run_live(tmp_path, "", 3.0, estop=True)
+def test_linuxcncs_estop_ends_the_twins_run_cleanly_and_rerun_records_it(tmp_path):
+    recording = tmp_path / "live.rrd"
+    events, run_dir, _ = run_live(tmp_path, "", 3.0, estop=True, telemetry=f"--save {recording}")
     assert event(events, "end")["estop"]
     info = json.loads((run_dir / "linuxcnc_live.json").read_text())
     assert info["ended_by"] == "LinuxCNC's estop (iocontrol.0.user-enable-out fell)"
     assert json.loads((run_dir / "summary.json").read_text())["status"] == "ok"
+    # rerun's recording of the twin holds its command of every sample, as its trace parts do
+    u_x = scalars(read_rrd(recording), "inputs/u_x_V")[:, 0]
+    parts = trace(run_dir)
+    assert len(u_x) == len(parts["u_x_v"]) > 500
+    np.testing.assert_array_equal(u_x.astype(np.float32), parts["u_x_v"])
 
 
 def _twin_pid(run_dir: Path, events: Path) -> int:

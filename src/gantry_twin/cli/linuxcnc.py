@@ -15,12 +15,13 @@ from pathlib import Path
 from gantry_twin.cli.common import EXIT_OK, EXIT_RUN_FAILED, PROG, RUNS_DIR, BadInput, checked_out
 from gantry_twin.cnc.config import INI_NAME, SERVO_PERIOD_NS, CncConfigError, config_files, machine_for, read_ini
 from gantry_twin.outputs.files import atomic_write_text
+from gantry_twin.paths.contours import TimingLaw
 from gantry_twin.scenario import load_scenario
 from gantry_twin.scenario.files import shipped
 from gantry_twin.scenario.schema import DURATION_MAX_S, GcodeSpec
 
 #: The live mode's settings in the INI's [GANTRY_TWIN] section (docs/linuxcnc-live.md).
-LIVE_KEYS = ("SCENARIO", "SET", "RUN_DIR", "RUN_BASE", "DELAY_PERIODS")
+LIVE_KEYS = ("SCENARIO", "SET", "RUN_DIR", "RUN_BASE", "DELAY_PERIODS", "TELEMETRY")
 #: The twin's messages in its live run directory (also on LinuxCNC's output).
 LIVE_LOG = "linuxcnc_live.log"
 
@@ -46,6 +47,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     config.add_argument("--delay-periods", type=int, default=None, metavar="N",
                         help="--live: rows prefilled into HAL's streamer: the feedback's delay, servo periods "
                              "(default 100)")  # fmt: skip
+    config.add_argument("--telemetry", default="", metavar="'ARGS'",
+                        help="--live: rerun for the twin: '--serve-web', '--viewer', '--save FILE.rrd' or "
+                             "'--connect URL' (docs/telemetry.md)")  # fmt: skip
     config.set_defaults(func=command)
     machine = actions.add_parser(
         "machine", help="the twin as LinuxCNC's machine (loaded by the --live configuration's HAL file)"
@@ -78,6 +82,7 @@ def command(args: argparse.Namespace) -> int:
             "RUN_DIR": str(run_dir) if args.run_dir is not None else "",
             "RUN_BASE": str(run_dir) if args.run_dir is None else "",
             "DELAY_PERIODS": str(delay),
+            "TELEMETRY": args.telemetry,
         }  # fmt: skip
         words = ["/usr/bin/env", f"NUMBA_CACHE_DIR={Path(cache_dir()).parent}", sys.executable, "-m", "gantry_twin",
                  "linuxcnc", "machine", "--ini", str(out / INI_NAME)]  # fmt: skip
@@ -85,8 +90,8 @@ def command(args: argparse.Namespace) -> int:
         if spaced is not None:
             raise BadInput(f"--out {out}: HAL's loadusr line cannot hold a path with spaces ({spaced!r})")
         live = (" ".join(words), settings)
-    elif args.run_dir is not None or args.delay_periods is not None:
-        raise BadInput("--run-dir and --delay-periods: only with --live")
+    elif args.run_dir is not None or args.delay_periods is not None or args.telemetry:
+        raise BadInput("--run-dir, --delay-periods and --telemetry: only with --live")
     try:
         out.mkdir(parents=True, exist_ok=True)
         files = config_files(machine_for(limits), args.display, live)
@@ -134,6 +139,7 @@ def machine_command(args: argparse.Namespace) -> int:
         LiveFifos.check()
     except LiveError as exc:
         raise BadInput(f"linuxcnc machine: {exc}") from None
+    telemetry = _telemetry(args.ini, twin.get("TELEMETRY", ""))
     path = resolve_scenario(twin.get("SCENARIO") or "no_load_circle")
     scenario = load_scenario(path, shlex.split(twin.get("SET", "")))
     d = DURATION_MAX_S  # the longest live run; LinuxCNC's exit or estop ends it before
@@ -146,7 +152,7 @@ def machine_command(args: argparse.Namespace) -> int:
     out = Path(twin["RUN_DIR"]) if twin.get("RUN_DIR") else new_run_dir(Path(twin.get("RUN_BASE") or RUNS_DIR))
     fifos = LiveFifos(delay)
     commands = LiveCommands(fifos, period_s)
-    built = dataclasses.replace(built, path=commands)
+    built = dataclasses.replace(built, path=commands, timing=TimingLaw(1.0))  # phi = t
 
     def say(text: str) -> None:  # to LinuxCNC's output and the run directory's log
         print(text, file=sys.stderr, flush=True)
@@ -156,14 +162,15 @@ def machine_command(args: argparse.Namespace) -> int:
     feedback = LiveFeedback(commands, built.plant, say)
     parts = TraceParts(out / "trace")
     alarms = _AlarmPrinter(built.monitor, say)
+    views = [_LiveView(observer, commands) for observer in telemetry]
     try:
-        with RunWriter(out, built) as writer:
+        with telemetry, RunWriter(out, built) as writer:
             try:
                 fifos.start()
             except (LiveError, OSError) as exc:
                 raise BadInput(f"the live link to LinuxCNC's HAL: {exc}") from None
             say(f"{PROG}: the twin is LinuxCNC's machine (pid {os.getpid()}); run directory {out}")
-            outcome = writer.run([feedback, parts, alarms], hold_s=CHUNK_S, chunk_s=CHUNK_S)
+            outcome = writer.run([feedback, parts, alarms, *views], hold_s=CHUNK_S, chunk_s=CHUNK_S)
         if outcome.error is not None:
             feedback.set_fault(str(outcome.error))
     except BaseException as exc:
@@ -182,6 +189,45 @@ def machine_command(args: argparse.Namespace) -> int:
     say(f"{PROG}: the twin followed LinuxCNC for {commands.duration_s:.3f} s ({commands.count} commands); ended by "
         f"{info['ended_by']}; {measured}{load}; results in {out}/")  # fmt: skip
     return EXIT_RUN_FAILED if feedback.fault is not None else EXIT_OK
+
+
+def _telemetry(ini: Path, words: str):
+    """The rerun observers the INI's ``[GANTRY_TWIN] TELEMETRY`` asks for (``--viewer``, ``--serve-web``,
+    ``--save FILE.rrd``, ``--connect URL``); BadInput in one line for anything else."""
+    from gantry_twin.cli.telemetry import add_telemetry_arguments, telemetry_observers
+
+    parser = argparse.ArgumentParser(prog=f"{ini}: [GANTRY_TWIN] TELEMETRY", add_help=False, exit_on_error=False)
+    add_telemetry_arguments(parser)
+    try:
+        parsed, unknown = parser.parse_known_args(shlex.split(words))
+    except (argparse.ArgumentError, ValueError) as exc:
+        raise BadInput(f"{ini}: [GANTRY_TWIN] TELEMETRY: {exc}") from None
+    if unknown or parsed.realtime is not None:
+        what = " ".join(unknown) or "--realtime"
+        raise BadInput(f"{ini}: [GANTRY_TWIN] TELEMETRY: {what}: takes --viewer, --serve-web, --save, --connect")
+    return telemetry_observers(parsed, out=sys.stderr)
+
+
+class _LiveView:
+    """A telemetry observer fed a live run: it sees the commands received so far as the path (it draws and
+    measures against them as they come; a live run has no whole path when it starts)."""
+
+    def __init__(self, inner, commands) -> None:
+        self.inner, self.commands = inner, commands
+
+    def watch(self, monitor) -> None:
+        watch = getattr(self.inner, "watch", None)
+        if callable(watch):
+            watch(monitor)
+
+    def on_start(self, run, trace) -> None:
+        self.inner.on_start(dataclasses.replace(run, path=self.commands.held(), samples=2), trace)
+
+    def on_chunk(self, trace, start: int, stop: int) -> None:
+        self.inner.on_chunk(trace, start, stop)
+
+    def on_end(self, trace) -> None:
+        self.inner.on_end(trace)
 
 
 class _AlarmPrinter:

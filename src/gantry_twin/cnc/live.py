@@ -375,6 +375,10 @@ class LiveCommands:
         vel[outside], acc[outside], jerk[outside] = 0.0, 0.0, 0.0
         return pos, vel, acc, jerk
 
+    def held(self) -> HeldCommands:
+        """The commands received so far as a contour that never waits (for telemetry: :class:`HeldCommands`)."""
+        return HeldCommands(self)
+
     # ------------------------------------------------------------------ what it measured
     def delay_periods(self) -> dict[str, float | int]:
         """The delay of the twin's errors, servo periods (median, p99, min, max over the periods measured)."""
@@ -412,6 +416,31 @@ class LiveCommands:
             "sampler_overruns": self.overruns,
             "twin_cpu": self.fifos.cpu,  # from the commands' start to their end
         }
+
+
+class HeldCommands:
+    """The commands received so far as a ``TimedContour`` that never waits for more (held at the last one): what
+    a telemetry observer may draw and measure against while the loop runs (phi = t)."""
+
+    def __init__(self, commands: LiveCommands) -> None:
+        self.commands = commands
+
+    @property
+    def period_rad(self) -> float:
+        return 1.0
+
+    def derivatives(self, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        return self.commands.derivatives(phi)
+
+    def reference(self, t_s: np.ndarray) -> Reference:
+        s = self.commands.sample(t_s)
+        return Reference(
+            t_s=s.t_s, phi=s.t_s.copy(), dphi=np.ones_like(s.t_s), q_d=s.q_m, dq_d=s.v_m_s, ddq_d=s.a_m_s2,
+            alpha=s.alpha_rad, dalpha=s.dalpha_rad_s, ddalpha=s.ddalpha_rad_s2,
+        )  # fmt: skip
+
+    def contour_error(self, q_m: np.ndarray, phi_guess: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return self.commands.contour_error(q_m, phi_guess)
 
 
 class LiveFeedback:
