@@ -120,6 +120,7 @@ def machine_command(args: argparse.Namespace) -> int:
         LiveFifos,
     )
     from gantry_twin.loop.simulate import simulate
+    from gantry_twin.numerics.jit import CacheDirError, check_cache_dir
     from gantry_twin.outputs.rundirs import new_run_dir
     from gantry_twin.outputs.tracefile import TraceParts
     from gantry_twin.run import RunWriter
@@ -139,6 +140,10 @@ def machine_command(args: argparse.Namespace) -> int:
         LiveFifos.check()
     except LiveError as exc:
         raise BadInput(f"linuxcnc machine: {exc}") from None
+    try:  # the loop is loaded or compiled below ("linuxcnc" is among the commands that compile nothing)
+        check_cache_dir()
+    except CacheDirError as exc:
+        raise BadInput(str(exc)) from None
     telemetry = _telemetry(args.ini, twin.get("TELEMETRY", ""))
     path = resolve_scenario(twin.get("SCENARIO") or "no_load_circle")
     scenario = load_scenario(path, shlex.split(twin.get("SET", "")))
