@@ -333,6 +333,7 @@ def test_the_feedback_delay_is_measured(live_program):
     assert delay["periods_measured"] > 1000
     assert info["prefill_periods"] <= delay["min"] <= delay["median"] <= delay["p99"] <= delay["max"]
     assert info["delay_ms"]["median"] == pytest.approx(delay["median"] * 1.0)
+    assert info["streamer_underruns"] == delay["max"] - info["prefill_periods"]
 
 
 @needs_linuxcnc

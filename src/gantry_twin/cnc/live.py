@@ -414,6 +414,8 @@ class LiveCommands:
             "delay_periods": delay,
             "delay_ms": {k: v * self.period_s * 1e3 for k, v in delay.items() if k != "periods_measured"},
             "sampler_overruns": self.overruns,
+            # each underrun delays every later row by one period, and nothing shortens the delay
+            "streamer_underruns": delay["max"] - self.fifos.delay_periods if "max" in delay else 0,
             "twin_cpu": self.fifos.cpu,  # from the commands' start to their end
         }
 
