@@ -260,6 +260,9 @@ class LiveCommands:
             if self.stop_reason is not None or self.ended_by is not None:
                 self.fifos.mark_end()
                 raise ReferenceEnded(self.stop_reason or self.ended_by)
+            missing = index + 1 - self.count
+            if missing > 2:  # they come one a period: sleep until nearly all are in, not awake for each line
+                time.sleep(min(missing - 2, 200) * self.period_s)
             lines, ended = self.fifos.read(STALL_S)
             if lines:
                 self._take(lines)
