@@ -24,8 +24,9 @@ import pyarrow.parquet as pq
 import pytest
 
 from gantry_twin.cnc import session as cnc_session
-from gantry_twin.cnc.live import LOOKAHEAD_PERIODS, LiveCommands
+from gantry_twin.cnc.live import HISTORY_PERIODS, LOOKAHEAD_PERIODS, LiveCommands
 from gantry_twin.cnc.session import Session, machine_lock
+from gantry_twin.paths.contours import ReferenceEnded
 
 from .helpers import read_rrd, scalars
 
@@ -130,28 +131,30 @@ def trace(run_dir: Path) -> dict[str, np.ndarray]:
 
 
 class ListedFifos:
-    """Stands for HAL's programs: the sampler's lines from a list, ten at a time; what the twin writes is kept."""
+    """Stands for HAL's programs: the sampler's lines from a list, ``per_read`` at a time; what the twin writes goes."""
 
     delay_periods = 7
 
-    def __init__(self, q_mm: np.ndarray, enabled: np.ndarray | None = None) -> None:
+    def __init__(self, q_mm: np.ndarray, enabled: np.ndarray | None = None, per_read: int = 1000) -> None:
         on = np.ones(len(q_mm), dtype=bool) if enabled is None else enabled
         self.lines = [
             f"{k} {x:f} {y:f} 1 {int(e)} {k - 7} ".encode() for k, ((x, y), e) in enumerate(zip(q_mm, on, strict=True))
         ]
-        self.at = 0
+        self.at, self.per_read = 0, per_read
 
     def read(self, timeout_s: float):
         if self.at >= len(self.lines):
             return [], True
-        self.at += 10
-        return self.lines[self.at - 10 : self.at], False
+        self.at += self.per_read
+        return self.lines[self.at - self.per_read : self.at], False
 
     def write(self, rows):
         pass
 
     def mark_end(self):
         pass
+
+    cpu: dict = {}
 
 
 def _commands(n: int = 400) -> np.ndarray:
@@ -197,6 +200,26 @@ def test_commands_taken_while_motion_is_disabled_are_held():
     live = LiveCommands(ListedFifos(q_mm, enabled), 1e-3)
     ref = live.reference(np.arange(0, 0.3, 1e-3))
     assert np.allclose(ref.q_d[100:], q_mm[99] * 1e-3, atol=1e-15)
+
+
+def test_a_long_run_holds_a_bounded_history_and_still_passes_through_its_commands():
+    n = 3 * HISTORY_PERIODS
+    q_mm = np.column_stack([np.arange(n) * 1e-3, np.zeros(n)])  # 1 mm/s along X
+    live = LiveCommands(ListedFifos(q_mm), 1e-3)
+    for first in range(0, n - 60, 50):  # the loop's chunks of 50 ms, in order
+        ref = live.reference(np.arange(first, first + 50) * 1e-3)
+    assert len(live._q) <= 2 * HISTORY_PERIODS and live.first > 0
+    assert np.allclose(ref.q_d[:, 0], np.round(q_mm[first : first + 50, 0], 6) * 1e-3, atol=1e-15)
+    assert np.allclose(ref.dq_d[:, 0], 1e-3, atol=1e-9)
+
+
+def test_an_overrun_of_the_sampler_ends_the_run_as_a_fault():
+    fifos = ListedFifos(_commands())
+    fifos.lines.insert(30, b"overrun")
+    live = LiveCommands(fifos, 1e-3)
+    with pytest.raises(ReferenceEnded, match="sampler overran"):
+        live.reference(np.arange(0, 0.1, 2e-4))
+    assert live.overruns == 1 and live.info()["sampler_overruns"] == 1
 
 
 def test_the_live_config_closes_the_estop_chain_only_through_the_twin(tmp_path):
