@@ -31,7 +31,7 @@ programs, never its library (the twin stays a separate program):
   command plus the twin's error, so its following error is the twin's
   tracking error, only older by the FIFO's delay, and never the delay
   itself (which a position fed back through the FIFOs would add: the
-  command's travel in the delay, 40 um at 1 m/min and 40 ms).
+  command's travel in the delay, 1.7 mm at 1 m/min and 100 ms).
 * **The delay.** The streamer is prefilled with ``delay_periods`` D rows
   (e = 0) and enabled in the same servo period as the sampler (one HAL
   signal), so the row of command k comes out D periods after k was taken
