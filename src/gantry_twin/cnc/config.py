@@ -217,6 +217,79 @@ def hal_text(record: bool) -> str:
     return "\n".join(lines) + "\n"
 
 
+#: The live mode's HAL FIFOs: the sampler's columns (X and Y motor commands mm, LinuxCNC's estop chain out, motion
+#: enabled, the tag the streamer gives back) and the streamer's (the twin's X and Y errors mm, its X and Y measured
+#: positions mm, its ok bit, its heartbeat, its tag).
+LIVE_SAMPLER_CFG, LIVE_STREAMER_CFG, LIVE_FIFO_DEPTH = "ffbbs", "ffffbbs", 4096
+#: Seconds without a heartbeat from the twin before HAL's watchdog drops LinuxCNC's estop chain.
+LIVE_WATCHDOG_S = 0.5
+
+
+def live_hal_text(twin_command: str) -> str:
+    """The live mode's HAL file (docs/linuxcnc-live.md): the twin is the machine, loaded with ``loadusr
+    twin_command``. Per servo period, in this order: ``streamer.0`` gives the twin's error e (mm) of a past
+    command, ``sum2`` makes each joint's feedback ``motor-pos-fb = motor-pos-cmd + e`` (the command motion wrote in
+    the previous period: LinuxCNC's following error is then -e) while motion is enabled, and the twin's measured
+    position (``mux2``) while it is not (motion then copies the feedback into the command: cmd + e would feed the
+    error back into the command, growing with the delay), motion runs, and ``sampler.0`` takes the new
+    commands for the twin. ``gantry-twin-run`` enables the sampler and the streamer in the same period (the twin
+    sets it once its readers run and the streamer holds its prefill). LinuxCNC's estop chain is closed only while
+    the twin says it is ok and HAL's ``watchdog`` sees its heartbeat toggle (a dead twin stops the heartbeat; the
+    watchdog starts on the ok bit's rising edge, and once tripped it stays so: LinuxCNC must be restarted)."""
+    lines = [
+        "# HAL of gantry-twin's live mode (written by `gantry-twin linuxcnc config --live`): the twin is the machine.",
+        "# Commands go to the twin through sampler.0 -> halsampler; the twin's errors come back through",
+        "# halstreamer -> streamer.0, and each joint's feedback is its command plus the twin's error.",
+        "loadrt [KINS]KINEMATICS",
+        "loadrt [EMCMOT]EMCMOT servo_period_nsec=[EMCMOT]SERVO_PERIOD num_joints=[KINS]JOINTS",
+        f"loadrt streamer depth={LIVE_FIFO_DEPTH} cfg={LIVE_STREAMER_CFG}",
+        f"loadrt sampler depth={LIVE_FIFO_DEPTH} cfg={LIVE_SAMPLER_CFG}",
+        "loadrt sum2 count=2",
+        "loadrt mux2 count=2",
+        "loadrt watchdog num_inputs=1",
+        "loadrt and2 count=2",
+        "addf streamer.0 servo-thread",
+        "addf watchdog.set-timeouts servo-thread",
+        "addf watchdog.process servo-thread",
+        "addf and2.0 servo-thread",
+        "addf and2.1 servo-thread",
+        "addf sum2.0 servo-thread",
+        "addf sum2.1 servo-thread",
+        "addf mux2.0 servo-thread",
+        "addf mux2.1 servo-thread",
+        "addf motion-command-handler servo-thread",
+        "addf motion-controller servo-thread",
+        "addf sampler.0 servo-thread",
+        "net gantry-twin-run sampler.0.enable streamer.0.enable",
+        "sets gantry-twin-run 0",
+        f"setp watchdog.timeout-0 {LIVE_WATCHDOG_S:g}",
+        *(
+            line
+            for j, axis in enumerate("xy")
+            for line in (
+                f"net {axis}-cmd joint.{j}.motor-pos-cmd => sampler.0.pin.{j} sum2.{j}.in0",
+                f"net {axis}-twin-error streamer.0.pin.{j} => sum2.{j}.in1",
+                f"net {axis}-cmd-plus-error sum2.{j}.out => mux2.{j}.in1",
+                f"net {axis}-twin-position streamer.0.pin.{j + 2} => mux2.{j}.in0",
+                f"net {axis}-fb mux2.{j}.out => joint.{j}.motor-pos-fb",
+            )
+        ),
+        "net motion-enabled motion.motion-enabled => mux2.0.sel mux2.1.sel sampler.0.pin.3",
+        "net z-loop joint.2.motor-pos-cmd => joint.2.motor-pos-fb",
+        "net estop-out iocontrol.0.user-enable-out => and2.0.in0 sampler.0.pin.2",
+        "net twin-ok streamer.0.pin.4 => and2.0.in1 watchdog.enable-in",
+        "net twin-heartbeat streamer.0.pin.5 => watchdog.input-0",
+        "net estop-and-twin-ok and2.0.out => and2.1.in0",
+        "net twin-alive watchdog.ok-out => and2.1.in1",
+        "net estop-in and2.1.out => iocontrol.0.emc-enable-in",
+        "net twin-tag streamer.0.pin.6 => sampler.0.pin.4",
+        "net tool-prep-loop iocontrol.0.tool-prepare => iocontrol.0.tool-prepared",
+        "net tool-change-loop iocontrol.0.tool-change => iocontrol.0.tool-changed",
+        f"loadusr {twin_command}",
+    ]
+    return "\n".join(lines) + "\n"
+
+
 # ---------------------------------------------------------------------------------------------- reading
 
 
@@ -330,10 +403,20 @@ def machine_from_ini(path: str | Path) -> CncMachine:
 TOOL_TABLE_NAME = "gantry-twin.tbl"
 
 
-def config_files(machine: CncMachine, display: str = "axis") -> dict[str, str]:
+def config_files(
+    machine: CncMachine, display: str = "axis", live: tuple[str, dict[str, str]] | None = None
+) -> dict[str, str]:
     """A LinuxCNC configuration of ``machine`` (name -> text): run it with ``linuxcnc DIR/gantry-twin.ini``
     (LinuxCNC's own simulator wiring: the command is its feedback), edit its limits and give it back to the
-    twin with ``--cnc-ini``."""
+    twin with ``--cnc-ini``. ``live``: (the twin's command line, its ``[GANTRY_TWIN]`` settings): the live mode's
+    configuration instead, where the twin is the machine (:func:`live_hal_text`)."""
+    if live is not None:
+        command, settings = live
+        return {
+            INI_NAME: ini_text(machine, display, (HAL_NAME,), {"GANTRY_TWIN": settings}),
+            HAL_NAME: live_hal_text(command),
+            TOOL_TABLE_NAME: "",
+        }
     return {
         INI_NAME: ini_text(machine, display, (HAL_NAME,), {}),
         HAL_NAME: hal_text(record=False),

@@ -69,7 +69,14 @@ from gantry_twin.loop.trace import Observer, RunInfo, SimulationError, Trace
 from gantry_twin.loop.worker import WorkerLoop, isolation_of, shared_full
 from gantry_twin.numerics.jit import is_cached, specialise
 from gantry_twin.numerics.jit import reference as uncompiled
-from gantry_twin.paths.contours import Contour, Reference, ReferenceStream, TimingLaw, contour_error
+from gantry_twin.paths.contours import (
+    Contour,
+    Reference,
+    ReferenceEnded,
+    ReferenceStream,
+    TimingLaw,
+    contour_error,
+)
 from gantry_twin.paths.taskframe import normal_errors
 from gantry_twin.plant.faults import (
     ChangeSchedule,
@@ -150,6 +157,8 @@ def simulate(
     then records the true theta over time (``true_theta_t``). A payload
     change needs a plant built with ``payload_body=True``. The model's
     damping, friction and masses are restored after the run.
+    A live contour (one whose reference raises :class:`ReferenceEnded`) ends
+    the run before ``duration_s``: the trace returned is the last piece held.
     hold_s: hold at most this much of the run in memory (rounded up to whole
     chunks): the run goes piece by piece, the observers see every chunk
     while its piece is held (``RunInfo.reference`` is None, ``Trace.first``
@@ -192,7 +201,12 @@ def simulate(
     try:
         for first in range(0, n, piece):
             t = np.arange(first, min(n, first + piece)) * ts
-            ref = references.next(t)
+            try:
+                ref = references.next(t)
+            except ReferenceEnded:  # a live reference's source ended: the run ends with the samples before t
+                if loop is None:
+                    raise
+                break
             dist = np.zeros((t.size, 2)) if disturbance is None else np.asarray(disturbance(t), dtype=float)
             if dist.shape != (t.size, 2):
                 raise ValueError(f"disturbance must give shape ({t.size}, 2) volts, got {dist.shape}")

@@ -12,7 +12,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from gantry_twin.loop.trace import RunInfo, Trace
-from gantry_twin.outputs.files import PARQUET_OPTIONS, commit, discard, temporary_file
+from gantry_twin.outputs.files import PARQUET_OPTIONS, commit, discard, temporary_file, write_parquet
 from gantry_twin.outputs.signals import signals_held
 from gantry_twin.plant.model import AXES, THETA_NAMES
 
@@ -176,3 +176,42 @@ class TraceWriter:
             self._writer = None
         discard(self._fh, self._tmp)
         self._fh = self._tmp = None
+
+
+#: Samples per trace part of a live run (1 s at 5 kHz), and the parts' names in its trace/ directory.
+PART_SAMPLES = 5000
+PART_PATTERN = "part-{:06d}.parquet"
+
+
+class TraceParts:
+    """A live run's trace as it comes (an Observer): a part file every ``part_samples`` samples into ``directory``
+    (``part-000001.parquet``, ..., each a complete parquet file of trace.parquet's columns, written atomically),
+    so that a run killed at any moment leaves a readable trace of what it ran, as the shadow monitor writes its
+    own (docs/live-link.md). ``on_end`` writes the last, shorter part."""
+
+    def __init__(self, directory: Path, part_samples: int = PART_SAMPLES) -> None:
+        self.directory, self.part_samples = Path(directory), int(part_samples)
+        self._tables: list[pa.Table] = []
+        self._held = 0
+        self.parts = 0
+
+    def on_start(self, run: RunInfo, trace: Trace) -> None:
+        self.directory.mkdir(parents=True, exist_ok=True)
+
+    def on_chunk(self, trace: Trace, start: int, stop: int) -> None:
+        self._tables.append(trace_table(trace, 1, start, stop))
+        self._held += stop - start
+        if self._held >= self.part_samples:
+            self.flush()
+
+    def on_end(self, trace: Trace) -> None:
+        self.flush()
+
+    def flush(self) -> None:
+        """Write what is held as the next part (nothing when nothing is held)."""
+        if not self._tables:
+            return
+        table = pa.concat_tables(self._tables)
+        self._tables, self._held = [], 0
+        self.parts += 1
+        write_parquet(self.directory / PART_PATTERN.format(self.parts), table)

@@ -58,6 +58,12 @@ class TimedContour(Contour, Protocol):
     def contour_error(self, q_m: np.ndarray, phi_guess: np.ndarray) -> tuple[np.ndarray, np.ndarray]: ...
 
 
+class ReferenceEnded(Exception):
+    """Raised by a live :class:`TimedContour`'s ``reference(t_s)`` when its source has ended (the machine that
+    streamed the commands stopped): the run ends there, with the samples before ``t_s``, as a run that reached its
+    duration does. ``str()`` says why."""
+
+
 @dataclass(frozen=True)
 class Ellipse:
     """p(phi) = centre + [a sin phi, -b cos phi]: starts at the bottom, moving +x.
