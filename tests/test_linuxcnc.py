@@ -331,12 +331,27 @@ def test_a_program_linuxcnc_refuses_exits_2_with_its_message_and_line(turn, tmp_
 LONG_PROGRAM = "G21 G90\nG1 X20 F120\nG1 X0\nG1 X20\nM2\n"  # 30 s
 
 
+def own(process: subprocess.Popen, name: str) -> list[int]:
+    """The pids of this test's twin's LinuxCNC processes called ``name`` (by the session's mark in their
+    environment, gantry_twin.cnc.session.MARKER: the twin's pid first)."""
+    mark = f"{cnc_session.MARKER}={process.pid}-".encode()
+    found = []
+    for entry in Path("/proc").iterdir():
+        try:
+            if entry.name.isdigit() and (entry / "comm").read_text().strip() == name:
+                if any(v.startswith(mark) for v in (entry / "environ").read_bytes().split(b"\0")):
+                    found.append(int(entry.name))
+        except OSError:
+            continue
+    return found
+
+
 def _started(process: subprocess.Popen, limit_s: float = 60.0) -> None:
     """Wait until LinuxCNC's motion runs (its rtapi_app exists) for this test's twin."""
     deadline = time.monotonic() + limit_s
     while time.monotonic() < deadline:
         assert process.poll() is None, process.communicate()[1]
-        if any(line.endswith("rtapi_app") for line in leftovers()):
+        if own(process, "rtapi_app"):
             time.sleep(2.0)  # homing done, the program running
             return
         time.sleep(0.1)
@@ -368,7 +383,10 @@ def test_a_killed_linuxcnc_fails_the_run_in_one_line_and_leaves_nothing(turn, tm
     process = twin("run", str(program), "--cnc", "linuxcnc", "--out", str(tmp_path / "run"))
     try:
         _started(process)
-        subprocess.run(["pkill", "-KILL", "-x", victim], check=True, timeout=10)
+        victims = own(process, victim)
+        assert victims, f"no {victim} of this test's LinuxCNC"
+        for pid in victims:
+            os.kill(pid, signal.SIGKILL)
         _, stderr = process.communicate(timeout=60)
         assert process.returncode == 1, stderr
         assert stderr.startswith("gantry-twin: run failed:") and len(stderr.strip().splitlines()) == 1

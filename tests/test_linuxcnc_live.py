@@ -1,4 +1,4 @@
-"""LinuxCNC's live mode (docs/linuxcnc-live.md): LinuxCNC runs with the twin as its machine, driven by the tests'
+"""LinuxCNC's live mode (docs/linuxcnc.md): LinuxCNC runs with the twin as its machine, driven by the tests'
 headless display program (tests/data/linuxcnc/display_live.py).
 
 LinuxCNC's shared memory is the machine's: every LinuxCNC these tests start runs inside
@@ -28,7 +28,7 @@ from gantry_twin.cnc.live import HISTORY_PERIODS, LOOKAHEAD_PERIODS, LiveCommand
 from gantry_twin.cnc.session import Session, machine_lock
 from gantry_twin.paths.contours import ReferenceEnded
 
-from .helpers import read_rrd, scalars
+from .helpers import linuxcnc_turn, read_rrd, scalars
 
 ROOT = Path(__file__).resolve().parents[1]
 DISPLAY = ROOT / "tests" / "data" / "linuxcnc" / "display_live.py"
@@ -82,7 +82,7 @@ def run_live(
     """One LinuxCNC session of the live configuration with the tests' display: (its events, the twin's run
     directory, LinuxCNC's output). ``during(events_path)`` runs while LinuxCNC does. Nothing is left after it."""
     run_dir = tmp_path / "run"
-    with machine_lock():
+    with linuxcnc_turn(), machine_lock():  # the tests' turn first (tests/helpers.py), then the sessions'
         before = cnc_session.shm_segments()
         directory = Session.make_directory()
         marker = str(directory)
@@ -275,8 +275,9 @@ def offline_program(tmp_path_factory, program_file):
     if MISSING is not None:
         pytest.skip(f"LinuxCNC is not installed here: {MISSING}")
     out = tmp_path_factory.mktemp("offline") / "run"
-    done = subprocess.run([sys.executable, "-m", "gantry_twin", "run", str(program_file), "--cnc", "linuxcnc",
-                           "--out", str(out)], capture_output=True, text=True, timeout=300, cwd=ROOT)  # fmt: skip
+    with linuxcnc_turn():
+        done = subprocess.run([sys.executable, "-m", "gantry_twin", "run", str(program_file), "--cnc", "linuxcnc",
+                               "--out", str(out)], capture_output=True, text=True, timeout=300, cwd=ROOT)  # fmt: skip
     assert done.returncode == 0, done.stderr
     table = pq.read_table(out / "trace.parquet")
     return {name: table.column(name).to_numpy() for name in table.column_names}

@@ -1,6 +1,6 @@
 """``gantry-twin linuxcnc config [SCENARIO] --out DIR [--live]``: a LinuxCNC configuration of the twin's machine;
 ``gantry-twin linuxcnc machine --ini INI``: the twin as LinuxCNC's machine, loaded by the live configuration's HAL
-file (docs/linuxcnc.md, docs/linuxcnc-live.md)."""
+file (docs/linuxcnc.md)."""
 
 from __future__ import annotations
 
@@ -20,7 +20,7 @@ from gantry_twin.scenario import load_scenario
 from gantry_twin.scenario.files import shipped
 from gantry_twin.scenario.schema import DURATION_MAX_S, GcodeSpec
 
-#: The live mode's settings in the INI's [GANTRY_TWIN] section (docs/linuxcnc-live.md).
+#: The live mode's settings in the INI's [GANTRY_TWIN] section (docs/linuxcnc.md, "The live mode").
 LIVE_KEYS = ("SCENARIO", "SET", "RUN_DIR", "RUN_BASE", "DELAY_PERIODS", "TELEMETRY")
 #: The twin's messages in its live run directory (also on LinuxCNC's output).
 LIVE_LOG = "linuxcnc_live.log"
@@ -38,7 +38,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                         help="override a scenario field (repeatable)")  # fmt: skip
     config.add_argument("--out", metavar="DIR", type=Path, required=True, help="the configuration's directory")
     config.add_argument("--live", action="store_true",
-                        help="the live mode: the twin is LinuxCNC's machine (docs/linuxcnc-live.md)")  # fmt: skip
+                        help="the live mode: the twin is LinuxCNC's machine (docs/linuxcnc.md)")  # fmt: skip
     config.add_argument("--display", default="axis", metavar="PROGRAM",
                         help="LinuxCNC's [DISPLAY] DISPLAY (default axis)")  # fmt: skip
     config.add_argument("--run-dir", type=Path, metavar="DIR",
@@ -101,7 +101,7 @@ def command(args: argparse.Namespace) -> int:
         raise BadInput(f"--out {out}: cannot write there ({exc.strerror or exc})") from None
     if args.live:
         print(f"LinuxCNC configuration of the twin as LinuxCNC's machine in {out}/ ({', '.join(files)}); run it "
-              f"with `linuxcnc {out / INI_NAME}` (docs/linuxcnc-live.md)")  # fmt: skip
+              f"with `linuxcnc {out / INI_NAME}` (docs/linuxcnc.md, 'The live mode')")  # fmt: skip
         return EXIT_OK
     print(f"LinuxCNC configuration of the twin's machine in {out}/ ({', '.join(files)}); run it with "
           f"`linuxcnc {out / 'gantry-twin.ini'}`, or give the INI to `gantry-twin run PROGRAM --cnc linuxcnc "

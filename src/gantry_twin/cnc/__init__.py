@@ -7,5 +7,5 @@ HAL, never loaded into the twin's process (docs/linuxcnc.md):
 :mod:`~gantry_twin.cnc.canon` (a program as ``rs274`` reads it),
 :mod:`~gantry_twin.cnc.offline` (a program run headless, its commands recorded),
 :mod:`~gantry_twin.cnc.reference` (the recorded commands as the loop's reference) and
-:mod:`~gantry_twin.cnc.live` (the twin as LinuxCNC's machine, in real time: docs/linuxcnc-live.md).
+:mod:`~gantry_twin.cnc.live` (the twin as LinuxCNC's machine, in real time: docs/linuxcnc.md, "The live mode").
 """

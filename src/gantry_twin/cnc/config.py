@@ -226,7 +226,7 @@ LIVE_WATCHDOG_S = 0.5
 
 
 def live_hal_text(twin_command: str) -> str:
-    """The live mode's HAL file (docs/linuxcnc-live.md): the twin is the machine, loaded with ``loadusr
+    """The live mode's HAL file (docs/linuxcnc.md, "The live mode"): the twin is the machine, loaded with ``loadusr
     twin_command``. Per servo period, in this order: ``streamer.0`` gives the twin's error e (mm) of a past
     command, ``sum2`` makes each joint's feedback ``motor-pos-fb = motor-pos-cmd + e`` (the command motion wrote in
     the previous period: LinuxCNC's following error is then -e) while motion is enabled, and the twin's measured

@@ -1,4 +1,4 @@
-"""The live mode: LinuxCNC runs with the twin as its machine, in real time (docs/linuxcnc-live.md).
+"""The live mode: LinuxCNC runs with the twin as its machine, in real time (docs/linuxcnc.md, "The live mode").
 
 LinuxCNC's HAL file (:func:`gantry_twin.cnc.config.live_hal_text`) loads the
 twin as a userspace program. The twin talks to HAL through HAL's own
