@@ -69,14 +69,7 @@ from gantry_twin.loop.trace import Observer, RunInfo, SimulationError, Trace
 from gantry_twin.loop.worker import WorkerLoop, isolation_of, shared_full
 from gantry_twin.numerics.jit import is_cached, specialise
 from gantry_twin.numerics.jit import reference as uncompiled
-from gantry_twin.paths.contours import (
-    Contour,
-    Reference,
-    ReferenceEnded,
-    ReferenceStream,
-    TimingLaw,
-    contour_error,
-)
+from gantry_twin.paths.contours import Contour, Reference, ReferenceEnded, ReferenceStream, TimingLaw, contour_error
 from gantry_twin.paths.taskframe import normal_errors
 from gantry_twin.plant.faults import (
     ChangeSchedule,
