@@ -67,7 +67,6 @@ def pytest_xdist_auto_num_workers(config):
 #: came late in the alphabet). Order only: no test depends on it.
 LONGEST_FIRST = (
     "test_linuxcnc.py",  # LinuxCNC runs in real time: mostly waiting, while the other worker computes
-    "test_late_join.py",
     "test_sweep.py",
     "test_calibrate.py",
     "test_health_closed_loop.py",

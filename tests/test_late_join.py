@@ -64,6 +64,10 @@ def test_a_shadow_that_joins_late_takes_its_baseline_from_its_own_first_seconds(
     healthy = tmp_path / "healthy"  # a run of the machine without the drift: its estimates are the baseline
     assert main(["run", "friction_drift_circle", "--set", "duration_s=10", "--set", "changes.friction_drift=[]"]
                 + ["--set", "monitor.enable=false", "--out", str(healthy), "--no-plots"]) == 0  # fmt: skip
+    # The shadows' kernels (the estimator's replay, the monitor) compiled now, not while a shadow should join: on a
+    # cold cache a shadow started at the machine's t = 8 s joined after its drift (and judged nothing).
+    main(["monitor", "friction_drift_circle", *LATE, "--log", str(healthy / "trace.parquet"), "--out",
+          str(tmp_path / "warm"), "--no-plots"])  # fmt: skip
     serve, endpoint = _start_serve(tmp_path, "friction_drift_circle", *LATE, "--loop", "--realtime", "4")
     shadows = {"window": tmp_path / "window", "given": tmp_path / "given"}
     extra = {"window": [], "given": ["--baseline", str(healthy / "summary.json")]}

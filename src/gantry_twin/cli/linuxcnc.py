@@ -100,6 +100,15 @@ def command(args: argparse.Namespace) -> int:
     except OSError as exc:
         raise BadInput(f"--out {out}: cannot write there ({exc.strerror or exc})") from None
     if args.live:
+        # The twin's loop compiles now, once per install, not while LinuxCNC waits for its machine.
+        from gantry_twin.cli import compile as compile_command
+        from gantry_twin.scenario import resolve_scenario
+
+        scenario_name = live[1]["SCENARIO"]
+        name = load_scenario(resolve_scenario(scenario_name), args.overrides).controller.name
+        code = compile_command.command(argparse.Namespace(controller=[name], compile_scenario=scenario_name))
+        if code != EXIT_OK:
+            return code
         print(f"LinuxCNC configuration of the twin as LinuxCNC's machine in {out}/ ({', '.join(files)}); run it "
               f"with `linuxcnc {out / INI_NAME}` (docs/linuxcnc.md, 'The live mode')")  # fmt: skip
         return EXIT_OK
