@@ -841,3 +841,17 @@ def test_a_killed_twin_puts_linuxcnc_in_estop(tmp_path):
     assert end["estop"] and not end["enable_in"]
     assert not (run_dir / "summary.json").exists()
     assert len(live_trace(run_dir)["t_s"]) > 0  # the parts written before the kill are readable
+
+
+def test_commands_that_cannot_be_matched_to_their_moves_are_not_judged_rather_than_judged_wrongly():
+    # The commands run 5 mm beside the programmed line: no attribution puts them within 1 mm of a move, and the
+    # part error would report 5 mm that LinuxCNC's planner never commanded (a lathe program in XZ did: 22 mm).
+    line = [Move("line", (0.0, 0.0), (0.02, 0.0), 0.1, False, 1)]
+    u = 0.02 * (1 - np.cos(np.linspace(0, np.pi, 200))) / 2
+    q = np.column_stack([u, np.full_like(u, 0.005)])
+    canon = type("Canon", (), {"moves": line, "items": tuple(line), "messages": (), "unjudged": frozenset(),
+                               "splines": 0, "name": "beside"})()  # fmt: skip
+    t = np.arange(len(q)) * 1e-3
+    path = CncPath(CncRecord(t, q, np.zeros(len(q), dtype=np.int64), 1e-3, float(t[-1]), (), canon, twin_machine()))
+    assert path.out_of_step_m() == pytest.approx(0.005)
+    assert path.rapid.all() and "could not be matched" in next(iter(path.program.dropped))

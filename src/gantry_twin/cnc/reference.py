@@ -69,11 +69,15 @@ class CncPath:
         self.servo_move = attribute(self.table, record.q_m, unjudged)
         self.moves = moves = [_with_line(m, record.line[self.servo_move == k]) for k, m in enumerate(moves)]
         self.true_rapid = np.array([m.rapid for m in moves], dtype=bool)
-        self.rapid = self.true_rapid | np.array([k in unjudged for k in range(len(moves))], dtype=bool)
+        self._unmeasurable = self.true_rapid | np.array([k in unjudged for k in range(len(moves))], dtype=bool)
+        self.rapid = self._unmeasurable.copy()
+        dropped = {"spline or other-plane moves not judged": len(unjudged)} if unjudged else {}
+        if self.out_of_step_m() > OUT_OF_STEP_M:  # the attribution lost its way: judge nothing rather than wrongly
+            self.rapid[:] = True
+            dropped = {"moves not judged: LinuxCNC's commands could not be matched to them in order": len(moves)}
         self.program = Program(
             name=canon.name, items=canon.items, start_m=(float(record.q_m[0, 0]), float(record.q_m[0, 1])),
-            dropped={"spline or other-plane moves not judged": len(unjudged)} if unjudged else {},
-            messages=(*canon.messages, *record.messages), programmed_moves=tuple(moves),
+            dropped=dropped, messages=(*canon.messages, *record.messages), programmed_moves=tuple(moves),
         )  # fmt: skip
         self._alpha_servo = self._servo_alpha()
         n = self.table.count
@@ -89,6 +93,15 @@ class CncPath:
                 self.kind[k] = 0
         self.alpha_start = np.array([m.tangent_angle(0.0) for m in moves])
         self.alpha_end = np.array([m.tangent_angle(m.length_m) for m in moves])
+
+    def out_of_step_m(self) -> float:
+        """The largest distance of a command to the judged move it is attributed to (m): within the program's
+        blending tolerance when the attribution is right; far more when it lost its way (a program whose XY path
+        retraces one line again and again, as a lathe program in XZ does)."""
+        judged = ~self._unmeasurable[self.servo_move]
+        if not judged.any():
+            return 0.0
+        return float(self.table.distance(self.servo_move[judged], self.record.q_m[judged]).max())
 
     def run_files(self) -> dict[str, str]:
         """LinuxCNC's side of the run directory (:data:`CNC_FILE`, :data:`CNC_COMMANDS_FILE`): name -> text."""
@@ -234,6 +247,8 @@ def attribute(table: MoveTable, q_m: np.ndarray, unjudged: frozenset[int] | set[
     return out
 
 
+#: A command farther than this from its judged move means the attribution lost its way (m; G64 P is far less).
+OUT_OF_STEP_M = 1e-3
 #: Nearer by less than this is a tie (two moves over the same points differ by rounding only), m.
 NEARER_M = 1e-10
 #: The command has covered a move when its path since the move began is this much short of the move's length (m).
@@ -243,13 +258,20 @@ END_TOLERANCE_M = 5e-5
 
 
 def _past_end(q: np.ndarray, i: int, end: np.ndarray) -> int:
-    """The first sample after the command, from sample i on, came within END_TOLERANCE_M of ``end`` and then no
-    nearer (len(q) if it never does)."""
+    """The first sample after the command, from sample i on, arrived within END_TOLERANCE_M of ``end`` and then came
+    no nearer (len(q) if it never does). A stretch that starts at its end point must first leave it: an arrival is
+    a coming back (a lathe-like program in XZ passes the same X again and again)."""
     d = np.linalg.norm(q[i:] - end, axis=1)
-    near = np.flatnonzero(d < END_TOLERANCE_M)
+    start = 0
+    if d[0] < END_TOLERANCE_M:
+        away = np.flatnonzero(d > 2 * END_TOLERANCE_M)
+        if away.size == 0:
+            return len(q)
+        start = int(away[0])
+    near = np.flatnonzero(d[start:] < END_TOLERANCE_M)
     if near.size == 0:
         return len(q)
-    j = int(near[0])
+    j = start + int(near[0])
     while j + 1 < len(d) and d[j + 1] <= d[j]:
         j += 1
     return i + j + 1

@@ -205,7 +205,13 @@ class Session:
         self._remove_leftovers()
 
     def _kill_leftovers(self, process: subprocess.Popen | None) -> None:
-        """SIGKILL every process still marked as this session's (and the launcher's group), and reap them."""
+        """SIGKILL every process still marked as this session's (and the launcher's group), and reap them. After a
+        launcher that ended well, what LinuxCNC started gets GRACE_S to end on its own first (the live twin writes
+        its summary once LinuxCNC is gone)."""
+        if process is not None and process.returncode == 0:
+            deadline = time.monotonic() + GRACE_S
+            while _marked_processes(self._marker) and time.monotonic() < deadline:
+                time.sleep(0.1)
         if process is not None:
             with contextlib.suppress(ProcessLookupError, PermissionError):
                 os.killpg(process.pid, signal.SIGKILL)
