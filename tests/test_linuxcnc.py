@@ -38,7 +38,7 @@ from gantry_twin.cnc.config import (
     twin_machine,
 )
 from gantry_twin.cnc.live import HISTORY_PERIODS, LOOKAHEAD_PERIODS, LiveCommands
-from gantry_twin.cnc.offline import CncRecord
+from gantry_twin.cnc.offline import DISPLAY_SCRIPT, CncRecord
 from gantry_twin.cnc.reference import CncPath, attribute
 from gantry_twin.cnc.session import Session, machine_lock
 from gantry_twin.gcode.geometry import Move, MoveTable
@@ -507,6 +507,7 @@ def run_live(
         with Session(directory, directory / "gantry-twin.ini", DISPLAY.name) as session:
             display = directory / DISPLAY.name
             shutil.copyfile(DISPLAY, display)
+            shutil.copyfile(DISPLAY_SCRIPT, directory / DISPLAY_SCRIPT.name)  # its bring-up: display_offline.py
             display.chmod(0o755)
             config = [sys.executable, "-m", "gantry_twin", "linuxcnc", "config", "--live", "--out", str(directory),
                       "--run-dir", str(run_dir), "--display", str(display)]  # fmt: skip

@@ -31,6 +31,23 @@ import threading
 import time
 
 
+def bring_up(linuxcnc, stat, command, wait):
+    """Estop reset, machine on, every joint homed: what a person does first in LinuxCNC's GUI. ``wait(what,
+    done, limit_s)`` polls ``stat`` until ``done()`` (bounded). The tests' live display program uses it too."""
+    command.state(linuxcnc.STATE_ESTOP_RESET)
+    command.wait_complete(5)
+    command.state(linuxcnc.STATE_ON)
+    command.wait_complete(5)
+    wait("machine on", lambda: stat.task_state == linuxcnc.STATE_ON, 10)
+    command.mode(linuxcnc.MODE_MANUAL)
+    command.wait_complete(5)
+    command.teleop_enable(0)
+    command.wait_complete(5)
+    command.home(-1)
+    command.wait_complete(5)
+    wait("homing", lambda: all(stat.homed[j] for j in range(stat.joints)), 60)
+
+
 class TwinGone(RuntimeError):
     """The twin's process ended: nobody waits for the program any more."""
 
@@ -99,18 +116,7 @@ def main(argv):
     sampler = None
     try:
         wait("LinuxCNC's task", lambda: True, 30)
-        command.state(linuxcnc.STATE_ESTOP_RESET)
-        command.wait_complete(5)
-        command.state(linuxcnc.STATE_ON)
-        command.wait_complete(5)
-        wait("machine on", lambda: stat.task_state == linuxcnc.STATE_ON, 10)
-        command.mode(linuxcnc.MODE_MANUAL)
-        command.wait_complete(5)
-        command.teleop_enable(0)
-        command.wait_complete(5)
-        command.home(-1)
-        command.wait_complete(5)
-        wait("homing", lambda: all(stat.homed[j] for j in range(stat.joints)), 60)
+        bring_up(linuxcnc, stat, command, wait)
         say("homed", joints=stat.joints)
         command.mode(linuxcnc.MODE_AUTO)
         command.wait_complete(5)

@@ -21,6 +21,7 @@ import time
 def main(argv):
     import hal
     import linuxcnc
+    from display_offline import bring_up  # the offline display's bring-up, copied beside this file by the tests
 
     ini = linuxcnc.ini(argv[argv.index("-ini") + 1])
     program = ini.find("GANTRY_TWIN_TEST", "PROGRAM") or ""
@@ -59,18 +60,7 @@ def main(argv):
     try:
         wait("the twin", lambda: hal.get_value("watchdog.ok-out"), 120)
         say("twin_ready")
-        command.state(linuxcnc.STATE_ESTOP_RESET)
-        command.wait_complete(5)
-        command.state(linuxcnc.STATE_ON)
-        command.wait_complete(5)
-        wait("machine on", lambda: stat.task_state == linuxcnc.STATE_ON, 10)
-        command.mode(linuxcnc.MODE_MANUAL)
-        command.wait_complete(5)
-        command.teleop_enable(0)
-        command.wait_complete(5)
-        command.home(-1)
-        command.wait_complete(5)
-        wait("homing", lambda: all(stat.homed[j] for j in range(stat.joints)), 60)
+        bring_up(linuxcnc, stat, command, wait)
         say("homed")
         if program:
             command.mode(linuxcnc.MODE_AUTO)
