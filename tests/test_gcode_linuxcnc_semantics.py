@@ -216,6 +216,18 @@ def test_g41_right_after_g40_ends_the_run_where_the_tool_is_and_starts_the_next_
         parse_program(arc, name="t.ngc")
 
 
+def test_a_z_only_move_after_g40_is_the_exit_and_an_arc_may_follow():
+    """LinuxCNC's convert_cutter_compensation_off makes the programmed point the current one: the next straight
+    move, Z only here, takes the tool from its offset end (20, 2) back to the programmed (20, 0) (rs274 -g prints
+    STRAIGHT_TRAVERSE(20, 0, 5)), so an arc may follow (LinuxCNC's sample gmoccapy_2_tools... does this)."""
+    text = "G10 L1 P1 R2\nT1 M6\nG0 X-10 Y-10\nG41 G1 X0 Y0 F100\nX20\nG40\nG0 Z5\nX20 Y0\nG41 G3 X30 Y10 I10 J0\n"
+    moves = parse_program(text + "G1 Y20\nG40 X40 Y30\n", drop_unsupported=True).moves
+    exit_move = next(m for m in moves if m.line == 7)
+    assert exit_move.start_m == pytest.approx((20e-3, 2e-3), abs=1e-12)
+    assert exit_move.end_m == pytest.approx((20e-3, 0.0), abs=1e-12)
+    assert [m.line for m in moves].count(8) == 0  # already there: no move
+
+
 def test_g5_and_g5_1_leave_the_motion_mode_as_it_was():
     """LinuxCNC 2.9 (rs274 -g prints the (debug, ...) lines): 10, 10, 20; G5.3 leaves no motion mode."""
     text = "G1 X1 F100\nG5.1 X5 I1 J1\n(debug, #<_motion_mode>)\nG5 X9 I1 J1 P1 Q1\n(debug, #<_motion_mode>)\n"

@@ -93,6 +93,20 @@ def test_the_walk_drops_z_only_motion_and_takes_a_splines_end_from_the_reader():
     assert not compare(rs[:3], twin).agreed  # the reader has moves rs274 has not
 
 
+def test_the_walk_keeps_step_through_moves_at_rs274s_print_resolution():
+    """Steps of 0.2-0.35 um (a LinuxCNC planner test of random 1 um lines has them): rs274 prints 0.1 um, so a
+    move of the reader's may print as one or as none. The walk pairs them; a real miss still fails."""
+    rs = (Point("line", 0.0002, 0.0), Point("line", 0.0012, 0.0), Point("line", 0.0022, 0.0))
+    twin = (Point("start", 0.0, 0.0), Point("line", 0.00021, 0.0), Point("line", 0.0012, 0.0),
+            Point("line", 0.0022, 0.0))  # fmt: skip
+    result = compare(rs, twin)
+    assert result.agreed and result.matched == 3 and result.worst_mm < 1e-5
+    printed_as_none = (twin[0], dataclasses.replace(twin[1], x=0.0003), *twin[2:])
+    assert compare(rs[1:], printed_as_none).agreed
+    assert not compare(rs[1:], (twin[0], dataclasses.replace(twin[1], x=0.0005), *twin[2:])).agreed  # 0.5 um
+    assert not compare(rs, (*twin[:3], dataclasses.replace(twin[3], x=0.0033))).agreed  # 1.1 um off
+
+
 def test_rs274s_offsets_compose_as_linuxcncs_canon():
     """machine = rotate(work + G92, rotation) + G5x, in the units in force when rs274 printed them."""
     output = "\n".join([
@@ -108,8 +122,11 @@ def test_rs274s_offsets_compose_as_linuxcncs_canon():
 
 @needs_rs274
 def test_the_study_tool_classes_each_program_of_a_checkout(tmp_path, capsys):
-    """tools/rs274_study.py on a checkout of four programs: two agree, one is in another plane, one rs274
-    stops (no program end); exit 0 (none differs)."""
+    """tools/rs274_study.py on a checkout of seven programs: four agree (one calls a subroutine file beside
+    it, one compensates with the tool table both read), one is in another plane, one rs274 stops (a
+    subroutine file, no program end), one is on the edge (its entry move is exactly the tool's radius: the
+    reader refuses it by LinuxCNC's rule, rs274 passes it by rounding and refuses it with the tool 1e-9
+    wider); exit 0 (none differs)."""
     import importlib.util
 
     spec = importlib.util.spec_from_file_location("rs274_study", Path(__file__).parents[1] / "tools/rs274_study.py")
@@ -120,11 +137,19 @@ def test_the_study_tool_classes_each_program_of_a_checkout(tmp_path, capsys):
     for name in ("polar.ngc", "rotation.ngc"):
         (files / name).write_text((DATA / name).read_text())
     (files / "xz.ngc").write_text("G18 G0 X0 Z0\nG2 X10 Z0 I5 K0 F100\nM2\n")
-    (files / "sub.ngc").write_text("o<sub> sub\nG1 X1 F1\no<sub> endsub\n")
-    assert study.main([str(tmp_path / "checkout"), "--list"]) == 0
+    (files / "sub.ngc").write_text("o<sub> sub\nG1 X1 Y2 F1\no<sub> endsub\n")
+    (files / "calls.ngc").write_text("G0 X0 Y0\no<sub> call\nG1 X3\nM2\n")
+    (files / "comp.ngc").write_text("G20 G90 T1 M6\nG0 X-1 Y-1\nG41 G1 X0 Y0 F10\nX1\nY1\nG40 G0 X2 Y2\nM2\n")
+    (files / "edge.ngc").write_text("G20 G90 T1 M6\nG0 X0.0625 Y1\nG41 G1 X0 Y1 F10\nY2\nG40 G0 X1 Y3\nM2\n")
+    table = tmp_path / "inch.tbl"
+    table.write_text("T1 P1 D0.125 ;1/8 in end mill\n")
+    assert study.main([str(tmp_path / "checkout"), "--list", "--tool-table", str(table)]) == 0
     out = capsys.readouterr().out
-    assert "4 programs: agree 2, not XY 1, rs274 stops 1" in out
+    assert "7 programs: agree 4, not XY 1, on the edge 1, rs274 stops 1" in out, out
     assert "not XY         nc_files/xz.ngc: arcs in another plane" in out
+    assert "agree          nc_files/calls.ngc: 2 points" in out
+    assert "on the edge    nc_files/edge.ngc: edge.ngc:3: G41: the entry move is 1.5875 mm long" in out
+    assert "rs274 with every tool 1e-09 wider: Length of cutter compensation entry move is not greater" in out
 
 
 # -- splines: LinuxCNC's own NURBS evaluation, from its preview parser ----------------------------------------------

@@ -25,19 +25,17 @@ axis: unjudged too. Docs: docs/linuxcnc.md.
 from __future__ import annotations
 
 import math
-import re
 from dataclasses import dataclass
 from pathlib import Path
 
 from gantry_twin.cnc.session import LinuxCncError
 from gantry_twin.gcode.geometry import Dwell, Move
-from gantry_twin.gcode.oracle import Call, arc_sweep, canonical_calls, run_rs274
+from gantry_twin.gcode.oracle import Call, arc_sweep, canonical_calls, rs274_refusal, run_rs274
 from gantry_twin.gcode.program import GcodeError
 from gantry_twin.settings import shorten
 
 #: Seconds rs274 may take on one program.
 RS274_TIMEOUT_S = 60.0
-_LISTED = re.compile(r"^\s*\d+\s+N\S*\s+[A-Z_0-9]+\(")
 
 
 @dataclass(frozen=True)
@@ -72,18 +70,18 @@ def read_canon(program: Path, tool_table: Path | None = None) -> CanonProgram:
 
 
 def _refusal(program: Path, output: str) -> GcodeError:
-    """rs274's message (the first line that is not a call) at the line whose text it echoes (the next)."""
-    lines = [line.strip() for line in output.splitlines() if line.strip() and not _LISTED.match(line)]
-    lines = [line for line in lines if line != "executing"]
-    what = lines[0] if lines else "LinuxCNC's interpreter refused the program"
+    """rs274's message (:func:`gantry_twin.gcode.oracle.rs274_refusal`) at the line whose text it echoes."""
+    what, echoed = rs274_refusal(output)
     number = 0
-    if len(lines) > 1:
+    if echoed:
         try:
             text = Path(program).read_text(encoding="ascii", errors="replace").splitlines()
         except OSError:
             text = []
-        number = next((i for i, line in enumerate(text, start=1) if line.strip() == lines[1]), 0)
-    return GcodeError(str(program), number, "LinuxCNC", shorten(what, 200))
+        number = next((i for i, line in enumerate(text, start=1) if line.strip() == echoed), 0)
+    return GcodeError(
+        str(program), number, "LinuxCNC", shorten(what or "LinuxCNC's interpreter refused the program", 200)
+    )
 
 
 def _moves(program: Path, calls: list[Call]) -> CanonProgram:

@@ -267,8 +267,8 @@ class Machine(Offsets, SplineMoves, FeedModes):
                 axes = True  # a full circle: I J without X Y (a G5.1 back to its start)
             else:
                 raise self.error(next(c for c in "IJR" if c in words), "needs an arc with X or Y")
-        if axes:
-            self.move(words, number)
+        if axes or (self.axis_dropped and self.motion in (0, 1) and self.exit_pending()):
+            self.move(words, number)  # a Z-only straight move right after G40 is the exit
         elif "G53" in words and not self.axis_dropped:
             raise self.error("G53", "needs X or Y on its line")
         if self.motion in ("G5", "G5.1"):
@@ -364,7 +364,7 @@ class Machine(Offsets, SplineMoves, FeedModes):
         if self.motion in (0, 1):
             if "I" in words or "J" in words or "R" in words:
                 raise self.error("I" if "I" in words else "J" if "J" in words else "R", "only arcs take it")
-            if end != self.position:
+            if end != self.position or self.exit_pending():
                 line = self.line(end, common)
                 self.emit(self.timed([line], words)[0] if self.feed_mode == "G93" else line)
             self.position = end
@@ -405,9 +405,18 @@ class Machine(Offsets, SplineMoves, FeedModes):
             return
         if self.start is None:
             self.start = self.position
-        if end != self.position:
+        if end != self.position or self.exit_pending():
             self.emit(Move("line", self.position, end, math.inf, True, number, self.exact_stop, self.tolerance_m))
         self.position = end
+
+    def exit_pending(self) -> bool:
+        """G40 followed a compensated run: the next straight move is its exit, from the tool's offset point to the
+        programmed one, even where the program leaves X Y as they are (a Z-only move; LinuxCNC's
+        ``convert_cutter_compensation_off`` makes the programmed point the current one)."""
+        return (
+            self.compensation is not None and self.compensation[3] < 0
+            and any(isinstance(item, Move) for item in self.compensated)
+        )  # fmt: skip
 
     def emit(self, item: Move | Dwell) -> None:
         """Append a move or a dwell: into the compensated run while G41 / G42 is on, else merged by G64 Q."""

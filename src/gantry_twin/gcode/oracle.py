@@ -29,6 +29,7 @@ import re
 import shutil
 import subprocess
 import tempfile
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -39,8 +40,14 @@ from gantry_twin.gcode.program import Program
 TOLERANCE_MM = {"mm": 1e-3, "in": 3e-3}
 #: Two points rs274 printed are one (4 decimals, offsets and rotation printed rounded apart), mm.
 SAME_POINT_MM = {"mm": 0.2e-3, "in": 3e-3}
+#: A move of the reader's this short may have no point of rs274's: rs274 rounds both its ends to 0.1 um and
+#: may print it as no motion (a move of 0.34 um as one of 0.2 um), mm; 0.1 mil rounding in inches.
+READER_SAME_MM = {"mm": 0.35e-3, "in": 3e-3}
+#: The most alignments :func:`compare` keeps at once (a run of short moves on both sides branches it).
+ALIGNMENTS_MAX = 64
 UNITS_MM = {"CANON_UNITS_MM": 1.0, "CANON_UNITS_INCHES": 25.4, "CANON_UNITS_CM": 10.0}
 _CALL = re.compile(r"^\s*(\d+)\s+N\S*\s+([A-Z_0-9]+)\((.*)\)\s*$")
+_LISTED = re.compile(r"^\s*\d+\s+N\S*\s+[A-Z_0-9]+\(")  # a call's line, even one cut short
 _NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
 #: Canonical calls that move and cannot be an XY gantry's (probing, spindle-synchronised and lathe motion).
 FOREIGN = {"STRAIGHT_PROBE": "probing", "RIGID_TAP": "spindle-synchronised motion (rigid tapping)"}
@@ -64,7 +71,7 @@ class Point:
 
 @dataclass(frozen=True)
 class Rs274Path:
-    """What rs274 made of a program: ok (it ran to its end), its last message when not, the points, whether
+    """What rs274 made of a program: ok (it ran to its end), its message when not, the points, whether
     every arc was in the XY plane, the moves' bounding box (mm: xmin, ymin, xmax, ymax), any foreign motion."""
 
     ok: bool
@@ -81,21 +88,30 @@ def rs274_available() -> str | None:
 
 
 def run_rs274(
-    program: str | Path, tool_table: str | Path | None = None, timeout_s: float = 60.0, block_delete: bool = True
+    program: str | Path,
+    tool_table: str | Path | None = None,
+    timeout_s: float = 60.0,
+    block_delete: bool = True,
+    subroutine_path: Sequence[str | Path] = (),
 ) -> tuple[int, str]:
     """Run ``rs274 -g`` on ``program`` (with ``-t`` the tool table; ``-b``, block delete on, as the reader's
     default, unless ``block_delete`` is False): its exit status and output (-1 and why, past ``timeout_s``).
 
     Every LinuxCNC program that reads a program (``rs274`` here, :mod:`gantry_twin.cnc`) runs through this.
     rs274 runs in a directory of its own that is also its HOME: it maps ``$HOME/.tool.mmap`` and writes its
-    parameter file there, and a dozen rs274 sharing one map crashed some with SIGBUS."""
+    parameter file there, and a dozen rs274 sharing one map crashed some with SIGBUS. A subroutine called
+    by name (``o<NAME> call``) is ``NAME.ngc`` in ``subroutine_path``, then in the program's directory, as
+    the reader looks for it (an INI of two lines gives rs274 its ``[RS274NGC] SUBROUTINE_PATH``)."""
     exe = rs274_available()
     if exe is None:
         raise FileNotFoundError("rs274 is not installed (Debian: apt install linuxcnc-uspace)")
     program = Path(program).resolve()
     table = ["-t", str(Path(tool_table).resolve())] if tool_table is not None else []
-    command = [exe, *table, *(["-b"] if block_delete else []), "-g", str(program)]
+    searched = ":".join(str(Path(d).resolve()) for d in (*subroutine_path, program.parent))
     with tempfile.TemporaryDirectory(prefix="gantry-twin-rs274-") as home:
+        ini = Path(home) / "rs274.ini"
+        ini.write_text(f"[RS274NGC]\nSUBROUTINE_PATH = {searched}\n")
+        command = [exe, "-i", str(ini), *table, *(["-b"] if block_delete else []), "-g", str(program)]
         env = {**os.environ, "HOME": home, "TMPDIR": home}
         try:
             done = subprocess.run(command, capture_output=True, text=True, timeout=timeout_s, errors="replace",
@@ -130,15 +146,15 @@ class Call:
 def canonical_calls(output: str) -> tuple[list[Call], str]:
     """rs274's output read once: every canonical call with the state it was made in (units, offsets, rotation
     and plane follow USE_LENGTH_UNITS, SET_G5X_OFFSET, SET_G92_OFFSET, SET_XY_ROTATION and SELECT_PLANE as they
-    come), and the last line that is not a call (rs274's message when it stopped)."""
+    come), and rs274's message when it stopped (:func:`rs274_refusal`: the message, then the line it echoes)."""
     scale, unit = 1.0, "mm"
     g5x, g92, rotation, plane_xy = (0.0, 0.0), (0.0, 0.0), 0.0, True
-    calls, message = [], ""
+    calls = []
+    what, echoed = rs274_refusal(output)
+    message = f"{what} (at: {echoed})" if echoed else what
     for raw in output.splitlines():
         match = _CALL.match(raw)
         if match is None:
-            if raw.strip() and raw.strip() != "executing":
-                message = raw.strip()
             continue
         number, call, args = int(match.group(1)), match.group(2), match.group(3)
         values = tuple(_numbers(args))
@@ -155,6 +171,14 @@ def canonical_calls(output: str) -> tuple[list[Call], str]:
             plane_xy = "XY" in args
         calls.append(Call(number, call, args, values, unit, scale, g5x, g92, rotation, plane_xy))
     return calls, message
+
+
+def rs274_refusal(output: str) -> tuple[str, str]:
+    """rs274's message when it stopped (the first line of its output that is not a call) and the program line
+    it echoes after it, as written ("" each where there is none)."""
+    lines = [line.strip() for line in output.splitlines() if line.strip() and not _LISTED.match(line)]
+    lines = [line for line in lines if line != "executing"]
+    return (lines[0] if lines else "", lines[1] if len(lines) > 1 else "")
 
 
 def _numbers(text: str) -> list[float]:
@@ -256,54 +280,114 @@ class Comparison:
 
 def compare(rs274: tuple[Point, ...], twin: tuple[Point, ...]) -> Comparison:
     """Walk rs274's points beside the reader's (this module's docstring): same ends, same order, within
-    :data:`TOLERANCE_MM`."""
-    last: tuple[float, float] = (0.0, 0.0)  # rs274 starts at the origin, offsets 0
-    j, worst = 0, 0.0
-    if twin and math.dist((twin[0].x, twin[0].y), last) <= TOLERANCE_MM["mm"]:
-        j = 1  # the reader starts at the origin too
-    matched = 0
+    :data:`TOLERANCE_MM`.
+
+    Each point of one path is matched by the next of the other, except a point that leaves X Y where they
+    are: rs274's within :data:`SAME_POINT_MM` of its last matched point (Z only, or a line to where it is),
+    the reader's within :data:`READER_SAME_MM` of its own (rs274 prints rounded and may print such a move as
+    one or as none). Either may also have a partner: the walk keeps every alignment that can still agree
+    (at most :data:`ALIGNMENTS_MAX`: those that matched the most points) and gives the one that matched the
+    most, or the disagreement nearest to agreeing where none gets to both ends."""
+    origin = (0.0, 0.0)  # rs274 starts at the origin, offsets 0
+    j = 1 if twin and math.dist((twin[0].x, twin[0].y), origin) <= TOLERANCE_MM["mm"] else 0
+    walks = {j: _Walk(0.0, 0, origin, (twin[0].x, twin[0].y) if j else origin)}
+    unit = "mm"
     for point in rs274:
-        if point.x is None:  # a spline: its end is the reader's
+        unit = point.unit
+        walks = _reader_skips(walks, twin, READER_SAME_MM[unit])
+        after: dict[int, _Walk] = {}
+        misses: list[tuple[float, _Walk, str]] = []
+        for j, walk in walks.items():
+            if point.x is None:  # a spline: its end is the reader's
+                if j < len(twin):
+                    end = (twin[j].x, twin[j].y)
+                    _keep(after, j + 1, _Walk(walk.worst, walk.matched + 1, end, end))
+                else:
+                    misses.append((math.inf, walk, f"rs274 line {point.line}: a spline the reader does not make"))
+                continue
+            here = (point.x, point.y)
+            if point.kind != "arc" and math.dist(here, walk.last) <= SAME_POINT_MM[unit]:
+                _keep(after, j, walk)  # no XY motion (an arc back to its start is a circle)
             if j >= len(twin):
-                return Comparison(False, matched, worst, f"rs274 line {point.line}: a spline the reader does not make")
-            last = (twin[j].x, twin[j].y)
-            j, matched = j + 1, matched + 1
-            continue
-        here = (point.x, point.y)
-        tolerance = TOLERANCE_MM[point.unit]
-        same = SAME_POINT_MM[point.unit]
-        if point.kind != "arc" and math.dist(here, last) <= same:
-            continue  # no XY motion (Z only, or a line to where it is; an arc back to its start is a circle)
-        while 0 < j < len(twin) and twin[j].kind != "arc" and math.dist(
-            (twin[j].x, twin[j].y), (twin[j - 1].x, twin[j - 1].y)) <= same:  # fmt: skip
-            j += 1  # a move of the reader's too short for rs274 to print
-        if j >= len(twin):
-            return Comparison(False, matched, worst, f"rs274 line {point.line}: {point.kind} to "
-                              f"({point.x:.4f}, {point.y:.4f}) mm; the reader has no more moves")  # fmt: skip
-        other = twin[j]
-        distance = math.dist(here, (other.x, other.y))
-        if distance > tolerance:
-            return Comparison(False, matched, max(worst, distance), (
-                f"rs274 line {point.line}: {point.kind} to ({point.x:.4f}, {point.y:.4f}) mm; the reader's "
-                f"{other.kind} of line {other.line} to ({other.x:.4f}, {other.y:.4f}) mm ({distance * 1e3:.1f} um)"
-            ))  # fmt: skip
-        if point.kind == "arc" and other.kind == "arc":
-            what = ""
-            if point.turns != other.turns:
-                what = f"turns {other.turns} (rs274: {point.turns}, + counter-clockwise)"
-            elif point.centre is not None and other.centre is not None:
-                miss = math.dist(point.centre, other.centre)
-                if miss > tolerance + point.slack:
-                    what = (f"centre ({other.centre[0]:.4f}, {other.centre[1]:.4f}) mm "
-                            f"({miss * 1e3:.1f} um from rs274's)")  # fmt: skip
+                misses.append((math.inf, walk, f"rs274 line {point.line}: {point.kind} to ({point.x:.4f}, "
+                                               f"{point.y:.4f}) mm; the reader has no more moves"))  # fmt: skip
+                continue
+            other = twin[j]
+            distance, what = _mismatch(point, other)
             if what:
-                return Comparison(False, matched, worst, f"rs274 line {point.line}: the reader's arc of line "
-                                  f"{other.line} has {what}")  # fmt: skip
-        worst = max(worst, distance)
-        last = here
-        j, matched = j + 1, matched + 1
-    if j < len(twin):
-        other = twin[j]
-        return Comparison(False, matched, worst, f"the reader's {other.kind} of line {other.line} to "
-                          f"({other.x:.4f}, {other.y:.4f}) mm: rs274 has no more moves")  # fmt: skip
-    return Comparison(True, matched, worst)
+                misses.append((distance, walk, what))
+            else:
+                _keep(after, j + 1, _Walk(max(walk.worst, distance), walk.matched + 1, here, (other.x, other.y)))
+        if not after:
+            distance, walk, what = min(misses, key=lambda miss: miss[0])
+            worst = max(walk.worst, distance) if math.isfinite(distance) else walk.worst
+            return Comparison(False, walk.matched, worst, what)
+        walks = after
+    walks = _reader_skips(walks, twin, READER_SAME_MM[unit])
+    if len(twin) in walks:
+        walk = walks[len(twin)]
+        return Comparison(True, walk.matched, walk.worst)
+    j, walk = max(walks.items())
+    other = twin[j]
+    return Comparison(False, walk.matched, walk.worst, f"the reader's {other.kind} of line {other.line} to "
+                      f"({other.x:.4f}, {other.y:.4f}) mm: rs274 has no more moves")  # fmt: skip
+
+
+@dataclass(frozen=True)
+class _Walk:
+    """One alignment of :func:`compare` so far: its worst distance and matched points, and the last matched
+    point of each path (mm)."""
+
+    worst: float
+    matched: int
+    last: tuple[float, float]
+    reader_last: tuple[float, float]
+
+
+def _keep(walks: dict[int, _Walk], j: int, walk: _Walk) -> None:
+    """Keep ``walk`` at the reader's point ``j`` unless one there is better (more matched points, then a
+    smaller worst distance); at most :data:`ALIGNMENTS_MAX` alignments, the best."""
+    held = walks.get(j)
+    if held is not None and (-held.matched, held.worst) <= (-walk.matched, walk.worst):
+        return
+    walks[j] = walk
+    if len(walks) > ALIGNMENTS_MAX:
+        del walks[max(walks, key=lambda k: (-walks[k].matched, walks[k].worst, k))]
+
+
+def _reader_skips(walks: dict[int, _Walk], twin: tuple[Point, ...], same_mm: float) -> dict[int, _Walk]:
+    """``walks`` and every alignment that also leaves out the reader's next points that do not move X Y
+    (within ``same_mm`` of its last matched point; never an arc)."""
+    out = dict(walks)
+    for j in sorted(walks):
+        walk = out[j]
+        while (
+            j < len(twin) and twin[j].kind != "arc" and math.dist((twin[j].x, twin[j].y), walk.reader_last) <= same_mm
+        ):
+            j += 1
+            _keep(out, j, walk)
+    return out
+
+
+def _mismatch(point: Point, other: Point) -> tuple[float, str]:
+    """The distance of rs274's ``point`` from the reader's ``other`` (mm) and why they are not one ("" when
+    they are: the same end within the tolerance, and for two arcs the same turns and centre)."""
+    tolerance = TOLERANCE_MM[point.unit]
+    distance = math.dist((point.x, point.y), (other.x, other.y))
+    if distance > tolerance:
+        return distance, (
+            f"rs274 line {point.line}: {point.kind} to ({point.x:.4f}, {point.y:.4f}) mm; the reader's "
+            f"{other.kind} of line {other.line} to ({other.x:.4f}, {other.y:.4f}) mm ({distance * 1e3:.1f} um)"
+        )  # fmt: skip
+    what = ""
+    if point.kind == "arc" and other.kind == "arc":
+        if point.turns != other.turns:
+            what = f"turns {other.turns} (rs274: {point.turns}, + counter-clockwise)"
+        elif point.centre is not None and other.centre is not None:
+            miss = math.dist(point.centre, other.centre)
+            if miss > tolerance + point.slack:
+                what = (f"centre ({other.centre[0]:.4f}, {other.centre[1]:.4f}) mm "
+                        f"({miss * 1e3:.1f} um from rs274's)")  # fmt: skip
+    if what:
+        return distance, f"rs274 line {point.line}: the reader's arc of line {other.line} has {what}"
+    return distance, ""
