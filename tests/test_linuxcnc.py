@@ -303,7 +303,7 @@ def test_linuxcnc_moves_as_the_program_says(spline_run):
     """Independent of the twin: the program's own numbers. The G93 line (F30: 1/30 min) takes 2 s; the G5.1
     spline is the quadratic B-spline with control points (30, 0), (40, 0), (50, 20) mm, followed within the
     program's blending tolerance (G64 P0.01) on each side; the XZ arc moves X to 60 mm; the program ends at the
-    origin."""
+    origin (by a subroutine file beside it: LinuxCNC finds it there, as the twin's reader does)."""
     _, _, _, out = spline_run
     commands = np.loadtxt(out / "linuxcnc_commands.csv", delimiter=",", skiprows=1)
     t, q = commands[:, 0], commands[:, 1:] * 1e3

@@ -97,9 +97,16 @@ def followable(axis: int) -> tuple[float, float]:
 # ---------------------------------------------------------------------------------------------- writing
 
 
-def ini_text(machine: CncMachine, display: str, hal_files: tuple[str, ...], extra: dict[str, dict[str, str]]) -> str:
+def ini_text(
+    machine: CncMachine,
+    display: str,
+    hal_files: tuple[str, ...],
+    extra: dict[str, dict[str, str]],
+    subroutine_path: str = "",
+) -> str:
     """The INI of ``machine``: ``display`` is ``[DISPLAY] DISPLAY``; ``hal_files`` the ``[HAL] HALFILE``s;
-    ``extra``: more sections (the twin's own: the offline display's settings)."""
+    ``extra``: more sections (the twin's own: the offline display's settings); ``subroutine_path``: where
+    LinuxCNC's interpreter finds a subroutine file a program calls (``[RS274NGC] SUBROUTINE_PATH``)."""
     (x0, x1), (y0, y1) = machine.travel_mm
     vx, vy = machine.velocity_mm_s
     ax, ay = machine.acceleration_mm_s2
@@ -125,6 +132,7 @@ def ini_text(machine: CncMachine, display: str, hal_files: tuple[str, ...], extr
         "CYCLE_TIME = 0.001",
         "[RS274NGC]",
         "PARAMETER_FILE = gantry-twin.var",
+        *([f"SUBROUTINE_PATH = {subroutine_path}"] if subroutine_path else []),
         "[EMCMOT]",
         "EMCMOT = motmod",
         "COMM_TIMEOUT = 1.0",

@@ -93,7 +93,9 @@ def run_program(
             settings = {"PROGRAM": str(program), "EVENTS": str(events), "RECORD": str(record),
                         "TIMEOUT_S": f"{timeout_s:.1f}", "TWIN_PID": str(os.getpid()),
                         "ROOT": str(directory.parent)}  # fmt: skip
-            ini = ini_text(machine, str(display), (HAL_NAME,), {"GANTRY_TWIN": settings})
+            # a subroutine file the program calls is found beside it, as the twin's reader and rs274 find it
+            here = str(Path(program).resolve().parent)
+            ini = ini_text(machine, str(display), (HAL_NAME,), {"GANTRY_TWIN": settings}, subroutine_path=here)
             (directory / INI_NAME).write_text(ini)
             (directory / HAL_NAME).write_text(hal_text(record=True))
             session.start()
