@@ -12,6 +12,7 @@ headless display program, tests/data/linuxcnc/display_live.py) are here too, for
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -27,6 +28,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
+from gantry_twin.cli import main
 from gantry_twin.cnc import session as cnc_session
 from gantry_twin.cnc.canon import read_canon
 from gantry_twin.cnc.config import (
@@ -39,13 +41,15 @@ from gantry_twin.cnc.config import (
 )
 from gantry_twin.cnc.live import HISTORY_PERIODS, LOOKAHEAD_PERIODS, LiveCommands
 from gantry_twin.cnc.offline import DISPLAY_SCRIPT, CncRecord
-from gantry_twin.cnc.reference import CncPath, attribute
+from gantry_twin.cnc.reference import CncPath, attribute, read_run_files
 from gantry_twin.cnc.session import Session, machine_lock
 from gantry_twin.gcode.geometry import Move, MoveTable
+from gantry_twin.gcode.part_error import nearest_on_program
 from gantry_twin.gcode.planner import default_limits
 from gantry_twin.gcode.program import TRAVEL_HALF_M, TRAVEL_MARGIN_M
 from gantry_twin.gcode.reader import read_program
 from gantry_twin.paths.contours import ReferenceEnded
+from gantry_twin.reports.compare import load_run, program_plan
 
 from .helpers import linuxcnc_turn, read_rrd, scalars
 
@@ -219,6 +223,27 @@ def test_the_reference_passes_through_every_command_and_its_rates_are_its_deriva
     assert fine.dalpha_rad_s[on_circle] == pytest.approx(speed / 0.01, rel=2e-2, abs=1e-2)
 
 
+def test_a_runs_files_give_back_its_record_and_a_file_of_another_kind_is_refused_in_one_line(tmp_path):
+    record = _corner_record()
+    record = dataclasses.replace(record, line=np.arange(len(record.t_s)) % 3, messages=("M0 pause",))
+    for name, text in CncPath(record).run_files().items():
+        (tmp_path / name).write_text(text)
+    back = read_run_files(tmp_path, record.canon)
+    assert np.max(np.abs(back.q_m - record.q_m)) <= 0.5e-9 and np.max(np.abs(back.t_s - record.t_s)) <= 0.5e-6
+    assert np.array_equal(back.line, record.line) and back.messages == record.messages
+    assert back.machine == record.machine and back.servo_period_s == record.servo_period_s
+    commands = tmp_path / "linuxcnc_commands.csv"
+    commands.write_text("t_s,x_m,y_m\n0,0,0\n0.001,0,0\n")  # the three columns a run wrote before the line
+    with pytest.raises(ValueError, match=r"linuxcnc_commands.csv: its first line is 't_s,x_m,y_m', not 't_s,x_m,"):
+        read_run_files(tmp_path, record.canon)
+    commands.write_text("t_s,x_m,y_m,line\n0,0,0,1\n0,0,0,1\n")
+    with pytest.raises(ValueError, match=r"in time order"):
+        read_run_files(tmp_path, record.canon)
+    (tmp_path / "linuxcnc.json").write_text("{}")
+    with pytest.raises(ValueError, match=r"linuxcnc.json: not a run's linuxcnc.json \(KeyError"):
+        read_run_files(tmp_path, record.canon)
+
+
 # ---------------------------------------------------------------------------------------------- rs274
 
 
@@ -295,7 +320,29 @@ def test_the_twins_reference_is_linuxcncs_command_at_every_servo_instant(spline_
     assert len(at_servo) >= len(commands) - 1  # the run's samples end one 0.2 ms step before the last command
     commands = commands[: len(at_servo)]
     assert np.allclose(at_servo[:, 0], commands[:, 0], atol=1e-9)
-    assert np.max(np.abs(at_servo[:, 1:] - commands[:, 1:])) <= 1e-9
+    assert np.max(np.abs(at_servo[:, 1:] - commands[:, 1:3])) <= 1e-9
+
+
+@needs_linuxcnc
+def test_compares_part_figure_measures_the_run_against_linuxcncs_moves(spline_run, tmp_path):
+    """compare draws a LinuxCNC run's part error along LinuxCNC's moves at LinuxCNC's times, rebuilt from the run's
+    files: the same error as the run's summary (re-planned by the twin's planner it read 150 mm on the bracket;
+    this program the twin's reader refuses). The commands file gives each command's program line."""
+    _, _, _, out = spline_run
+    run = load_run(str(out), "#1")
+    plan, note = program_plan(run)
+    assert note is None and isinstance(plan, CncPath)
+    table = pq.read_table(out / "trace.parquet", columns=["t_s", "x_m", "y_m"])
+    t = table.column("t_s").to_numpy()
+    q = np.column_stack([table.column("x_m").to_numpy(), table.column("y_m").to_numpy()])
+    distance, _ = nearest_on_program(plan, plan.sample(t).move, q)
+    part = json.loads((out / "summary.json").read_text())["part_error"]
+    assert np.nanmax(distance) * 1e6 == pytest.approx(part["max_um"], rel=1e-6)
+    assert math.sqrt(np.nanmean(distance**2)) * 1e6 == pytest.approx(part["rms_um"], rel=1e-6)
+    lines = np.loadtxt(out / "linuxcnc_commands.csv", delimiter=",", skiprows=1)[:, 3]
+    assert set(np.unique(lines)) >= {7, 9, 10, 11}  # the G1, G93, G94 and G5.1 lines of the program
+    assert main(["compare", str(out), str(out), "--out", str(tmp_path / "cmp")]) == 0
+    assert (tmp_path / "cmp" / "plots" / "part.png").is_file()
 
 
 @needs_linuxcnc
@@ -306,7 +353,7 @@ def test_linuxcnc_moves_as_the_program_says(spline_run):
     origin (by a subroutine file beside it: LinuxCNC finds it there, as the twin's reader does)."""
     _, _, _, out = spline_run
     commands = np.loadtxt(out / "linuxcnc_commands.csv", delimiter=",", skiprows=1)
-    t, q = commands[:, 0], commands[:, 1:] * 1e3
+    t, q = commands[:, 0], commands[:, 1:3] * 1e3
     on_g93 = (np.abs(q[:, 0] - (q[:, 1] + 20.0)) < 1e-3) & (q[:, 0] > 0.5) & (q[:, 0] < 19.5)
     span = t[on_g93][-1] - t[on_g93][0]
     assert span == pytest.approx(2.0 * 19.0 / 20.0, abs=0.01)  # 95 % of the line's length at its constant speed

@@ -31,10 +31,13 @@ from __future__ import annotations
 import json
 import math
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 from scipy.interpolate import CubicSpline
 
+from gantry_twin.cnc.canon import CanonProgram
+from gantry_twin.cnc.config import CncMachine
 from gantry_twin.cnc.offline import CncRecord
 from gantry_twin.gcode.geometry import Move, MoveTable
 from gantry_twin.gcode.program import Program
@@ -44,6 +47,9 @@ from gantry_twin.paths.contours import Reference
 
 #: LinuxCNC's side of a run directory: what it did (program time, messages, limits) and its recorded commands.
 CNC_FILE, CNC_COMMANDS_FILE = "linuxcnc.json", "linuxcnc_commands.csv"
+#: The columns of :data:`CNC_COMMANDS_FILE`: time from the program's start (s), the X and Y commands (m, machine
+#: coordinates), the program line LinuxCNC's motion ran at (0: none).
+COMMANDS_HEADER = "t_s,x_m,y_m,line"
 #: From this speed on, alpha is the direction of the reference's velocity; below it, the tangent of its move (m/s).
 DIRECTION_SPEED_M_S = 0.05
 #: A junction is a stop when the command's speed nearest the corner is below this (m/s).
@@ -126,8 +132,11 @@ class CncPath:
                 "following_error_mm": list(machine.following_error_mm),
             },
         }
-        rows = "\n".join(f"{t:.6f},{x:.9f},{y:.9f}" for t, (x, y) in zip(record.t_s, record.q_m, strict=True))
-        return {CNC_FILE: json.dumps(info, indent=2) + "\n", CNC_COMMANDS_FILE: "t_s,x_m,y_m\n" + rows + "\n"}
+        rows = "\n".join(
+            f"{t:.6f},{x:.9f},{y:.9f},{line}"
+            for t, (x, y), line in zip(record.t_s, record.q_m, record.line, strict=True)
+        )
+        return {CNC_FILE: json.dumps(info, indent=2) + "\n", CNC_COMMANDS_FILE: f"{COMMANDS_HEADER}\n{rows}\n"}
 
     # ------------------------------------------------------------------ the loop's reference (phi = t)
     @property
@@ -192,6 +201,39 @@ class CncPath:
             moving, (cross_j * safe - 2.0 * cross_a * dot) / safe**2, c * np.einsum("ij,ij->i", a, tangent)
         )
         return alpha, dalpha, ddalpha
+
+
+def read_run_files(run_dir: Path, canon: CanonProgram) -> CncRecord:
+    """The record a run wrote (:meth:`CncPath.run_files`: :data:`CNC_FILE`, :data:`CNC_COMMANDS_FILE` in
+    ``run_dir``) with ``canon``, its program read by rs274 again: ``CncPath(read_run_files(...))`` is the path
+    the run followed (its commands to 1 nm). ValueError in one line naming the file for a file that is not one
+    a run wrote; OSError when one cannot be read."""
+    info_path, commands_path = run_dir / CNC_FILE, run_dir / CNC_COMMANDS_FILE
+    try:
+        info = json.loads(info_path.read_text(encoding="utf-8"))
+        m = info["machine"]
+        period_s = float(info["servo_period_s"])
+        machine = CncMachine(
+            travel_mm=(tuple(m["travel_mm"][0]), tuple(m["travel_mm"][1])), velocity_mm_s=tuple(m["velocity_mm_s"]),
+            acceleration_mm_s2=tuple(m["acceleration_mm_s2"]), traj_velocity_mm_s=float(m["traj_velocity_mm_s"]),
+            traj_acceleration_mm_s2=float(m["traj_acceleration_mm_s2"]), servo_period_ns=round(period_s * 1e9),
+            following_error_mm=tuple(m["following_error_mm"]), source=str(m["source"]),
+        )  # fmt: skip
+        program_time_s, messages = float(info["program_time_s"]), tuple(str(t) for t in info["messages"])
+    except (ValueError, KeyError, TypeError, IndexError) as exc:
+        raise ValueError(f"{info_path}: not a run's {CNC_FILE} ({type(exc).__name__}: {exc})") from None
+    with open(commands_path, encoding="utf-8") as file:
+        header = file.readline().strip()
+        if header != COMMANDS_HEADER:
+            raise ValueError(f"{commands_path}: its first line is {header[:60]!r}, not {COMMANDS_HEADER!r}")
+        try:
+            rows = np.loadtxt(file, delimiter=",", ndmin=2)
+        except ValueError as exc:
+            raise ValueError(f"{commands_path}: {str(exc).splitlines()[0]}") from None
+    if rows.shape[0] < 2 or rows.shape[1] != 4 or not np.isfinite(rows).all() or np.any(np.diff(rows[:, 0]) <= 0):
+        raise ValueError(f"{commands_path}: not two finite rows or more of 4 columns, in time order")
+    return CncRecord(t_s=rows[:, 0], q_m=rows[:, 1:3], line=rows[:, 3].astype(np.int64), servo_period_s=period_s,
+                     program_time_s=program_time_s, messages=messages, canon=canon, machine=machine)  # fmt: skip
 
 
 def _with_line(move: Move, lines: np.ndarray) -> Move:

@@ -89,8 +89,10 @@ def load_run(arg: str, column: str) -> Run:
 
 def program_plan(run: Run) -> tuple[Any, str | None]:
     """The part program a run ran, read and planned again from the file its scenario.yaml names (for its part
-    figure), and a note when that cannot be done; (None, None) for a run of another contour."""
+    figure; a run LinuxCNC drove: its recorded commands, :func:`~gantry_twin.scenario.building.recorded_linuxcnc_path`),
+    and a note when that cannot be done; (None, None) for a run of another contour."""
     from gantry_twin.scenario import ScenarioError, load_scenario
+    from gantry_twin.scenario.building import recorded_linuxcnc_path
     from gantry_twin.scenario.schema import GcodeSpec
 
     path = run.directory / "scenario.yaml"
@@ -98,6 +100,8 @@ def program_plan(run: Run) -> tuple[Any, str | None]:
         return None, None
     try:
         contour = load_scenario(path).contour
+        if isinstance(contour, GcodeSpec) and contour.cnc == "linuxcnc":
+            return recorded_linuxcnc_path(contour, run.directory, str(path)), None
         if isinstance(contour, GcodeSpec):
             return contour.plan(run.directory), None
     except (ScenarioError, OSError, ValueError) as exc:

@@ -15,11 +15,14 @@ from pathlib import Path
 
 import numpy as np
 
+from gantry_twin.cnc.canon import read_canon
 from gantry_twin.cnc.config import CncConfigError, machine_from_ini, twin_machine
 from gantry_twin.cnc.offline import run_program
-from gantry_twin.cnc.reference import CncPath
+from gantry_twin.cnc.reference import CncPath, read_run_files
+from gantry_twin.cnc.session import LinuxCncError
 from gantry_twin.cnc.session import missing as linuxcnc_missing
 from gantry_twin.controllers import Controller, EstimatorSettings, PluginError, create
+from gantry_twin.gcode.oracle import rs274_available
 from gantry_twin.gcode.program import TRAVEL_MARGIN_M
 from gantry_twin.gcode.reader import GcodeError
 from gantry_twin.health.confidence import EstimateConfidence
@@ -147,6 +150,21 @@ def _linuxcnc_path(contour: GcodeSpec, base: Path | None, source: str) -> CncPat
         raise ScenarioError(source, "contour.cnc_ini", str(exc)) from None
     table = contour.here(contour.tool_table, base) if contour.tool_table is not None else None
     return CncPath(run_program(contour.here(contour.file, base), machine, table))
+
+
+def recorded_linuxcnc_path(contour: GcodeSpec, run_dir: Path, source: str) -> CncPath:
+    """The path a run that LinuxCNC drove followed, from its run files
+    (:func:`gantry_twin.cnc.reference.read_run_files`) and its program read by rs274 again: its part figure
+    measures against LinuxCNC's moves at LinuxCNC's times, as the run did. ScenarioError where rs274 is
+    missing or refuses the program now, ValueError / OSError for the run's files."""
+    if rs274_available() is None:
+        raise ScenarioError(source, "contour.cnc", "linuxcnc: LinuxCNC's rs274 is not installed (linuxcnc-uspace)")
+    table = contour.here(contour.tool_table, run_dir) if contour.tool_table is not None else None
+    try:
+        canon = read_canon(contour.here(contour.file, run_dir), table)
+    except (GcodeError, LinuxCncError) as exc:
+        raise ScenarioError(source, "contour.file", str(exc)) from None
+    return CncPath(read_run_files(run_dir, canon))
 
 
 def scenario_plant(scenario: Scenario, payload_body: bool, source: str) -> Plant:
