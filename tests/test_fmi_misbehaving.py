@@ -8,9 +8,11 @@ of SIGINT (exit 130).
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import re
+import resource
 import shutil
 import signal
 import subprocess
@@ -65,16 +67,22 @@ def misbehaving(tmp_path_factory) -> dict[str, Path]:
 
 
 def _start(fmu: Path, where: Path, *flags: str) -> tuple[subprocess.Popen, Path]:
-    """``gantry-twin run s.yaml --out out`` in a child process, its temporary directory ``where/tmp``."""
+    """``gantry-twin run s.yaml --out out`` in a child process, its temporary directory ``where/tmp``, core dumps
+    allowed (the worker forbids its own: a crash leaves no core of it in ``where``)."""
     (where / "tmp").mkdir()
     options = json.dumps({"fmu": str(fmu), "parameters": GAINS})
     (where / "s.yaml").write_text(f"duration_s: 2\ncontroller: {{name: fmu, options: {options}}}\n")
     env = {**os.environ, "TMPDIR": str(where / "tmp"), "PYTHONPATH": IMPORTED_FROM}
     command = [sys.executable, "-m", "gantry_twin", "run", "s.yaml", "--out", "out", "--no-plots", "--no-progress"]
-    child = subprocess.Popen(
-        [*command, *flags], cwd=where, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
-    )
+    child = subprocess.Popen([*command, *flags], cwd=where, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                             text=True, preexec_fn=_cores_allowed)  # fmt: skip
     return child, where / "tmp"
+
+
+def _cores_allowed() -> None:
+    with contextlib.suppress(ValueError, OSError):
+        hard = resource.getrlimit(resource.RLIMIT_CORE)[1]
+        resource.setrlimit(resource.RLIMIT_CORE, (hard, hard))
 
 
 def _left_behind(where: Path) -> list[str]:
@@ -167,6 +175,7 @@ def test_a_misbehaving_fmu_ends_as_a_failed_run_with_its_trace(kind, misbehaving
     assert not np.isnan(pq.read_table(out / "trace.parquet").column("x_m").to_numpy()).any()
     assert sorted(p.name for p in out.iterdir()) == ["run_info.json", "scenario.yaml", "summary.json", "trace.parquet"]
     assert list(tmp.iterdir()) == []
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out", "s.yaml", "tmp"]  # no core of the worker
     assert _left_behind(tmp_path) == []
 
 

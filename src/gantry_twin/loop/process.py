@@ -159,8 +159,9 @@ def _address_space_bytes() -> int:
 
 
 def become_worker(memory_limit_bytes: int, scratch: str, parent: int) -> None:
-    """Stop signals ignored (the command, ``parent``, ends the worker), ended with the command, no stack dump on a
-    crash (the command says what happened, in one line), temporary files in ``scratch``, address space bounded."""
+    """Stop signals ignored (the command, ``parent``, ends the worker), ended with the command, no stack dump and no
+    core on a crash (the command says what happened, in one line), temporary files in ``scratch``, address space
+    bounded."""
     gc.disable()
     for number in _STOP_SIGNALS:
         signal.signal(number, signal.SIG_IGN)
@@ -176,6 +177,8 @@ def become_worker(memory_limit_bytes: int, scratch: str, parent: int) -> None:
         soft, hard = resource.getrlimit(resource.RLIMIT_AS)
         if hard == resource.RLIM_INFINITY or hard > limit:
             resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+    with contextlib.suppress(ValueError, OSError):  # foreign code that crashes dumps no core of this process
+        resource.setrlimit(resource.RLIMIT_CORE, (0, 0))  # (hundreds of MB) into the user's directory
 
 
 def sendable(exc: BaseException) -> BaseException:
