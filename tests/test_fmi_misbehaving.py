@@ -179,26 +179,34 @@ def test_a_misbehaving_fmu_ends_as_a_failed_run_with_its_trace(kind, misbehaving
     assert _left_behind(tmp_path) == []
 
 
-def test_an_endless_call_stops_within_2_s_of_sigint(misbehaving, tmp_path):
-    """At its default 10 s limit, the endless call is interrupted: exit 130 within 2 s, nothing left behind."""
-    child, tmp = _start(misbehaving["endless"], tmp_path)
+def _interrupt(child: subprocess.Popen, ready, settle_s: float) -> tuple[str, float]:
+    """Wait (at most 120 s) until ``ready()``, then ``settle_s`` more, then SIGINT ``child``: its stderr and the
+    seconds it took to end after the signal; the child is killed if it is still there."""
     try:
         deadline = time.monotonic() + 120
-        while time.monotonic() < deadline and child.poll() is None:  # the worker's trace reached t = 1 s
-            parts = list((tmp_path / "out").glob(".trace.parquet.*.part")) if (tmp_path / "out").exists() else []
-            if parts and list(tmp.glob("gantry-twin-worker-*/gantry-twin-fmu-*")):
-                break
+        while time.monotonic() < deadline and child.poll() is None and not ready():
             time.sleep(0.1)
-        time.sleep(1.5)  # well into the endless call (the run reaches t = 1 s in about 0.3 s)
+        time.sleep(settle_s)
         assert child.poll() is None, child.communicate()[1]
         sent = time.monotonic()
         child.send_signal(signal.SIGINT)
         _, err = child.communicate(timeout=30)
-        took_s = time.monotonic() - sent
+        return err, time.monotonic() - sent
     finally:
         if child.poll() is None:
             child.kill()
             child.wait()
+
+
+def test_an_endless_call_stops_within_2_s_of_sigint(misbehaving, tmp_path):
+    """At its default 10 s limit, the endless call is interrupted: exit 130 within 2 s, nothing left behind."""
+    child, tmp = _start(misbehaving["endless"], tmp_path)
+
+    def ready() -> bool:  # the worker's trace reached t = 1 s
+        parts = list((tmp_path / "out").glob(".trace.parquet.*.part")) if (tmp_path / "out").exists() else []
+        return bool(parts and list(tmp.glob("gantry-twin-worker-*/gantry-twin-fmu-*")))
+
+    err, took_s = _interrupt(child, ready, 1.5)  # 1.5 s: well into the endless call (t = 1 s comes in about 0.3 s)
     assert child.returncode == 130, err
     assert took_s < 2.0
     assert err.strip().splitlines() == ["gantry-twin: interrupted (SIGINT)"]
@@ -214,22 +222,11 @@ def test_an_endless_trial_start_stops_within_2_s_of_sigint(tmp_path):
     where = tmp_path / "run"
     where.mkdir()
     child, tmp = _start(fmu, where)
-    try:
-        deadline = time.monotonic() + 120
-        while time.monotonic() < deadline and child.poll() is None:  # the trial start's worker unpacked the FMU
-            if list(tmp.glob("gantry-twin-worker-*/gantry-twin-fmu-*/binaries")):
-                break
-            time.sleep(0.1)
-        time.sleep(1.0)
-        assert child.poll() is None, child.communicate()[1]
-        sent = time.monotonic()
-        child.send_signal(signal.SIGINT)
-        _, err = child.communicate(timeout=30)
-        took_s = time.monotonic() - sent
-    finally:
-        if child.poll() is None:
-            child.kill()
-            child.wait()
+
+    def unpacked() -> bool:  # the trial start's worker unpacked the FMU
+        return bool(list(tmp.glob("gantry-twin-worker-*/gantry-twin-fmu-*/binaries")))
+
+    err, took_s = _interrupt(child, unpacked, 1.0)
     assert child.returncode == 130, err
     assert took_s < 2.0
     assert err.strip().splitlines() == ["gantry-twin: interrupted (SIGINT)"]
