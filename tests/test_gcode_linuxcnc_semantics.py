@@ -228,6 +228,32 @@ def test_a_z_only_move_after_g40_is_the_exit_and_an_arc_may_follow():
     assert [m.line for m in moves].count(8) == 0  # already there: no move
 
 
+def test_m61_sets_the_loaded_tool_that_g41_compensates_by():
+    """LinuxCNC's M61 Q: the loaded tool is Q, with no tool change (its sample offsets.ngc uses it)."""
+    text = "G10 L1 P1 R2\nG10 L1 P2 R1\nT2 M6\nM61 Q1\nG0 X-10 Y-10\nG41 G1 X0 Y0 F100\nX20\nG40 X30 Y-10\n"
+    moves = parse_program(text).moves
+    assert moves[1].end_m[1] == pytest.approx(2e-3)  # tool 1's radius 2 mm left of the X line, not tool 2's 1 mm
+    with pytest.raises(GcodeError, match=r"t.ngc:1:1: M61: needs Q, the tool number now loaded"):
+        parse_program("M61\n", name="t.ngc")
+
+
+def test_numbered_parameters_are_linuxcncs_and_5599_turns_debug_messages_off():
+    """LinuxCNC's interpreter: #1 to #5601 (RS274NGC_MAX_PARAMETERS - 1), all writable but the tool's 5400-5413 and
+    the current point's 5420-5428; #5599 (1 at the start) shows (debug, ...) while above 0 (LinuxCNC's sample
+    offsets.ngc sets it; the reader refused it as past 5399)."""
+    text = "(debug, a)\n#5599=0\n(debug, b)\n(print, c)\n#5599=[#5599+1]\n(debug, d #5599)\n#5601=2\nG1 X#5601 F100\n"
+    program = parse_program(text)
+    assert [m.split(": ", 1)[1] for m in program.messages] == ["debug: a", "print: c", "debug: d 1.000000"]
+    assert program.moves[-1].end_m[0] == pytest.approx(2e-3)
+    refused = [("#5410=1", "t.ngc:1:1: #5410: cannot be set"), ("#5425=1", "t.ngc:1:1: #5425: cannot be set"),
+               ("#5602=1", "t.ngc:1:1: #5602: cannot be set"),
+               ("G1 X#5602 F1", "t.ngc:1:5: #5602: no such parameter (numbered parameters are 1 to 5601)")]  # fmt: skip
+    for line, message in refused:
+        with pytest.raises(GcodeError) as info:
+            parse_program(line + "\n", name="t.ngc")
+        assert str(info.value).startswith(message), str(info.value)
+
+
 def test_g5_and_g5_1_leave_the_motion_mode_as_it_was():
     """LinuxCNC 2.9 (rs274 -g prints the (debug, ...) lines): 10, 10, 20; G5.3 leaves no motion mode."""
     text = "G1 X1 F100\nG5.1 X5 I1 J1\n(debug, #<_motion_mode>)\nG5 X9 I1 J1 P1 Q1\n(debug, #<_motion_mode>)\n"

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from gantry_twin.gcode import read_program
+from gantry_twin.gcode import parse_program, read_program
 from gantry_twin.gcode.oracle import Point, compare, rs274_available, rs274_path, run_rs274, twin_path
 from gantry_twin.gcode.tools import read_tool_table
 
@@ -105,6 +105,18 @@ def test_the_walk_keeps_step_through_moves_at_rs274s_print_resolution():
     assert compare(rs[1:], printed_as_none).agreed
     assert not compare(rs[1:], (twin[0], dataclasses.replace(twin[1], x=0.0005), *twin[2:])).agreed  # 0.5 um
     assert not compare(rs, (*twin[:3], dataclasses.replace(twin[3], x=0.0033))).agreed  # 1.1 um off
+
+
+def test_an_arc_of_a_small_sweep_counts_its_one_turn():
+    """rs274's ARC_FEED rotation is +-1 for any arc under a turn; an arc of 0.002 rad (a 0.1 mm chord on a 50 mm
+    radius, as a planner test has) counted 0 turns in the reader's path."""
+    (arc,) = [p for p in twin_path(parse_program("G0 X0 Y0\nG2 X0.1 Y0 I0.05 J-50 F100\n")) if p.kind == "arc"]
+    assert arc.turns == -1
+
+
+def test_the_studys_tool_table_has_every_tool_linuxcncs_samples_load():
+    tools = read_tool_table(Path(__file__).parents[1] / "tools" / "rs274_study.tbl")
+    assert set(range(1, 21)) | {99999} == set(tools)
 
 
 def test_rs274s_offsets_compose_as_linuxcncs_canon():

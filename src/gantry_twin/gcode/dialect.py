@@ -130,6 +130,7 @@ DIALECT: tuple[Entry, ...] = (
     Entry("M2 M30", "read", "end of program", _F + "M2\nG1 X500\n"),
     Entry("M3 M4 M5", "dropped", "spindle", "M3\n" + _F),
     Entry("M6", "read", "select the tool T (for cutter compensation's D)", "T1 M6\n" + _F),
+    Entry("M61", "read", "the loaded tool is Q, no change (for cutter compensation's D)", "M61 Q1\n" + _F),
     Entry("M7 M8 M9", "dropped", "coolant", "M8\n" + _F),
     Entry(
         "M70 M71 M72 M73", "read", "save, forget, restore, restore-on-return the modal state", "M70\nG20\nM72\n" + _F
@@ -169,12 +170,18 @@ DIALECT: tuple[Entry, ...] = (
     ),  # fmt: skip
     Entry("N", "read", "line number", "N10 " + _F),
     Entry(
-        "#n, n 1 to 5399",
+        "#n, n 1 to 5601",
         "read",
-        "numbered parameters (unset: 0); 5221-5389 the work offsets, 5211-5212 G92's",
-        "#1000=2\nG1 X#1000 F100\n",
+        "numbered parameters (unset: 0); 5221-5389 the work offsets, 5211-5212 G92's; #5599 (1 at the start): "
+        "(debug, ...) shown while above 0",
+        "#1000=2\n#5599=0\nG1 X#1000 F100\n",
     ),  # fmt: skip
-    Entry("#n, n 5400 to 5602", "read", "read-only: 5400 the tool, 5420-5421 the current X Y", "G1 X[#5420+1] F100\n"),
+    Entry(
+        "#n, n 5400-5413, 5420-5428",
+        "read",
+        "read-only: 5400 the tool, 5420-5421 the current X Y (the others: 0)",
+        "G1 X[#5420+1] F100\n",
+    ),  # fmt: skip
     Entry(
         "#<name>", "read", "named local parameter (one set per call level; unset: an error)", "#<a>=1\nG1 X#<a> F100\n"
     ),  # fmt: skip

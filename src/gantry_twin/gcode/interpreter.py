@@ -1,8 +1,9 @@
 """The interpreter: parameters, O-word control flow and the call stack over the lines the lexer read.
 
-Parameters (LinuxCNC's overview): numbered ``#1``-``#5399`` (unset reads 0;
-5400 and up are read-only: 5400 the tool, 5420-5428 the current point in
-program coordinates), named local ``#<name>`` (one set per call level) and
+Parameters (LinuxCNC's overview): numbered ``#1``-``#5601`` (unset reads 0;
+5400-5413 and 5420-5428 are read-only: 5400 the tool, 5420-5428 the current
+point in program coordinates; #5599, 1 at the start, shows ``(debug, ...)``
+messages while it is above 0), named local ``#<name>`` (one set per call level) and
 global ``#<_name>`` (an unset named parameter is an error to read), and the
 read-only globals in :data:`NAMED_STATE`. The values on a line are all
 evaluated first and its parameter settings take effect after the line is
@@ -38,8 +39,12 @@ from gantry_twin.gcode.tools import Tool
 MAX_CALL_DEPTH = 9
 #: Blocks executed before the run is stopped as endless (settable: ``max_blocks``).
 MAX_BLOCKS = 1_000_000
-#: Writable numbered parameters; readable up to LinuxCNC's RS274NGC_MAX_PARAMETERS.
-WRITABLE, READABLE = 5399, 5602
+#: Numbered parameters: 1 to this (LinuxCNC's RS274NGC_MAX_PARAMETERS - 1); of them the read-only ones (the tool
+#: 5400-5413, the current point 5420-5428: LinuxCNC's _readonly_parameters).
+NUMBERED = 5601
+READ_ONLY = frozenset(range(5400, 5414)) | frozenset(range(5420, 5429))
+#: The parameter that shows (debug, ...) messages while it is above 0 (1 at the start).
+DEBUG_FLAG = 5599
 SUB_PARAMS = 30
 #: Read-only named parameters and what they give.
 NAMED_STATE = ("_x", "_y", "_metric", "_imperial", "_absolute", "_incremental", "_coord_system", "_feed",
@@ -102,7 +107,7 @@ class Interpreter:
     ) -> None:
         self.main, self.unit = unit, unit
         self.block_delete, self.max_blocks, self.path = block_delete, max_blocks, subroutine_path
-        self.params: dict[int, float] = {P_SYSTEM: 1.0}
+        self.params: dict[int, float] = {P_SYSTEM: 1.0, DEBUG_FLAG: 1.0}
         for system, (x, y) in (work_offsets_mm or {}).items():
             self.params[P_SYSTEM_X + 20 * (system - 1)], self.params[P_SYSTEM_X + 20 * (system - 1) + 1] = x, y
         self.globals: dict[str, float] = {}
@@ -127,11 +132,11 @@ class Interpreter:
 
     def numbered(self, index: float, column: int) -> float:
         value = self.params.get(index)  # a set parameter (1.0 finds 1)
-        if value is not None and index < 5400:
+        if value is not None:
             return value
         n = round(index)
-        if abs(index - n) > 1e-6 or not 1 <= n <= READABLE:
-            raise self.error(column, f"#{index:g}", f"no such parameter (numbered parameters are 1 to {READABLE})")
+        if abs(index - n) > 1e-6 or not 1 <= n <= NUMBERED:
+            raise self.error(column, f"#{index:g}", f"no such parameter (numbered parameters are 1 to {NUMBERED})")
         if 5420 <= n <= 5428:
             return self.machine.program_point()[n - 5420] if n <= 5421 else 0.0
         if n == 5400:
@@ -242,6 +247,8 @@ class Interpreter:
         settings = [(self.target(a.target, a.column), a.value if isinstance(a.value, float) else a.value(self))
                     for a in line.assignments]  # fmt: skip
         for kind, text in line.messages:
+            if kind == "debug" and self.params.get(DEBUG_FLAG, 1.0) <= 0.0:
+                continue
             shown = text if kind == "msg" else _SUBSTITUTE.sub(self.substitute, text)
             self.messages.append(f"{self.unit.name}:{line.number}: {kind}: {shown}")
         self.assign(settings)
@@ -263,8 +270,9 @@ class Interpreter:
             return target
         index = target if isinstance(target, float) else target(self)
         n = round(index)
-        if abs(index - n) > 1e-6 or not 1 <= n <= WRITABLE:
-            raise self.error(column, f"#{index:g}", f"cannot be set (writable parameters are 1 to {WRITABLE})")
+        if abs(index - n) > 1e-6 or not 1 <= n <= NUMBERED or n in READ_ONLY:
+            raise self.error(column, f"#{index:g}", f"cannot be set (writable parameters are 1 to {NUMBERED}, but "
+                             "5400-5413 and 5420-5428)")  # fmt: skip
         return n
 
     def substitute(self, match: re.Match) -> str:

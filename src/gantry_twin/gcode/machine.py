@@ -61,7 +61,7 @@ READ_G = set(MOTION) | CYCLES | NOOP_G | set(SYSTEMS) | COMPENSATION | SPLINES |
     "G4", "G10", "G20", "G21", "G28", "G28.1", "G30", "G30.1", "G53", "G61", "G61.1", "G64", "G90", "G91",
     "G92", "G92.1", "G92.2", "G92.3", "G5.3", "G90.1", "G91.1",
 }  # fmt: skip
-READ_M = {"M0", "M1", "M2", "M30", "M6", "M70", "M71", "M72", "M73"} | {f"M{n}" for n in DROPPABLE_M}
+READ_M = {"M0", "M1", "M2", "M30", "M6", "M61", "M70", "M71", "M72", "M73"} | {f"M{n}" for n in DROPPABLE_M}
 REFUSED_G = {
     "G18": "only the XY plane (G17) exists on a two-axis gantry",
     "G19": "only the XY plane (G17) exists on a two-axis gantry",
@@ -158,7 +158,7 @@ class Machine(Offsets, SplineMoves, FeedModes):
                 self.move(words, number)
             return False
         for code in [c for c in words if c[0] == "M"]:
-            if code in ("M2", "M30", "M0", "M1", "M6") or code in ("M70", "M71", "M72", "M73"):
+            if code in ("M2", "M30", "M0", "M1", "M6", "M61") or code in ("M70", "M71", "M72", "M73"):
                 continue
             kind = DROPPABLE_M.get(int(float(code[1:])))
             if kind is None:
@@ -199,6 +199,10 @@ class Machine(Offsets, SplineMoves, FeedModes):
             self.tool = int(words["T"])
         if "M6" in words:
             self.selected = self.tool
+        if "M61" in words:  # LinuxCNC's: the loaded tool is Q, nothing changed
+            if "Q" not in words or words["Q"] < 0 or words["Q"] != int(words["Q"]):
+                raise self.error("M61", "needs Q, the tool number now loaded (a whole number >= 0)")
+            self.selected = int(words["Q"])
         if "F" in words:
             if words["F"] < 0.0:
                 raise self.error("F", "the feed must be >= 0")
@@ -293,8 +297,8 @@ class Machine(Offsets, SplineMoves, FeedModes):
         if "L" in words and "G10" not in words and not (self.motion in CYCLES or any(c in words for c in CYCLES)):
             if not spline:
                 raise self.error("L", "L only follows G10, a drilling cycle (repeats) or G5.2 (the order)")
-        if "Q" in words and "G64" not in words and not spline and "G10" not in words:
-            raise self.error("Q", "Q only follows G64, G5 or G10 L1 (or a drilling cycle's peck)")
+        if "Q" in words and "G64" not in words and not spline and "G10" not in words and "M61" not in words:
+            raise self.error("Q", "Q only follows G64, G5, G10 L1 or M61 (or a drilling cycle's peck)")
         if "D" in words and not any(c in words for c in ("G41", "G42", "G41.1", "G42.1")):
             raise self.error("D", "D only follows G41 / G42 (a tool) or G41.1 / G42.1 (a diameter)")
         if ("@" in words or "^" in words) and ("X" in words or "Y" in words):

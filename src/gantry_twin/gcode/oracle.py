@@ -258,7 +258,9 @@ def twin_path(program: Program) -> tuple[Point, ...]:
             kind = "rapid" if move.rapid else move.kind
             centre, turns = None, 0
             if move.centre_m is not None:
-                turns = int(math.copysign(math.ceil(abs(sweep) / (2.0 * math.pi) - 1e-3), sweep))  # 1e-3: pieces
+                turns = int(
+                    math.copysign(max(1, math.ceil(abs(sweep) / (2.0 * math.pi) - 1e-3)), sweep)
+                )  # 1e-3: pieces
                 centre = (move.centre_m[0] * 1e3, move.centre_m[1] * 1e3) if whole else None
             points.append(Point(kind, move.end_m[0] * 1e3, move.end_m[1] * 1e3, line=move.line, centre=centre,
                                 turns=turns))  # fmt: skip
