@@ -14,6 +14,7 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from gantry_twin.gcode import parse_program, read_program
@@ -105,6 +106,41 @@ def test_the_walk_keeps_step_through_moves_at_rs274s_print_resolution():
     assert compare(rs[1:], printed_as_none).agreed
     assert not compare(rs[1:], (twin[0], dataclasses.replace(twin[1], x=0.0005), *twin[2:])).agreed  # 0.5 um
     assert not compare(rs, (*twin[:3], dataclasses.replace(twin[3], x=0.0033))).agreed  # 1.1 um off
+
+
+def test_the_walk_agrees_on_random_sub_micron_paths_as_rs274_prints_them():
+    """Paths of 100-400 random steps of 0.05-1 um and of 0-0.3 um, rs274's side printed as rs274 does (4 decimals
+    of mm; a point that prints where the last one did is no motion), and 65 moves of the reader's within 0.3 um
+    before a line that rs274 prints alone: the walk agrees with each (an earlier walk crashed on most of the
+    0-0.3 um paths and refused the last), and not once one point of the reader's moves 50 um (1.5 um may land
+    within 1 um of another point of so fine a path)."""
+    rng = np.random.default_rng(45)
+    paths = [np.cumsum(rng.uniform(low, high, (n, 1)) * _unit(rng.uniform(0, 2 * np.pi, n)), axis=0)
+             for low, high in ((0.05e-3, 1e-3), (0.0, 0.3e-3)) for n in rng.integers(100, 400, 30)]  # fmt: skip
+    paths.append(np.array([[1e-4 * (k % 3), 0.0] for k in range(65)] + [[0.05, 0.0]]))
+    for xy in paths:
+        twin = (Point("start", 0.0, 0.0), *(Point("line", float(x), float(y)) for x, y in xy))
+        printed = np.round(xy, 4)
+        keep = np.r_[True, np.any(printed[1:] != printed[:-1], axis=1)] & np.any(printed != 0.0, axis=1)
+        if len(xy) == 66:
+            keep = np.arange(66) == 65  # rs274 printed the 65 short moves as none
+        rs = tuple(Point("line", float(x), float(y)) for x, y in printed[keep])
+        result = compare(rs, twin)
+        assert result.agreed, result.disagreement
+        k = len(twin) // 2
+        moved = (*twin[:k], dataclasses.replace(twin[k], x=twin[k].x + 0.05), *twin[k + 1 :])
+        assert not compare(rs, moved).agreed
+
+
+def _unit(angle: np.ndarray) -> np.ndarray:
+    return np.column_stack([np.cos(angle), np.sin(angle)])
+
+
+@needs_rs274
+def test_rs274s_message_is_its_error_not_a_print_before_it(tmp_path):
+    program = tmp_path / "p.ngc"
+    program.write_text("(print, hello world)\nG2 X5\nM2\n")
+    assert rs274_path(*run_rs274(program)).message == "R i j k words all missing for arc (at: G2 X5)"
 
 
 def test_an_arc_of_a_small_sweep_counts_its_one_turn():

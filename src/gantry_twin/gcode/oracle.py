@@ -23,6 +23,7 @@ check it. Docs: docs/gcode.md ("LinuxCNC's interpreter as the oracle").
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import re
@@ -43,7 +44,7 @@ SAME_POINT_MM = {"mm": 0.2e-3, "in": 3e-3}
 #: A move of the reader's this short may have no point of rs274's: rs274 rounds both its ends to 0.1 um and
 #: may print it as no motion (a move of 0.34 um as one of 0.2 um), mm; 0.1 mil rounding in inches.
 READER_SAME_MM = {"mm": 0.35e-3, "in": 3e-3}
-#: The most alignments :func:`compare` keeps at once (a run of short moves on both sides branches it).
+#: The most alignments :func:`compare` goes on with at once (a run of short moves on both sides branches it).
 ALIGNMENTS_MAX = 64
 UNITS_MM = {"CANON_UNITS_MM": 1.0, "CANON_UNITS_INCHES": 25.4, "CANON_UNITS_CM": 10.0}
 _CALL = re.compile(r"^\s*(\d+)\s+N\S*\s+([A-Z_0-9]+)\((.*)\)\s*$")
@@ -174,11 +175,14 @@ def canonical_calls(output: str) -> tuple[list[Call], str]:
 
 
 def rs274_refusal(output: str) -> tuple[str, str]:
-    """rs274's message when it stopped (the first line of its output that is not a call) and the program line
-    it echoes after it, as written ("" each where there is none)."""
-    lines = [line.strip() for line in output.splitlines() if line.strip() and not _LISTED.match(line)]
-    lines = [line for line in lines if line != "executing"]
-    return (lines[0] if lines else "", lines[1] if len(lines) > 1 else "")
+    """rs274's message when it stopped and the program line it echoes after it, as written ("" each where there is
+    none): the lines of its standard error, which :func:`run_rs274` puts last and rs274 starts with
+    "executing" (a ``(print, ...)`` goes to its standard output, before)."""
+    lines = output.splitlines()
+    starts = [k for k, line in enumerate(lines) if line.strip() == "executing"]
+    errors = [line.strip() for line in lines[starts[-1] + 1 if starts else 0 :] if line.strip()]
+    errors = [line for line in errors if not _LISTED.match(line)]
+    return (errors[0] if errors else "", errors[1] if len(errors) > 1 else "")
 
 
 def _numbers(text: str) -> list[float]:
@@ -287,29 +291,31 @@ def compare(rs274: tuple[Point, ...], twin: tuple[Point, ...]) -> Comparison:
     Each point of one path is matched by the next of the other, except a point that leaves X Y where they
     are: rs274's within :data:`SAME_POINT_MM` of its last matched point (Z only, or a line to where it is),
     the reader's within :data:`READER_SAME_MM` of its own (rs274 prints rounded and may print such a move as
-    one or as none). Either may also have a partner: the walk keeps every alignment that can still agree
-    (at most :data:`ALIGNMENTS_MAX`: those that matched the most points) and gives the one that matched the
-    most, or the disagreement nearest to agreeing where none gets to both ends."""
+    one or as none). Either may also have a partner: the walk goes on with the best alignment (more matched
+    points, then a smaller worst distance) at each point of the reader's that one has reached, at most
+    :data:`ALIGNMENTS_MAX` of them (those that matched the most, then got furthest), and gives the best that
+    gets to both ends, or the disagreement nearest to agreeing. (An exhaustive search may find an agreeing
+    alignment this walk does not, in runs of moves under 0.35 um on both sides: rarely.)"""
     origin = (0.0, 0.0)  # rs274 starts at the origin, offsets 0
     j = 1 if twin and math.dist((twin[0].x, twin[0].y), origin) <= TOLERANCE_MM["mm"] else 0
-    walks = {j: _Walk(0.0, 0, origin, (twin[0].x, twin[0].y) if j else origin)}
+    walks = [_Walk(j, 0.0, 0, origin, (twin[0].x, twin[0].y) if j else origin)]
     unit = "mm"
     for point in rs274:
         unit = point.unit
-        walks = _reader_skips(walks, twin, READER_SAME_MM[unit])
-        after: dict[int, _Walk] = {}
+        after: dict[tuple, _Walk] = {}
         misses: list[tuple[float, _Walk, str]] = []
-        for j, walk in walks.items():
+        for walk in _reader_skips(walks, twin, READER_SAME_MM[unit]):
+            j = walk.j
             if point.x is None:  # a spline: its end is the reader's
                 if j < len(twin):
                     end = (twin[j].x, twin[j].y)
-                    _keep(after, j + 1, _Walk(walk.worst, walk.matched + 1, end, end))
+                    _keep(after, _Walk(j + 1, walk.worst, walk.matched + 1, end, end))
                 else:
                     misses.append((math.inf, walk, f"rs274 line {point.line}: a spline the reader does not make"))
                 continue
             here = (point.x, point.y)
             if point.kind != "arc" and math.dist(here, walk.last) <= SAME_POINT_MM[unit]:
-                _keep(after, j, walk)  # no XY motion (an arc back to its start is a circle)
+                _keep(after, walk)  # no XY motion (an arc back to its start is a circle)
             if j >= len(twin):
                 misses.append((math.inf, walk, f"rs274 line {point.line}: {point.kind} to ({point.x:.4f}, "
                                                f"{point.y:.4f}) mm; the reader has no more moves"))  # fmt: skip
@@ -319,56 +325,73 @@ def compare(rs274: tuple[Point, ...], twin: tuple[Point, ...]) -> Comparison:
             if what:
                 misses.append((distance, walk, what))
             else:
-                _keep(after, j + 1, _Walk(max(walk.worst, distance), walk.matched + 1, here, (other.x, other.y)))
+                _keep(after, _Walk(j + 1, max(walk.worst, distance), walk.matched + 1, here, (other.x, other.y)))
         if not after:
             distance, walk, what = min(misses, key=lambda miss: miss[0])
             worst = max(walk.worst, distance) if math.isfinite(distance) else walk.worst
             return Comparison(False, walk.matched, worst, what)
-        walks = after
+        walks = _best(after.values())
     walks = _reader_skips(walks, twin, READER_SAME_MM[unit])
-    if len(twin) in walks:
-        walk = walks[len(twin)]
+    ended = [walk for walk in walks if walk.j == len(twin)]
+    if ended:
+        walk = ended[0]  # the best (:func:`_best`'s order)
         return Comparison(True, walk.matched, walk.worst)
-    j, walk = max(walks.items())
-    other = twin[j]
+    walk = max(walks, key=lambda w: w.j)
+    other = twin[walk.j]
     return Comparison(False, walk.matched, walk.worst, f"the reader's {other.kind} of line {other.line} to "
                       f"({other.x:.4f}, {other.y:.4f}) mm: rs274 has no more moves")  # fmt: skip
 
 
 @dataclass(frozen=True)
 class _Walk:
-    """One alignment of :func:`compare` so far: its worst distance and matched points, and the last matched
-    point of each path (mm)."""
+    """One alignment of :func:`compare` so far: the reader's next point, its worst distance (mm) and matched
+    points, and the last matched point of each path (mm)."""
 
+    j: int
     worst: float
     matched: int
     last: tuple[float, float]
     reader_last: tuple[float, float]
 
+    @property
+    def key(self) -> tuple:
+        """Of two alignments at one point of the reader's, only the better goes on."""
+        return (self.j,)
 
-def _keep(walks: dict[int, _Walk], j: int, walk: _Walk) -> None:
-    """Keep ``walk`` at the reader's point ``j`` unless one there is better (more matched points, then a
-    smaller worst distance); at most :data:`ALIGNMENTS_MAX` alignments, the best."""
-    held = walks.get(j)
-    if held is not None and (-held.matched, held.worst) <= (-walk.matched, walk.worst):
-        return
-    walks[j] = walk
-    if len(walks) > ALIGNMENTS_MAX:
-        del walks[max(walks, key=lambda k: (-walks[k].matched, walks[k].worst, k))]
+    @property
+    def rank(self) -> tuple:
+        """Better first: more matched points, a smaller worst distance, further along the reader's path."""
+        return (-self.matched, self.worst, -self.j)
 
 
-def _reader_skips(walks: dict[int, _Walk], twin: tuple[Point, ...], same_mm: float) -> dict[int, _Walk]:
-    """``walks`` and every alignment that also leaves out the reader's next points that do not move X Y
-    (within ``same_mm`` of its last matched point; never an arc)."""
-    out = dict(walks)
-    for j in sorted(walks):
-        walk = out[j]
-        while (
-            j < len(twin) and twin[j].kind != "arc" and math.dist((twin[j].x, twin[j].y), walk.reader_last) <= same_mm
-        ):
-            j += 1
-            _keep(out, j, walk)
-    return out
+def _keep(walks: dict[tuple, _Walk], walk: _Walk) -> None:
+    """Keep ``walk`` unless one with its key is as good."""
+    held = walks.get(walk.key)
+    if held is None or walk.rank < held.rank:
+        walks[walk.key] = walk
+
+
+def _best(walks) -> list[_Walk]:
+    """The :data:`ALIGNMENTS_MAX` best of ``walks``, best first."""
+    return sorted(walks, key=lambda walk: walk.rank)[:ALIGNMENTS_MAX]
+
+
+def _reader_skips(walks: list[_Walk], twin: tuple[Point, ...], same_mm: float) -> list[_Walk]:
+    """``walks`` and the alignments that also leave out the reader's next points that do not move X Y (within
+    ``same_mm`` of its last matched point; never an arc): one pass along the reader's points, each keeping its
+    best alignment (:func:`_keep`); :func:`_best` of them."""
+    out: dict[tuple, _Walk] = {}
+    for walk in walks:
+        _keep(out, walk)
+    j, last = min(w.j for w in walks), max(w.j for w in walks)
+    while j <= last:
+        walk = out.get((j,))
+        if walk is not None and j < len(twin) and twin[j].kind != "arc" and math.dist(
+            (twin[j].x, twin[j].y), walk.reader_last) <= same_mm:  # fmt: skip
+            _keep(out, dataclasses.replace(walk, j=j + 1))
+            last = max(last, j + 1)
+        j += 1
+    return _best(out.values())
 
 
 def _mismatch(point: Point, other: Point) -> tuple[float, str]:
