@@ -85,6 +85,16 @@ def _cores_allowed() -> None:
         resource.setrlimit(resource.RLIMIT_CORE, (hard, hard))
 
 
+def _core_limits(pid: int) -> list[str]:
+    """The core size limits (soft hard) of the worker processes ``pid`` forked, from /proc."""
+    limits = []
+    for child in Path(f"/proc/{pid}/task/{pid}/children").read_text().split():
+        for line in Path(f"/proc/{child}/limits").read_text().splitlines():
+            if line.startswith("Max core file size"):
+                limits.append(" ".join(line.split()[4:6]))
+    return limits
+
+
 def _left_behind(where: Path) -> list[str]:
     """Processes still running this test's scenario (the command or a worker it forked), by their command line."""
     found = []
@@ -202,11 +212,17 @@ def test_an_endless_call_stops_within_2_s_of_sigint(misbehaving, tmp_path):
     """At its default 10 s limit, the endless call is interrupted: exit 130 within 2 s, nothing left behind."""
     child, tmp = _start(misbehaving["endless"], tmp_path)
 
+    core_limits: list[str] = []
+
     def ready() -> bool:  # the worker's trace reached t = 1 s
         parts = list((tmp_path / "out").glob(".trace.parquet.*.part")) if (tmp_path / "out").exists() else []
-        return bool(parts and list(tmp.glob("gantry-twin-worker-*/gantry-twin-fmu-*")))
+        if parts and list(tmp.glob("gantry-twin-worker-*/gantry-twin-fmu-*")):
+            core_limits.extend(_core_limits(child.pid))
+            return True
+        return False
 
     err, took_s = _interrupt(child, ready, 1.5)  # 1.5 s: well into the endless call (t = 1 s comes in about 0.3 s)
+    assert core_limits and all(limit == "0 0" for limit in core_limits), core_limits  # the worker dumps no core
     assert child.returncode == 130, err
     assert took_s < 2.0
     assert err.strip().splitlines() == ["gantry-twin: interrupted (SIGINT)"]

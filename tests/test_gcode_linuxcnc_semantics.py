@@ -226,6 +226,8 @@ def test_a_z_only_move_after_g40_is_the_exit_and_an_arc_may_follow():
     assert exit_move.start_m == pytest.approx((20e-3, 2e-3), abs=1e-12)
     assert exit_move.end_m == pytest.approx((20e-3, 0.0), abs=1e-12)
     assert [m.line for m in moves].count(8) == 0  # already there: no move
+    zero = parse_program(text.replace("R2", "R0") + "G1 Y20\nG40 X40 Y30\n", drop_unsupported=True).moves
+    assert [m.line for m in zero].count(7) == 0  # a radius of 0: G40 does nothing, the Z move stays Z only
 
 
 def test_m61_sets_the_loaded_tool_that_g41_compensates_by():
@@ -235,6 +237,8 @@ def test_m61_sets_the_loaded_tool_that_g41_compensates_by():
     assert moves[1].end_m[1] == pytest.approx(2e-3)  # tool 1's radius 2 mm left of the X line, not tool 2's 1 mm
     with pytest.raises(GcodeError, match=r"t.ngc:1:1: M61: needs Q, the tool number now loaded"):
         parse_program("M61\n", name="t.ngc")
+    cycle = parse_program("G10 L1 P1 R2\nG0 X0 Y0\nG81 X1 Y1 Z-1 R1 M61 Q1\n", drop_unsupported=True)  # rs274 runs it
+    assert cycle.moves[-1].end_m == pytest.approx((1e-3, 1e-3))
 
 
 def test_numbered_parameters_are_linuxcncs_and_5599_turns_debug_messages_off():

@@ -137,6 +137,26 @@ def _unit(angle: np.ndarray) -> np.ndarray:
 
 
 @needs_rs274
+@pytest.mark.parametrize("name", ["with space", "x$(false)", "a:b"])
+def test_rs274_finds_a_subroutine_file_beside_the_program_whatever_the_directory_is_named(name, tmp_path):
+    """LinuxCNC splits SUBROUTINE_PATH at ':' and expands each part with wordexp (a space splits it, $(...) runs):
+    the directories reach it linked under plain names, so each of these finds the file (and runs nothing)."""
+    here = tmp_path / name
+    here.mkdir()
+    (here / "side.ngc").write_text("o<side> sub\nG1 X[#1] Y0 F600\no<side> endsub\n")
+    (here / "main.ngc").write_text("G0 X0 Y0\no<side> call [20]\nM2\n")
+    other = tmp_path / "more subroutines"
+    other.mkdir()
+    (other / "side.ngc").write_text("o<side> sub\nG1 X[#1 + 1] Y0 F600\no<side> endsub\n")
+    for path, x in (((), 20.0), ((other,), 21.0)):  # subroutine_path first, then the program's directory
+        oracle = rs274_path(*run_rs274(here / "main.ngc", subroutine_path=path))
+        assert oracle.ok, oracle.message
+        assert oracle.points[-1].x == pytest.approx(x)
+        twin = read_program(here / "main.ngc", subroutine_path=path)
+        assert twin.moves[-1].end_m[0] == pytest.approx(x * 1e-3)
+
+
+@needs_rs274
 def test_rs274s_message_is_its_error_not_a_print_before_it(tmp_path):
     program = tmp_path / "p.ngc"
     program.write_text("(print, hello world)\nG2 X5\nM2\n")

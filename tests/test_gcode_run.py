@@ -39,6 +39,23 @@ def test_a_scenario_runs_a_program_relative_to_its_file(tmp_path):
     assert ref.q_d[0] == pytest.approx((0.0, -0.15)) and np.all(ref.dq_d[0] == 0.0)
 
 
+def test_the_runs_scenario_names_the_programs_files_by_their_absolute_paths(tmp_path):
+    """The run's scenario.yaml finds the program, its tool table and subroutine directories from anywhere (compare
+    reads and plans it again from the run's directory; a relative tool table was looked for there)."""
+    (tmp_path / "subs").mkdir()
+    (tmp_path / "subs" / "side.ngc").write_text("o<side> sub\nG1 X10 Y0 F600\no<side> endsub\n")
+    (tmp_path / "part.ngc").write_text("G0 X0 Y-5\nT1 M6\nG41 G1 X0 Y0 F600\no<side> call\nG40 G1 X20 Y-5\nM2\n")
+    (tmp_path / "tools.tbl").write_text("T1 P1 D2.0\n")
+    scenario_file = tmp_path / "part.yaml"
+    scenario_file.write_text("contour: {type: gcode, file: part.ngc, tool_table: tools.tbl, subroutine_path: [subs]}\n")
+    contour = build(load_scenario(scenario_file), str(scenario_file)).scenario.contour
+    assert contour.file == str(tmp_path / "part.ngc") and contour.tool_table == str(tmp_path / "tools.tbl")
+    assert contour.subroutine_path == [str(tmp_path / "subs")]
+    elsewhere = tmp_path / "run"
+    elsewhere.mkdir()
+    assert contour.plan(elsewhere).program.moves[1].end_m[1] == pytest.approx(1e-3)  # tool 1's radius, to the left
+
+
 def test_a_bad_program_is_a_scenario_error_naming_its_line(tmp_path):
     (tmp_path / "part.ngc").write_text("G1 X1 F100\nG6 X2\n")
     scenario_file = tmp_path / "part.yaml"

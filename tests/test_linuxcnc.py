@@ -21,6 +21,7 @@ import signal
 import subprocess
 import sys
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -226,22 +227,35 @@ def test_the_reference_passes_through_every_command_and_its_rates_are_its_deriva
 def test_a_runs_files_give_back_its_record_and_a_file_of_another_kind_is_refused_in_one_line(tmp_path):
     record = _corner_record()
     record = dataclasses.replace(record, line=np.arange(len(record.t_s)) % 3, messages=("M0 pause",))
-    for name, text in CncPath(record).run_files().items():
+    written = CncPath(record).run_files()
+    for name, text in written.items():
         (tmp_path / name).write_text(text)
     back = read_run_files(tmp_path, record.canon)
     assert np.max(np.abs(back.q_m - record.q_m)) <= 0.5e-9 and np.max(np.abs(back.t_s - record.t_s)) <= 0.5e-6
     assert np.array_equal(back.line, record.line) and back.messages == record.messages
     assert back.machine == record.machine and back.servo_period_s == record.servo_period_s
-    commands = tmp_path / "linuxcnc_commands.csv"
-    commands.write_text("t_s,x_m,y_m\n0,0,0\n0.001,0,0\n")  # the three columns a run wrote before the line
-    with pytest.raises(ValueError, match=r"linuxcnc_commands.csv: its first line is 't_s,x_m,y_m', not 't_s,x_m,"):
-        read_run_files(tmp_path, record.canon)
-    commands.write_text("t_s,x_m,y_m,line\n0,0,0,1\n0,0,0,1\n")
-    with pytest.raises(ValueError, match=r"in time order"):
-        read_run_files(tmp_path, record.canon)
-    (tmp_path / "linuxcnc.json").write_text("{}")
-    with pytest.raises(ValueError, match=r"linuxcnc.json: not a run's linuxcnc.json \(KeyError"):
-        read_run_files(tmp_path, record.canon)
+    info, commands = tmp_path / "linuxcnc.json", tmp_path / "linuxcnc_commands.csv"
+    rows = written["linuxcnc_commands.csv"].splitlines()
+    cases = [
+        (commands, "t_s,x_m,y_m\n0,0,0\n0.001,0,0\n", r"its first line is 't_s,x_m,y_m', not 't_s,x_m,y_m,line'"),
+        (commands, "\n".join([rows[0], rows[1], rows[1], *rows[3:]]), r"its times do not increase"),
+        (commands, "\n".join(rows[:-1]), r"not 1210 finite rows of 4 columns"),
+        (commands, rows[0] + "\n", r"not 1210 finite rows"),  # no numpy warning on the way: -W error says so
+        (info, "{}", r"linuxcnc.json: not a run's linuxcnc.json \(KeyError"),
+        (info, written["linuxcnc.json"].replace('"servo_period_s": 0.001', '"servo_period_s": 1e400'),
+         r"servo_period_s is inf, not a period from 0 to 1 s"),
+        (info, written["linuxcnc.json"].replace('"messages": [', '"messages": "abc", "x": ['),
+         r"messages is not a list of texts"),
+        (info, written["linuxcnc.json"].replace('"canonical_moves": 2', '"canonical_moves": 3'),
+         r"synthetic: rs274 reads 2 moves of it now, the run had 3 \(the program changed since the run\)"),
+    ]  # fmt: skip
+    for path, text, message in cases:
+        for name, original in written.items():
+            (tmp_path / name).write_text(original)
+        path.write_text(text)
+        with pytest.raises(ValueError, match=message), warnings.catch_warnings():
+            warnings.simplefilter("error")
+            read_run_files(tmp_path, record.canon)
 
 
 # ---------------------------------------------------------------------------------------------- rs274

@@ -97,7 +97,8 @@ def _validate_with_rs274(path: Path, contour) -> None:
     if why is not None:
         raise BadInput(f"--cnc linuxcnc: {why}")
     try:
-        canon = read_canon(path, Path(contour.tool_table) if contour.tool_table else None)
+        subroutines = tuple(Path(d) for d in contour.subroutine_path)
+        canon = read_canon(path, Path(contour.tool_table) if contour.tool_table else None, subroutines)
     except (GcodeError, LinuxCncError) as exc:
         raise BadInput(str(exc)) from None
     moves = canon.moves

@@ -25,6 +25,7 @@ axis: unjudged too. Docs: docs/linuxcnc.md.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -54,12 +55,13 @@ class CanonProgram:
         return [item for item in self.items if isinstance(item, Move)]
 
 
-def read_canon(program: Path, tool_table: Path | None = None) -> CanonProgram:
+def read_canon(program: Path, tool_table: Path | None = None, subroutine_path: Sequence[Path] = ()) -> CanonProgram:
     """Run ``rs274 -b -g`` on ``program`` (:func:`gantry_twin.gcode.oracle.run_rs274`: block delete on, as
-    the LinuxCNC session runs it, in a HOME of its own) and read its canonical moves; :class:`GcodeError`
+    the LinuxCNC session runs it, in a HOME of its own; subroutine files in ``subroutine_path``, then beside the
+    program) and read its canonical moves; :class:`GcodeError`
     with rs274's own message and the line (found by its text) when LinuxCNC's interpreter refuses the program,
     :class:`LinuxCncError` when rs274 crashes or hangs."""
-    code, output = run_rs274(program, tool_table, RS274_TIMEOUT_S)
+    code, output = run_rs274(program, tool_table, RS274_TIMEOUT_S, subroutine_path=subroutine_path)
     calls, message = canonical_calls(output)
     if code < 0 or code > 128 or (code and not message):
         how = f"signal {-code if code < 0 else code - 128}" if code != -1 else f"no end within {RS274_TIMEOUT_S:g} s"

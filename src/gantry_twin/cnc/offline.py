@@ -17,6 +17,7 @@ import json
 import math
 import os
 import shutil
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,6 +27,7 @@ from gantry_twin.cnc.canon import CanonProgram, read_canon
 from gantry_twin.cnc.config import HAL_NAME, INI_NAME, CncMachine, hal_text, ini_text
 from gantry_twin.cnc.session import LinuxCncError, Session, machine_lock
 from gantry_twin.gcode.geometry import Dwell
+from gantry_twin.gcode.oracle import link_subroutine_path, subroutine_dirs
 from gantry_twin.gcode.program import GcodeError
 
 #: The display program (this package's file, run by LinuxCNC under Debian's Python).
@@ -66,9 +68,14 @@ def timeout_for(canon: CanonProgram, machine: CncMachine) -> float:
 
 
 def run_program(
-    program: str | Path, machine: CncMachine, tool_table: Path | None = None, lock_timeout_s: float = 600.0
+    program: str | Path,
+    machine: CncMachine,
+    tool_table: Path | None = None,
+    lock_timeout_s: float = 600.0,
+    subroutine_path: Sequence[Path] = (),
 ) -> CncRecord:
-    """Run ``program`` in LinuxCNC on ``machine`` and record its commands.
+    """Run ``program`` in LinuxCNC on ``machine`` and record its commands; a subroutine file it calls is in
+    ``subroutine_path``, then beside it, for rs274 and for LinuxCNC (as for the twin's reader).
 
     :class:`~gantry_twin.gcode.GcodeError` for a program LinuxCNC refuses (its
     message, the file and line); :class:`LinuxCncError` when LinuxCNC cannot
@@ -76,7 +83,7 @@ def run_program(
     every way out, an interrupt included.
     """
     program = Path(program).resolve()
-    canon = read_canon(program, tool_table)
+    canon = read_canon(program, tool_table, subroutine_path)
     timeout_s = timeout_for(canon, machine)
     with machine_lock(lock_timeout_s):
         directory = Session.make_directory()
@@ -93,9 +100,8 @@ def run_program(
             settings = {"PROGRAM": str(program), "EVENTS": str(events), "RECORD": str(record),
                         "TIMEOUT_S": f"{timeout_s:.1f}", "TWIN_PID": str(os.getpid()),
                         "ROOT": str(directory.parent)}  # fmt: skip
-            # a subroutine file the program calls is found beside it, as the twin's reader and rs274 find it
-            here = str(Path(program).resolve().parent)
-            ini = ini_text(machine, str(display), (HAL_NAME,), {"GANTRY_TWIN": settings}, subroutine_path=here)
+            searched = link_subroutine_path(directory, subroutine_dirs(program, subroutine_path))
+            ini = ini_text(machine, str(display), (HAL_NAME,), {"GANTRY_TWIN": settings}, subroutine_path=searched)
             (directory / INI_NAME).write_text(ini)
             (directory / HAL_NAME).write_text(hal_text(record=True))
             session.start()

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import json
 import math
+import warnings
 from dataclasses import replace
 from pathlib import Path
 
@@ -207,22 +208,34 @@ def read_run_files(run_dir: Path, canon: CanonProgram) -> CncRecord:
     """The record a run wrote (:meth:`CncPath.run_files`: :data:`CNC_FILE`, :data:`CNC_COMMANDS_FILE` in
     ``run_dir``) with ``canon``, its program read by rs274 again: ``CncPath(read_run_files(...))`` is the path
     the run followed (its commands to 1 nm). ValueError in one line naming the file for a file that is not one
-    a run wrote; OSError when one cannot be read."""
+    a run wrote, or a program that no longer has the run's moves; OSError when one cannot be read."""
     info_path, commands_path = run_dir / CNC_FILE, run_dir / CNC_COMMANDS_FILE
     try:
         info = json.loads(info_path.read_text(encoding="utf-8"))
         m = info["machine"]
         period_s = float(info["servo_period_s"])
+        if not 0.0 < period_s < 1.0:
+            raise ValueError(f"servo_period_s is {period_s!r}, not a period from 0 to 1 s")
+        if not isinstance(info["messages"], list) or not all(isinstance(t, str) for t in info["messages"]):
+            raise ValueError("messages is not a list of texts")
         machine = CncMachine(
             travel_mm=(tuple(m["travel_mm"][0]), tuple(m["travel_mm"][1])), velocity_mm_s=tuple(m["velocity_mm_s"]),
             acceleration_mm_s2=tuple(m["acceleration_mm_s2"]), traj_velocity_mm_s=float(m["traj_velocity_mm_s"]),
             traj_acceleration_mm_s2=float(m["traj_acceleration_mm_s2"]), servo_period_ns=round(period_s * 1e9),
             following_error_mm=tuple(m["following_error_mm"]), source=str(m["source"]),
         )  # fmt: skip
-        program_time_s, messages = float(info["program_time_s"]), tuple(str(t) for t in info["messages"])
-    except (ValueError, KeyError, TypeError, IndexError) as exc:
+        program_time_s, moves, samples = (
+            float(info["program_time_s"]),
+            int(info["canonical_moves"]),
+            int(info["samples"]),
+        )
+    except (ValueError, KeyError, TypeError, IndexError, OverflowError) as exc:
         raise ValueError(f"{info_path}: not a run's {CNC_FILE} ({type(exc).__name__}: {exc})") from None
-    with open(commands_path, encoding="utf-8") as file:
+    if moves != max(len(canon.moves), 1):
+        raise ValueError(f"{canon.name}: rs274 reads {len(canon.moves)} moves of it now, the run had {moves} "
+                         "(the program changed since the run)")  # fmt: skip
+    with open(commands_path, encoding="utf-8") as file, warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # numpy's warning on an empty file: the check below says it
         header = file.readline().strip()
         if header != COMMANDS_HEADER:
             raise ValueError(f"{commands_path}: its first line is {header[:60]!r}, not {COMMANDS_HEADER!r}")
@@ -230,9 +243,13 @@ def read_run_files(run_dir: Path, canon: CanonProgram) -> CncRecord:
             rows = np.loadtxt(file, delimiter=",", ndmin=2)
         except ValueError as exc:
             raise ValueError(f"{commands_path}: {str(exc).splitlines()[0]}") from None
-    if rows.shape[0] < 2 or rows.shape[1] != 4 or not np.isfinite(rows).all() or np.any(np.diff(rows[:, 0]) <= 0):
-        raise ValueError(f"{commands_path}: not two finite rows or more of 4 columns, in time order")
-    return CncRecord(t_s=rows[:, 0], q_m=rows[:, 1:3], line=rows[:, 3].astype(np.int64), servo_period_s=period_s,
+    if rows.shape[0] != samples or samples < 2 or rows.shape[1] != 4 or not np.isfinite(rows).all():
+        raise ValueError(f"{commands_path}: not {samples} finite rows of 4 columns ({CNC_FILE}'s samples)")
+    line = rows[:, 3]
+    if np.any(np.diff(rows[:, 0]) <= 0) or np.any(line != np.round(line)) or np.any(line < 0):
+        raise ValueError(f"{commands_path}: its times do not increase or a line is not a whole number >= 0")
+    messages = tuple(info["messages"])
+    return CncRecord(t_s=rows[:, 0], q_m=rows[:, 1:3], line=line.astype(np.int64), servo_period_s=period_s,
                      program_time_s=program_time_s, messages=messages, canon=canon, machine=machine)  # fmt: skip
 
 

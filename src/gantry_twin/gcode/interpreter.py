@@ -42,7 +42,8 @@ MAX_BLOCKS = 1_000_000
 #: Numbered parameters: 1 to this (LinuxCNC's RS274NGC_MAX_PARAMETERS - 1); of them the read-only ones (the tool
 #: 5400-5413, the current point 5420-5428: LinuxCNC's _readonly_parameters).
 NUMBERED = 5601
-READ_ONLY = frozenset(range(5400, 5414)) | frozenset(range(5420, 5429))
+READ_ONLY_RANGES = ((5400, 5413), (5420, 5428))
+READ_ONLY = frozenset(n for first, last in READ_ONLY_RANGES for n in range(first, last + 1))
 #: The parameter that shows (debug, ...) messages while it is above 0 (1 at the start).
 DEBUG_FLAG = 5599
 SUB_PARAMS = 30
@@ -271,8 +272,10 @@ class Interpreter:
         index = target if isinstance(target, float) else target(self)
         n = round(index)
         if abs(index - n) > 1e-6 or not 1 <= n <= NUMBERED or n in READ_ONLY:
-            raise self.error(column, f"#{index:g}", f"cannot be set (writable parameters are 1 to {NUMBERED}, but "
-                             "5400-5413 and 5420-5428)")  # fmt: skip
+            but = " and ".join(f"{first}-{last}" for first, last in READ_ONLY_RANGES)
+            raise self.error(
+                column, f"#{index:g}", f"cannot be set (writable parameters are 1 to {NUMBERED}, but {but})"
+            )
         return n
 
     def substitute(self, match: re.Match) -> str:

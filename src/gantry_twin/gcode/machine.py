@@ -165,6 +165,10 @@ class Machine(Offsets, SplineMoves, FeedModes):
                 raise self.error(code, "unsupported M code")
             self.unsupported(code, kind)
             del words[code]
+        if "M61" in words:  # LinuxCNC's: the loaded tool is Q, nothing changed (read before a cycle takes Q)
+            if "Q" not in words or words["Q"] < 0 or words["Q"] != int(words["Q"]):
+                raise self.error("M61", "needs Q, the tool number now loaded (a whole number >= 0)")
+            self.selected = int(words["Q"])
         if "S" in words:
             if words["S"] < 0.0:
                 raise self.error("S", "the spindle speed must be >= 0")
@@ -199,10 +203,6 @@ class Machine(Offsets, SplineMoves, FeedModes):
             self.tool = int(words["T"])
         if "M6" in words:
             self.selected = self.tool
-        if "M61" in words:  # LinuxCNC's: the loaded tool is Q, nothing changed
-            if "Q" not in words or words["Q"] < 0 or words["Q"] != int(words["Q"]):
-                raise self.error("M61", "needs Q, the tool number now loaded (a whole number >= 0)")
-            self.selected = int(words["Q"])
         if "F" in words:
             if words["F"] < 0.0:
                 raise self.error("F", "the feed must be >= 0")
@@ -332,8 +332,9 @@ class Machine(Offsets, SplineMoves, FeedModes):
             if self.compensation[3] > 0:
                 raise self.error(code, "cutter compensation is already on (G40 first)")
             # G40, then G41 / G42 before a move: LinuxCNC ends the run where the tool is and goes on from there
+            offset = self.exit_pending()  # (a run of radius 0, or of no move, left the tool where it was)
             self.finish_compensation()
-            self.resume = next((item.end_m for item in reversed(self.items) if isinstance(item, Move)), None)
+            self.resume = next((i.end_m for i in reversed(self.items) if isinstance(i, Move)), None) if offset else None
         side = "left" if code.startswith("G41") else "right"
         if code.endswith(".1"):
             if "D" not in words or words["D"] < 0:
@@ -416,11 +417,15 @@ class Machine(Offsets, SplineMoves, FeedModes):
     def exit_pending(self) -> bool:
         """G40 followed a compensated run: the next straight move is its exit, from the tool's offset point to the
         programmed one, even where the program leaves X Y as they are (a Z-only move; LinuxCNC's
-        ``convert_cutter_compensation_off`` makes the programmed point the current one)."""
-        return (
-            self.compensation is not None and self.compensation[3] < 0
-            and any(isinstance(item, Move) for item in self.compensated)
-        )  # fmt: skip
+        ``convert_cutter_compensation_off`` makes the programmed point the current one when the radius is not 0)."""
+        if self.compensation is None or self.compensation[3] > 0:
+            return False
+        if not any(isinstance(item, Move) for item in self.compensated):
+            return False
+        _, radius_m, tool, _ = self.compensation
+        if radius_m is None:  # the tool's (one missing from the table is refused when the run is placed)
+            radius_m = self.tools[tool].radius_m if tool in self.tools else math.inf
+        return radius_m != 0.0  # a radius of 0 compensates nothing: LinuxCNC's G40 does nothing then
 
     def emit(self, item: Move | Dwell) -> None:
         """Append a move or a dwell: into the compensated run while G41 / G42 is on, else merged by G64 Q."""

@@ -48,6 +48,7 @@ READER_SAME_MM = {"mm": 0.35e-3, "in": 3e-3}
 ALIGNMENTS_MAX = 64
 UNITS_MM = {"CANON_UNITS_MM": 1.0, "CANON_UNITS_INCHES": 25.4, "CANON_UNITS_CM": 10.0}
 _CALL = re.compile(r"^\s*(\d+)\s+N\S*\s+([A-Z_0-9]+)\((.*)\)\s*$")
+_PLAIN_PATH = re.compile(r"[A-Za-z0-9_./+-]+")
 _LISTED = re.compile(r"^\s*\d+\s+N\S*\s+[A-Z_0-9]+\(")  # a call's line, even one cut short
 _NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
 #: Canonical calls that move and cannot be an XY gantry's (probing, spindle-synchronised and lathe motion).
@@ -101,15 +102,15 @@ def run_rs274(
     Every LinuxCNC program that reads a program (``rs274`` here, :mod:`gantry_twin.cnc`) runs through this.
     rs274 runs in a directory of its own that is also its HOME: it maps ``$HOME/.tool.mmap`` and writes its
     parameter file there, and a dozen rs274 sharing one map crashed some with SIGBUS. A subroutine called
-    by name (``o<NAME> call``) is ``NAME.ngc`` in ``subroutine_path``, then in the program's directory, as
-    the reader looks for it (an INI of two lines gives rs274 its ``[RS274NGC] SUBROUTINE_PATH``)."""
+    by name (``o<NAME> call``) is found as the reader finds it (:func:`subroutine_dirs`; an INI of two lines
+    gives rs274 its ``[RS274NGC] SUBROUTINE_PATH``, :func:`link_subroutine_path`)."""
     exe = rs274_available()
     if exe is None:
         raise FileNotFoundError("rs274 is not installed (Debian: apt install linuxcnc-uspace)")
     program = Path(program).resolve()
     table = ["-t", str(Path(tool_table).resolve())] if tool_table is not None else []
-    searched = ":".join(str(Path(d).resolve()) for d in (*subroutine_path, program.parent))
     with tempfile.TemporaryDirectory(prefix="gantry-twin-rs274-") as home:
+        searched = link_subroutine_path(Path(home), subroutine_dirs(program, subroutine_path))
         ini = Path(home) / "rs274.ini"
         ini.write_text(f"[RS274NGC]\nSUBROUTINE_PATH = {searched}\n")
         command = [exe, "-i", str(ini), *table, *(["-b"] if block_delete else []), "-g", str(program)]
@@ -120,6 +121,32 @@ def run_rs274(
         except subprocess.TimeoutExpired:
             return -1, f"rs274 did not finish within {timeout_s:g} s"
     return done.returncode, done.stdout + done.stderr
+
+
+def subroutine_dirs(program: str | Path, subroutine_path: Sequence[str | Path] = ()) -> list[Path]:
+    """Where a subroutine file ``NAME.ngc`` that ``program`` calls is looked for, in order: the directories of
+    ``subroutine_path``, then the program's own (the reader's order, :mod:`gantry_twin.gcode.interpreter`)."""
+    return [Path(d).resolve() for d in subroutine_path] + [Path(program).resolve().parent]
+
+
+def link_subroutine_path(directory: Path, dirs: Sequence[Path]) -> str:
+    """LinuxCNC's ``[RS274NGC] SUBROUTINE_PATH`` for ``dirs``: the ``*.ngc`` files of each linked into a directory
+    of its own in ``directory`` (``subroutines-0``, ...), and those listed. LinuxCNC resolves each listed
+    directory (a linked directory would be its target again), splits the value at ``:`` and expands each part
+    with ``wordexp`` when it looks for a file (a space splits it, ``$(...)`` runs), so no name of the user's
+    directories may reach it. "" (no file found) where ``directory``'s own path is not plain (letters, digits,
+    ``_ . / + -``)."""
+    base = directory.resolve()
+    if _PLAIN_PATH.fullmatch(str(base)) is None:
+        return ""
+    listed = []
+    for k, target in enumerate(dirs):
+        here = base / f"subroutines-{k}"
+        here.mkdir()
+        for file in sorted(Path(target).glob("*.ngc")):
+            (here / file.name).symlink_to(file.resolve())
+        listed.append(str(here))
+    return ":".join(listed)
 
 
 @dataclass(frozen=True)

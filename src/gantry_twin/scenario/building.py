@@ -22,7 +22,6 @@ from gantry_twin.cnc.reference import CncPath, read_run_files
 from gantry_twin.cnc.session import LinuxCncError
 from gantry_twin.cnc.session import missing as linuxcnc_missing
 from gantry_twin.controllers import Controller, EstimatorSettings, PluginError, create
-from gantry_twin.gcode.oracle import rs274_available
 from gantry_twin.gcode.program import TRAVEL_MARGIN_M
 from gantry_twin.gcode.reader import GcodeError
 from gantry_twin.health.confidence import EstimateConfidence
@@ -104,19 +103,24 @@ def _controller_files(scenario: Scenario, kwargs: dict[str, object], source: str
 
 def _follow_the_plan(scenario: Scenario, path: Contour, timestep_s: float, source: str = "") -> Scenario:
     """A part program's run lasts its plan (whole samples); its default windows are the whole program (contour
-    error) and its second half (estimates); its file is named by its absolute path (so that the run's
-    scenario.yaml finds it from anywhere: compare plans it again). Other contours keep the scenario as it is."""
+    error) and its second half (estimates); its files (program, INI, tool table, subroutine directories) are
+    named by their absolute paths (so that the run's scenario.yaml finds them from anywhere: compare plans it
+    again). Other contours keep the scenario as it is."""
     if not isinstance(scenario.contour, GcodeSpec):
         return scenario
     d = max(math.ceil(float(path.duration_s) / timestep_s), 2) * timestep_s
     update: dict[str, object] = {"duration_s": d}
     if Path(source).is_file():  # its files by their absolute paths
-        named = {"file": scenario.contour.file, "cnc_ini": scenario.contour.cnc_ini}
-        files = {
-            k: str((Path(source).parent / v).resolve()) for k, v in named.items() if v and not Path(v).is_absolute()
-        }
-        if files:
-            update["contour"] = scenario.contour.model_copy(update=files)
+        contour, here = scenario.contour, Path(source).parent
+
+        def absolute(name: str) -> str:
+            return name if Path(name).is_absolute() else str((here / name).resolve())
+
+        named = {"file": contour.file, "cnc_ini": contour.cnc_ini, "tool_table": contour.tool_table}
+        files: dict[str, object] = {k: absolute(v) for k, v in named.items() if v}
+        if contour.subroutine_path:
+            files["subroutine_path"] = [absolute(d) for d in contour.subroutine_path]
+        update["contour"] = contour.model_copy(update=files)
     if scenario.window_s is None:
         update["window_s"] = (0.0, d)
     if scenario.estimates_window_s is None:
@@ -149,19 +153,19 @@ def _linuxcnc_path(contour: GcodeSpec, base: Path | None, source: str) -> CncPat
     except CncConfigError as exc:
         raise ScenarioError(source, "contour.cnc_ini", str(exc)) from None
     table = contour.here(contour.tool_table, base) if contour.tool_table is not None else None
-    return CncPath(run_program(contour.here(contour.file, base), machine, table))
+    subroutines = tuple(contour.here(d, base) for d in contour.subroutine_path)
+    return CncPath(run_program(contour.here(contour.file, base), machine, table, subroutine_path=subroutines))
 
 
 def recorded_linuxcnc_path(contour: GcodeSpec, run_dir: Path, source: str) -> CncPath:
     """The path a run that LinuxCNC drove followed, from its run files
     (:func:`gantry_twin.cnc.reference.read_run_files`) and its program read by rs274 again: its part figure
-    measures against LinuxCNC's moves at LinuxCNC's times, as the run did. ScenarioError where rs274 is
-    missing or refuses the program now, ValueError / OSError for the run's files."""
-    if rs274_available() is None:
-        raise ScenarioError(source, "contour.cnc", "linuxcnc: LinuxCNC's rs274 is not installed (linuxcnc-uspace)")
+    measures against LinuxCNC's moves at LinuxCNC's times, as the run did. ScenarioError where rs274 refuses
+    the program now, OSError where rs274 is missing or a file cannot be read, ValueError for the run's files."""
     table = contour.here(contour.tool_table, run_dir) if contour.tool_table is not None else None
+    subroutines = tuple(contour.here(d, run_dir) for d in contour.subroutine_path)
     try:
-        canon = read_canon(contour.here(contour.file, run_dir), table)
+        canon = read_canon(contour.here(contour.file, run_dir), table, subroutines)
     except (GcodeError, LinuxCncError) as exc:
         raise ScenarioError(source, "contour.file", str(exc)) from None
     return CncPath(read_run_files(run_dir, canon))
