@@ -112,17 +112,10 @@ class Plan:
         """The loop's reference at times t_s (phi = t)."""
         return self.sample(t_s).reference()
 
-    def contour_error(
-        self,
-        q_m: np.ndarray,
-        phi_guess: np.ndarray,
-        window_s: float = 0.02,
-        coarse_s: float = 2e-3,
-        fine_s: float = 2e-4,
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """eps_c against the planned path (:func:`timed_contour_error`). Returns (eps_c m, time s of the closest
-        point)."""
-        return timed_contour_error(self.sample, self.duration_s, q_m, phi_guess, window_s, coarse_s, fine_s)
+    def contour_error(self, q_m: np.ndarray, phi_guess: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """eps_c against the planned path (:func:`timed_contour_error`, its search). Returns (eps_c m, time s of the
+        closest point)."""
+        return timed_contour_error(self.sample, self.duration_s, q_m, phi_guess)
 
     # ------------------------------------------------------------------ sampling
     def _profile(self, k: np.ndarray, tau: np.ndarray):

@@ -152,9 +152,14 @@ def _linuxcnc_path(contour: GcodeSpec, base: Path | None, source: str) -> CncPat
         machine = twin_machine() if contour.cnc_ini is None else machine_from_ini(contour.here(contour.cnc_ini, base))
     except CncConfigError as exc:
         raise ScenarioError(source, "contour.cnc_ini", str(exc)) from None
+    program, table, subroutines = _program_files(contour, base)
+    return CncPath(run_program(program, machine, table, subroutine_path=subroutines))
+
+
+def _program_files(contour: GcodeSpec, base: Path | None) -> tuple[Path, Path | None, tuple[Path, ...]]:
+    """The program, its tool table (None: none) and subroutine directories, relative to ``base``."""
     table = contour.here(contour.tool_table, base) if contour.tool_table is not None else None
-    subroutines = tuple(contour.here(d, base) for d in contour.subroutine_path)
-    return CncPath(run_program(contour.here(contour.file, base), machine, table, subroutine_path=subroutines))
+    return contour.here(contour.file, base), table, tuple(contour.here(d, base) for d in contour.subroutine_path)
 
 
 def recorded_linuxcnc_path(contour: GcodeSpec, run_dir: Path, source: str) -> CncPath:
@@ -162,10 +167,8 @@ def recorded_linuxcnc_path(contour: GcodeSpec, run_dir: Path, source: str) -> Cn
     (:func:`gantry_twin.cnc.reference.read_run_files`) and its program read by rs274 again: its part figure
     measures against LinuxCNC's moves at LinuxCNC's times, as the run did. ScenarioError where rs274 refuses
     the program now, OSError where rs274 is missing or a file cannot be read, ValueError for the run's files."""
-    table = contour.here(contour.tool_table, run_dir) if contour.tool_table is not None else None
-    subroutines = tuple(contour.here(d, run_dir) for d in contour.subroutine_path)
     try:
-        canon = read_canon(contour.here(contour.file, run_dir), table, subroutines)
+        canon = read_canon(*_program_files(contour, run_dir))
     except (GcodeError, LinuxCncError) as exc:
         raise ScenarioError(source, "contour.file", str(exc)) from None
     return CncPath(read_run_files(run_dir, canon))
